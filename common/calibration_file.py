@@ -1,0 +1,118 @@
+"""The calibration file: a self-contained JSON record of one GA calibration.
+
+It holds every constant and calibrated value that detection needs (camera, image
+pipeline, pose rule), the DIPE (eq. 14) at the top level and per control point, and how
+it was obtained (GA settings, ranges, convergence history). Files are written
+atomically (temporary file in the same folder, fsync, rename), so a crash mid-save never
+leaves a half-written calibration behind.
+"""
+
+from __future__ import annotations
+
+import math
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Literal
+
+import msgspec
+
+from ovis.common.atomic import write_atomic
+from ovis.common.config import CalibrationRanges, CameraParams, GAConfig, ImageParams, PoseConfig
+
+__all__ = [
+    "Calibration",
+    "CalibrationFileError",
+    "GenerationRecord",
+    "PointResidual",
+    "load_calibration",
+    "now_iso",
+    "save_calibration",
+]
+
+
+class CalibrationFileError(ValueError):
+    """A calibration file that cannot be used; the message names the problem."""
+
+
+class PointResidual(msgspec.Struct, kw_only=True):
+    """One control point: where it was detected and projected, and its DIPE."""
+
+    name: str
+    x_cm: float
+    y_cm: float
+    z_cm: float
+    detected_row: float
+    detected_col: float
+    predicted_row: float
+    predicted_col: float
+    dipe_px: float
+    dipe_mm: float
+
+
+class GenerationRecord(msgspec.Struct, array_like=True):
+    """One GA generation: best and mean feasible fitness (px), best so far, feasible share."""
+
+    generation: int
+    best_px: float
+    mean_px: float | None
+    best_so_far_px: float
+    feasible_fraction: float
+
+
+class Calibration(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """A calibration: everything `ovis detect` needs, and how good it is."""
+
+    format: Literal["ovis-calibration"] = "ovis-calibration"
+    version: int = 1
+    created: str = ""
+    dipe_px: float
+    dipe_mm: float
+    dipe_max_px: float
+    dipe_max_mm: float
+    camera: CameraParams
+    image: ImageParams
+    pose: PoseConfig
+    points: list[PointResidual] = []
+    ga: GAConfig | None = None
+    ranges: CalibrationRanges | None = None
+    history: list[GenerationRecord] = []
+    evaluations: int = 0
+    elapsed_s: float = 0.0
+    source_image: str = ""
+
+    def __post_init__(self) -> None:
+        for name in ("dipe_px", "dipe_mm", "dipe_max_px", "dipe_max_mm"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value < 0:
+                raise ValueError(f"{name} must be a finite non-negative number, got {value}")
+        if self.version < 1:
+            raise ValueError(f"version must be >= 1, got {self.version}")
+
+
+def now_iso() -> str:
+    """Current UTC time, ISO 8601 with seconds."""
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def save_calibration(path: Path | str, calibration: Calibration) -> None:
+    """Save a calibration as indented JSON, atomically."""
+    write_atomic(path, msgspec.json.format(msgspec.json.encode(calibration), indent=2) + b"\n")
+
+
+def load_calibration(path: Path | str) -> Calibration:
+    """Load and validate a calibration file; errors name the file and the bad field."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise CalibrationFileError(
+            f"calibration file {path} does not exist; run `ovis calibrate` to make one"
+        ) from None
+    except OSError as exc:
+        raise CalibrationFileError(f"cannot read calibration file {path}: {exc}") from None
+    try:
+        return msgspec.json.decode(raw, type=Calibration)
+    except msgspec.ValidationError as exc:
+        raise CalibrationFileError(f"calibration file {path} is invalid: {exc}") from None
+    except msgspec.DecodeError as exc:
+        raise CalibrationFileError(f"calibration file {path} is not valid JSON: {exc}") from None

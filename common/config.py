@@ -1,0 +1,336 @@
+"""Configuration: msgspec Structs validated on load, TOML presets, control-point files.
+
+A configuration file is TOML. It may name a ``preset`` (``default`` or ``paper``) and
+override any subset of its fields; the merged result is validated in one pass, and a
+bad value is reported with its path and the allowed range, e.g.
+``Expected `float` <= 1.0 - at `$.camera.s_x```.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import msgspec
+
+__all__ = [
+    "CALIBRATED_VARIABLES",
+    "PRESETS",
+    "CalibrationRanges",
+    "CameraParams",
+    "ConfigError",
+    "ControlPoint",
+    "GAConfig",
+    "ImageParams",
+    "OvisConfig",
+    "PointsFile",
+    "PoseConfig",
+    "SimulatorConfig",
+    "load_config",
+    "load_points",
+    "preset_text",
+]
+
+PRESETS = ("default", "paper")
+
+#: The nine variables the GA tunes (paper §4), in the paper's order.
+CALIBRATED_VARIABLES = (
+    "threshold",
+    "size_filter_cm2",
+    "Z0_cm",
+    "lam_mm",
+    "k1",
+    "k2",
+    "k3",
+    "s_x",
+    "s_y",
+)
+
+
+class ConfigError(ValueError):
+    """A configuration or points file that cannot be used; the message says why."""
+
+
+def _rng(lo: float, hi: float) -> Any:
+    return Annotated[float, msgspec.Meta(ge=lo, le=hi)]
+
+
+Length = _rng(-1e5, 1e5)
+Positive = Annotated[float, msgspec.Meta(gt=0.0, le=1e6)]
+Coefficient = _rng(-1.0, 1.0)
+Fraction = _rng(0.0, 1.0)
+PairF = tuple[float, float]
+
+
+def _check_pair(owner: str, name: str, pair: PairF, lo: float, hi: float) -> None:
+    a, b = pair
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise ValueError(f"{owner}.{name} must be finite, got [{a}, {b}]")
+    if a > b:
+        raise ValueError(f"{owner}.{name}: lower bound {a} is above upper bound {b}")
+    if a < lo or b > hi:
+        raise ValueError(f"{owner}.{name} = [{a}, {b}] must lie within [{lo}, {hi}]")
+
+
+class CameraParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Constants and parameters of the paper's camera model (eqs. 4–10).
+
+    Lengths of the set-up are in cm, of the image plane in mm; ``c_x``/``c_y`` are the row
+    and column of the image centre (the paper's x_f is the row). ``Z0_cm, lam_mm, k1, k2,
+    k3, s_x, s_y`` are the calibrated ones; the rest are fixed constants of the set-up.
+    Functions of :mod:`ovis.common.camera` also accept instances whose calibrated fields
+    hold numpy arrays (a GA population).
+    """
+
+    model: Literal["paper"] = "paper"
+    rows: Annotated[int, msgspec.Meta(ge=8, le=20000)]
+    cols: Annotated[int, msgspec.Meta(ge=8, le=20000)]
+    d_x_mm: Positive
+    d_y_mm: Positive
+    N_fx: Positive
+    N_fy: Positive
+    c_x: Length
+    c_y: Length
+    X0_cm: Length
+    Y0_cm: Length
+    L_cm: Length
+    r1_cm: Length
+    r2_cm: Length
+    r3_cm: Length
+    theta_deg: Annotated[float, msgspec.Meta(gt=0.0, le=90.0)]
+    Z0_cm: Length
+    lam_mm: Positive
+    k1: Coefficient = 0.0
+    k2: Coefficient = 0.0
+    k3: Coefficient = 0.0
+    s_x: Positive
+    s_y: Positive
+
+
+class ImageParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Image pipeline settings (paper §3). ``threshold``/``size_filter_cm2`` are calibrated."""
+
+    median: Literal["paper", "ordinary", "none"] = "paper"
+    polarity: Literal["bright", "dark"] = "bright"
+    threshold: Annotated[int, msgspec.Meta(ge=0, le=255)] = 128
+    size_filter_cm2: _rng(0.0, 1e6) = 20.0
+    perimeter: Literal["kb", "crofton"] = "kb"
+
+
+class CalibrationRanges(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Search range [lo, hi] of each GA variable (paper §5.1)."""
+
+    threshold: PairF = (100.0, 230.0)
+    size_filter_cm2: PairF = (20.0, 50.0)
+    Z0_cm: PairF = (125.0, 150.0)
+    lam_mm: PairF = (3.5, 8.0)
+    k1: PairF = (-1e-6, 1e-6)
+    k2: PairF = (-1e-6, 1e-6)
+    k3: PairF = (-1e-6, 1e-6)
+    s_x: PairF = (0.1, 1.0)
+    s_y: PairF = (0.1, 1.0)
+
+    def __post_init__(self) -> None:
+        limits = {
+            "threshold": (0.0, 255.0),
+            "size_filter_cm2": (0.0, 1e6),
+            "Z0_cm": (-1e5, 1e5),
+            "lam_mm": (1e-6, 1e6),
+            "k1": (-1.0, 1.0),
+            "k2": (-1.0, 1.0),
+            "k3": (-1.0, 1.0),
+            "s_x": (1e-6, 1e6),
+            "s_y": (1e-6, 1e6),
+        }
+        for name, (lo, hi) in limits.items():
+            _check_pair("calibration", name, getattr(self, name), lo, hi)
+
+    def bounds(self) -> tuple[tuple[float, float], ...]:
+        """The ranges in :data:`CALIBRATED_VARIABLES` order."""
+        return tuple(tuple(getattr(self, n)) for n in CALIBRATED_VARIABLES)  # type: ignore[misc]
+
+
+class GAConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Binary-coded GA settings (paper §4–5.1); the paper's best: 100, 90, 0.9, 0.005."""
+
+    population: Annotated[int, msgspec.Meta(ge=2, le=100000)] = 100
+    generations: Annotated[int, msgspec.Meta(ge=1, le=100000)] = 90
+    pc: Fraction = 0.9
+    pm: Fraction = 0.005
+    bits: Annotated[int, msgspec.Meta(ge=2, le=30)] = 10
+    tournament: Annotated[int, msgspec.Meta(ge=2, le=64)] = 3
+    elitism: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 1
+    seed: Annotated[int, msgspec.Meta(ge=0)] = 0
+    coding: Literal["binary", "gray"] = "gray"
+
+
+class PoseConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Robot/obstacle rule, object heights, tracking and goal (paper §5.2).
+
+    The robot is the blob with the lowest compactness among those whose compactness is
+    at most ``robot_max_compactness`` and whose floor area lies in ``robot_area_cm2``.
+    Back-projection uses the plane of each class's top face (``*_height_cm``).
+    """
+
+    robot_max_compactness: _rng(0.0, 2.0) = 0.92
+    robot_area_cm2: PairF = (60.0, 600.0)
+    robot_height_cm: _rng(0.0, 1e4) = 5.0
+    obstacle_height_cm: _rng(0.0, 1e4) = 7.0
+    track_gate_cm: Annotated[float, msgspec.Meta(gt=0.0, le=1e4)] = 20.0
+    goal_cm: PairF | None = None
+    goal_angle_deg: _rng(-360.0, 360.0) | None = None
+
+    def __post_init__(self) -> None:
+        _check_pair("pose", "robot_area_cm2", self.robot_area_cm2, 0.0, 1e7)
+        if self.goal_cm is not None and not all(math.isfinite(v) for v in self.goal_cm):
+            raise ValueError("pose.goal_cm must be finite")
+
+
+class SimulatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """The built-in simulated arena: what is on the floor and how the frame looks."""
+
+    arena_x_cm: PairF = (15.0, 115.0)
+    arena_y_cm: PairF = (15.0, 130.0)
+    n_obstacles: Annotated[int, msgspec.Meta(ge=0, le=500)] = 3
+    obstacle_radius_cm: PairF = (4.0, 6.0)
+    robot_size_cm: PairF = (16.0, 10.0)
+    speed_cm_per_frame: _rng(0.0, 1e3) = 2.0
+    floor_level: _rng(0.0, 255.0) = 70.0
+    object_level: _rng(0.0, 255.0) = 215.0
+    lighting_gradient: Fraction = 0.25
+    vignetting: Fraction = 0.2
+    noise_sigma: _rng(0.0, 100.0) = 4.0
+    pepper_fraction: Fraction = 0.01
+    blur_sigma_px: _rng(0.0, 10.0) = 0.6
+    clutter_count: Annotated[int, msgspec.Meta(ge=0, le=10000)] = 6
+    clutter_area_cm2: PairF = (1.0, 12.0)
+    clutter_level: _rng(0.0, 255.0) = 235.0
+    supersample: Annotated[int, msgspec.Meta(ge=1, le=8)] = 3
+
+    def __post_init__(self) -> None:
+        _check_pair("simulator", "arena_x_cm", self.arena_x_cm, -1e5, 1e5)
+        _check_pair("simulator", "arena_y_cm", self.arena_y_cm, -1e5, 1e5)
+        _check_pair("simulator", "obstacle_radius_cm", self.obstacle_radius_cm, 0.1, 1e4)
+        _check_pair("simulator", "clutter_area_cm2", self.clutter_area_cm2, 0.0, 1e6)
+        if min(self.robot_size_cm) <= 0:
+            raise ValueError("simulator.robot_size_cm must be positive (length, width)")
+
+
+class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Everything ovis needs: camera, image pipeline, GA ranges and settings, pose, simulator."""
+
+    preset: Literal["default", "paper"] = "default"
+    camera: CameraParams
+    image: ImageParams = msgspec.field(default_factory=ImageParams)
+    calibration: CalibrationRanges = msgspec.field(default_factory=CalibrationRanges)
+    ga: GAConfig = msgspec.field(default_factory=GAConfig)
+    pose: PoseConfig = msgspec.field(default_factory=PoseConfig)
+    simulator: SimulatorConfig = msgspec.field(default_factory=SimulatorConfig)
+
+
+class ControlPoint(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """A named calibration point (the centre of an object's top face), world cm."""
+
+    name: str
+    x_cm: Length
+    y_cm: Length
+    z_cm: Length
+
+
+class PointsFile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """A control-points file: the points and, optionally, the configuration they go with."""
+
+    points: list[ControlPoint]
+    config: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        if not self.points:
+            raise ValueError("a points file needs at least one [[points]] entry")
+        names = [p.name for p in self.points]
+        if len(set(names)) != len(names):
+            raise ValueError(f"control point names must be unique, got {names}")
+
+
+def preset_text(name: str) -> str:
+    """The commented TOML text of a built-in preset."""
+    if name not in PRESETS:
+        raise ConfigError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
+    return resources.files("ovis.common.presets").joinpath(f"{name}.toml").read_text("utf-8")
+
+
+def _deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _deep_merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def config_from_dict(data: dict[str, Any], source: str = "configuration") -> OvisConfig:
+    """Validate a configuration mapping, laid over the preset it names (default ``default``)."""
+    preset = data.get("preset", "default")
+    if preset not in PRESETS:
+        raise ConfigError(
+            f"{source}: unknown preset {preset!r} - at `$.preset`; choose one of "
+            f"{', '.join(PRESETS)}"
+        )
+    merged = _deep_merge(tomllib.loads(preset_text(preset)), data)
+    try:
+        return msgspec.convert(merged, OvisConfig)
+    except msgspec.ValidationError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+
+
+def _read_toml(path: Path, what: str) -> dict[str, Any]:
+    try:
+        text = Path(path).read_text("utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{what} {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read {what} {path}: {exc}") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{what} {path} is not valid TOML: {exc}") from None
+
+
+def load_config(path: Path | str | None = None, *, preset: str = "default") -> OvisConfig:
+    """Load and validate a TOML configuration file, or a bare preset when ``path`` is None."""
+    if path is None:
+        return config_from_dict({"preset": preset}, f"preset {preset}")
+    return config_from_dict(_read_toml(Path(path), "configuration file"), str(path))
+
+
+def load_points(path: Path | str) -> PointsFile:
+    """Load a control-points TOML file (``[[points]]`` with name, x_cm, y_cm, z_cm)."""
+    data = _read_toml(Path(path), "points file")
+    try:
+        points = msgspec.convert(data, PointsFile)
+    except msgspec.ValidationError as exc:
+        raise ConfigError(
+            f"points file {path}: {exc}. Expected [[points]] tables with name, x_cm, y_cm, z_cm"
+        ) from None
+    if points.config is not None:
+        config_from_dict(points.config, f"points file {path}, [config]")
+    return points
+
+
+def dump_toml(obj: msgspec.Struct | dict[str, Any]) -> str:
+    """TOML text of a Struct or mapping (None fields are left out: TOML has no null)."""
+    import tomli_w
+
+    data = msgspec.to_builtins(obj) if isinstance(obj, msgspec.Struct) else obj
+
+    def drop_none(v: Any) -> Any:
+        if isinstance(v, dict):
+            return {k: drop_none(x) for k, x in v.items() if x is not None}
+        if isinstance(v, list):
+            return [drop_none(x) for x in v]
+        return v
+
+    return tomli_w.dumps(drop_none(data))

@@ -1,0 +1,213 @@
+"""One frame → robot and obstacles on the floor, and the motion planner's inputs.
+
+The paper's pipeline (§3) with a calibration: median step, binarization, 8-connected
+labeling, size filter A^f (cm² on the floor, through the camera), Koplowitz–Bruckstein
+perimeter and compactness (eq. 13); then each blob's centroid is back-projected onto the
+plane of its class's top face (robot or obstacle height) to get its world position, its
+radius is that of the disk of equal floor area, and the orientation of non-circular
+shapes comes from second moments, turned into a world heading.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, NamedTuple
+
+import msgspec
+import numpy as np
+from numpy.typing import NDArray
+
+from ovis.common.camera import back_project, pixel_footprint_cm2
+from ovis.common.config import CameraParams, ImageParams, PoseConfig
+from ovis.common.labeling import Components, filter_components, label_components
+from ovis.common.perimeter import perimeter
+from ovis.common.planner import planner_inputs
+from ovis.common.pose import ROBOT_ID, Tracker, pick_robot
+from ovis.common.preprocess import as_gray, binarize, smooth
+from ovis.common.shape import compactness, orientation
+
+__all__ = [
+    "Blobs",
+    "DetectedObject",
+    "Detection",
+    "Detector",
+    "PlannerEntry",
+    "find_blobs",
+]
+
+#: Blobs less elongated than this (major/minor axis) get no heading.
+ROUND_ELONGATION = 1.15
+
+
+class DetectedObject(msgspec.Struct, kw_only=True):
+    """One object seen in a frame: image measurements and world pose."""
+
+    id: int
+    kind: Literal["robot", "obstacle"]
+    row: float
+    col: float
+    area_px: float
+    perimeter_px: float
+    compactness: float
+    x_cm: float
+    y_cm: float
+    z_cm: float
+    radius_cm: float
+    area_cm2: float
+    heading_deg: float | None = None
+    elongation: float = 1.0
+    vx_cm: float = 0.0
+    vy_cm: float = 0.0
+
+
+class PlannerEntry(msgspec.Struct, kw_only=True):
+    """Motion-planner inputs for one obstacle (model-notes §6)."""
+
+    obstacle_id: int
+    distance_cm: float
+    angle_deg: float
+
+
+class Detection(msgspec.Struct, kw_only=True):
+    """Everything found in one frame."""
+
+    objects: list[DetectedObject]
+    planner: list[PlannerEntry]
+
+
+class Blobs(NamedTuple):
+    """Size-filtered blobs of a frame with their shape measurements."""
+
+    components: Components
+    perimeter_px: NDArray[np.float64]
+    compactness: NDArray[np.float64]
+    angle_rad: NDArray[np.float64]
+    elongation: NDArray[np.float64]
+
+
+def find_blobs(
+    image: NDArray[np.uint8], params: ImageParams, camera: CameraParams, plane_cm: float
+) -> Blobs:
+    """Paper §3 on one frame: smooth, binarize, label, size-filter (cm² on ``plane_cm``)."""
+    gray = as_gray(image)
+    if gray.shape != (camera.rows, camera.cols):
+        raise ValueError(
+            f"frame is {gray.shape[1]}x{gray.shape[0]} (cols x rows) but the calibration "
+            f"is for {camera.cols}x{camera.rows}"
+        )
+    binary = binarize(smooth(gray, params.median), params.threshold, params.polarity)
+    comp = label_components(binary)
+    footprint = pixel_footprint_cm2(comp.row, comp.col, camera, plane_cm)
+    keep = (footprint > 0) & (comp.area_px * footprint >= params.size_filter_cm2)
+    comp = filter_components(comp, keep)
+    perim = perimeter(comp, params.perimeter)
+    angle, elong = orientation(comp.mu_rr, comp.mu_cc, comp.mu_rc)
+    return Blobs(comp, perim, compactness(comp.area_px, perim), angle, elong)
+
+
+def _world_heading_deg(
+    row: NDArray[np.float64],
+    col: NDArray[np.float64],
+    angle_rad: NDArray[np.float64],
+    camera: CameraParams,
+    z_cm: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Direction on the floor of the image major axis, deg CCW from +X, in (−90, 90]."""
+    dr, dc = 2.0 * np.cos(angle_rad), 2.0 * np.sin(angle_rad)
+    a = back_project(row - dr, col - dc, camera, z_cm)
+    b = back_project(row + dr, col + dc, camera, z_cm)
+    deg = np.degrees(np.arctan2(b.y_cm - a.y_cm, b.x_cm - a.x_cm))
+    deg = (deg + 90.0) % 180.0 - 90.0
+    return np.where(deg == -90.0, 90.0, deg)
+
+
+class Detector:
+    """Frame → :class:`Detection` with a calibration, keeping obstacle ids across frames."""
+
+    def __init__(self, camera: CameraParams, image: ImageParams, pose: PoseConfig) -> None:
+        self.camera = camera
+        self.image = image
+        self.pose = pose
+        self.tracker = Tracker(pose.track_gate_cm)
+
+    def detect(
+        self,
+        frame: NDArray[np.uint8],
+        *,
+        goal_xy: tuple[float, float] | None = None,
+        goal_angle_deg: float | None = None,
+    ) -> Detection:
+        """Find the robot and obstacles; planner inputs when a goal is known.
+
+        The goal defaults to the calibration's ``pose.goal_cm``/``goal_angle_deg``.
+        """
+        cam, pose = self.camera, self.pose
+        blobs = find_blobs(frame, self.image, cam, pose.obstacle_height_cm)
+        comp = blobs.components
+        n = comp.area_px.size
+        robot_fp = pixel_footprint_cm2(comp.row, comp.col, cam, pose.robot_height_cm)
+        robot = pick_robot(blobs.compactness, comp.area_px * robot_fp, pose)
+        is_robot = np.arange(n) == robot
+        z = np.where(is_robot, pose.robot_height_cm, pose.obstacle_height_cm)
+        world = back_project(comp.row, comp.col, cam, z)
+        area_cm2 = comp.area_px * pixel_footprint_cm2(comp.row, comp.col, cam, z)
+        radius = np.sqrt(area_cm2 / np.pi)
+        heading = _world_heading_deg(comp.row, comp.col, blobs.angle_rad, cam, z)
+        ok = world.valid
+        obstacle = ok & ~is_robot
+        ids = np.full(n, -1, dtype=np.int64)
+        vel = np.zeros((n, 2))
+        ids[is_robot] = ROBOT_ID
+        obs_xy = np.column_stack([world.x_cm, world.y_cm])[obstacle]
+        ids[obstacle], vel[obstacle] = self.tracker.update(obs_xy)
+        objects = [
+            DetectedObject(
+                id=int(ids[i]),
+                kind="robot" if is_robot[i] else "obstacle",
+                row=float(comp.row[i]),
+                col=float(comp.col[i]),
+                area_px=float(comp.area_px[i]),
+                perimeter_px=float(blobs.perimeter_px[i]),
+                compactness=float(blobs.compactness[i]),
+                x_cm=float(world.x_cm[i]),
+                y_cm=float(world.y_cm[i]),
+                z_cm=float(z[i]),
+                radius_cm=float(radius[i]),
+                area_cm2=float(area_cm2[i]),
+                heading_deg=(
+                    float(heading[i]) if blobs.elongation[i] >= ROUND_ELONGATION else None
+                ),
+                elongation=float(blobs.elongation[i]),
+                vx_cm=float(vel[i, 0]),
+                vy_cm=float(vel[i, 1]),
+            )
+            for i in np.flatnonzero(ok)
+        ]
+        objects.sort(key=lambda o: o.id)
+        return Detection(objects=objects, planner=self._plan(objects, goal_xy, goal_angle_deg))
+
+    def _plan(
+        self,
+        objects: list[DetectedObject],
+        goal_xy: tuple[float, float] | None,
+        goal_angle_deg: float | None,
+    ) -> list[PlannerEntry]:
+        if goal_xy is None and goal_angle_deg is None:
+            goal_xy, goal_angle_deg = self.pose.goal_cm, self.pose.goal_angle_deg
+        robots = [o for o in objects if o.kind == "robot"]
+        obstacles = [o for o in objects if o.kind == "obstacle"]
+        if not robots or not obstacles or (goal_xy is None and goal_angle_deg is None):
+            return []
+        r = robots[0]
+        at_goal = goal_xy is not None and np.allclose(goal_xy, (r.x_cm, r.y_cm))
+        if goal_angle_deg is None and at_goal:
+            return []
+        inputs = planner_inputs(
+            (r.x_cm, r.y_cm),
+            [(o.x_cm, o.y_cm, o.radius_cm) for o in obstacles],
+            goal_xy=goal_xy,
+            goal_angle_deg=goal_angle_deg,
+        )
+        return [
+            PlannerEntry(obstacle_id=o.id, distance_cm=float(d), angle_deg=float(a))
+            for o, d, a in zip(obstacles, inputs.distance_cm, inputs.angle_deg, strict=True)
+        ]

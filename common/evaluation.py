@@ -1,0 +1,61 @@
+"""Accuracy against ground truth: detections matched to known objects.
+
+Used by the demo, the tests and (later) the services' end-of-run summary: each true
+object is matched to the nearest detection by an optimal assignment on floor position;
+an unmatched true object is *missed*, an unmatched detection is *spurious*.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import linear_sum_assignment
+
+__all__ = ["FrameAccuracy", "match_to_truth"]
+
+
+class FrameAccuracy(NamedTuple):
+    """Errors of one frame's detections against its ground truth."""
+
+    position_error_cm: NDArray[np.float64]  # per matched true object
+    radius_error_cm: NDArray[np.float64]  # detected − true, per matched true object
+    kind_correct: NDArray[np.bool_]  # per matched true object
+    truth_index: NDArray[np.int64]  # matched true objects
+    detection_index: NDArray[np.int64]  # the detections matched to them
+    missed: int
+    spurious: int
+
+
+def match_to_truth(
+    detected_xyr: NDArray[np.float64] | Sequence[Sequence[float]],
+    detected_kind: Sequence[str],
+    true_xyr: NDArray[np.float64] | Sequence[Sequence[float]],
+    true_kind: Sequence[str],
+    *,
+    gate_cm: float = 5.0,
+) -> FrameAccuracy:
+    """Match detections (N, 3: x, y, r in cm) to true objects (M, 3) within ``gate_cm``."""
+    det = np.asarray(detected_xyr, dtype=np.float64).reshape(-1, 3)
+    tru = np.asarray(true_xyr, dtype=np.float64).reshape(-1, 3)
+    if det.shape[0] == 0 or tru.shape[0] == 0:
+        empty = np.zeros(0)
+        idx = np.zeros(0, dtype=np.int64)
+        return FrameAccuracy(empty, empty, np.zeros(0, bool), idx, idx, tru.shape[0], det.shape[0])
+    cost = np.linalg.norm(tru[:, None, :2] - det[None, :, :2], axis=2)
+    ti, di = linear_sum_assignment(cost)
+    ok = cost[ti, di] <= gate_cm
+    ti, di = ti[ok], di[ok]
+    kinds_t = np.asarray(true_kind)[ti]
+    kinds_d = np.asarray(detected_kind)[di]
+    return FrameAccuracy(
+        position_error_cm=cost[ti, di],
+        radius_error_cm=det[di, 2] - tru[ti, 2],
+        kind_correct=kinds_t == kinds_d,
+        truth_index=ti.astype(np.int64),
+        detection_index=di.astype(np.int64),
+        missed=int(tru.shape[0] - ti.size),
+        spurious=int(det.shape[0] - di.size),
+    )

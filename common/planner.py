@@ -1,0 +1,79 @@
+"""Inputs of the robot's motion planner (paper §5.2, model-notes §6).
+
+For each obstacle O (centre, radius r_O) and the robot centre R:
+
+* **distance** = |O − R| − r_O: robot centre to obstacle centre minus the obstacle's
+  radius (reproduces every distance of the paper's Table 1).
+* **angle** = the signed angle, in degrees in (−180, 180], counter-clockwise positive,
+  from the *goal direction* to the direction R → O. The goal direction is R → goal, or,
+  when a goal reference line is configured, that line's direction (its angle to +X).
+  (The paper's angle column cannot be reproduced from its positions by any obvious
+  definition; this is the project's documented one.)
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["PlannerInputs", "planner_inputs", "signed_angle_deg"]
+
+
+class PlannerInputs(NamedTuple):
+    """Per obstacle, in the order given: distance (cm) and angle (deg)."""
+
+    distance_cm: NDArray[np.float64]
+    angle_deg: NDArray[np.float64]
+
+
+def signed_angle_deg(from_rad: ArrayLike, to_rad: ArrayLike) -> NDArray[np.float64]:
+    """Signed angle from one direction to another, degrees in (−180, 180], CCW positive."""
+    d = np.degrees(np.asarray(to_rad, dtype=np.float64) - np.asarray(from_rad, dtype=np.float64))
+    wrapped = -((-d + 180.0) % 360.0 - 180.0)  # maps to (−180, 180]
+    return np.where(wrapped == -180.0, 180.0, wrapped)
+
+
+def planner_inputs(
+    robot_xy: ArrayLike,
+    obstacles_xyr: ArrayLike,
+    *,
+    goal_xy: ArrayLike | None = None,
+    goal_angle_deg: float | None = None,
+) -> PlannerInputs:
+    """Distance and angle of each obstacle for the motion planner.
+
+    Parameters
+    ----------
+    robot_xy : (2,) float, cm
+        Robot centre on the floor.
+    obstacles_xyr : (N, 3) float, cm
+        Obstacle centres and radii.
+    goal_xy : (2,) float, cm, optional
+        Goal point; the goal direction is robot → goal.
+    goal_angle_deg : float, optional
+        Direction of the goal reference line (degrees from +X); takes precedence over
+        ``goal_xy``. One of the two is required.
+    """
+    r = np.asarray(robot_xy, dtype=np.float64).reshape(2)
+    obs = np.asarray(obstacles_xyr, dtype=np.float64).reshape(-1, 3)
+    if not (np.isfinite(r).all() and np.isfinite(obs).all()):
+        raise ValueError("robot and obstacle coordinates must be finite numbers")
+    if goal_angle_deg is not None:
+        if not np.isfinite(goal_angle_deg):
+            raise ValueError("goal_angle_deg must be a finite number")
+        goal_dir = np.deg2rad(goal_angle_deg)
+    elif goal_xy is not None:
+        g = np.asarray(goal_xy, dtype=np.float64).reshape(2)
+        if not np.isfinite(g).all():
+            raise ValueError("goal coordinates must be finite numbers")
+        if np.allclose(g, r):
+            raise ValueError("the robot is on the goal: the goal direction is undefined")
+        goal_dir = np.arctan2(g[1] - r[1], g[0] - r[0])
+    else:
+        raise ValueError("give a goal point or a goal reference-line angle")
+    delta = obs[:, :2] - r
+    distance = np.hypot(delta[:, 0], delta[:, 1]) - obs[:, 2]
+    angle = signed_angle_deg(goal_dir, np.arctan2(delta[:, 1], delta[:, 0]))
+    return PlannerInputs(distance, angle)

@@ -1,0 +1,61 @@
+"""The `ovis` command line (typer).
+
+Every command parses its arguments and calls into :mod:`ovis.common`; failures the user
+can fix (bad files, bad values, an infeasible calibration) end with a one-line
+``error: …`` on stderr and a non-zero exit, never a traceback (set ``OVIS_DEBUG=1`` to
+see one).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import typer
+
+from ovis.services.cli.errors import UserError
+
+app = typer.Typer(
+    name="ovis",
+    help=(
+        "Overhead-camera vision for mobile robots: calibrate a camera with a genetic "
+        "algorithm, find the robot and the obstacles in each frame, and compute the "
+        "motion planner's inputs. Start with `ovis simulate`, then `ovis calibrate` and "
+        "`ovis detect` on what it wrote."
+    ),
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+    add_completion=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+from ovis.services.cli import offline  # noqa: E402  (registers the offline commands)
+
+offline.register(app)
+
+
+def main() -> None:
+    """Console entry point: run the app and turn known failures into one-line errors."""
+    from ovis.common.calibration import InfeasibleCalibrationError
+    from ovis.common.calibration_file import CalibrationFileError
+    from ovis.common.config import ConfigError
+    from ovis.common.preprocess import ImageError
+
+    try:
+        app()  # click itself handles usage errors, --help and Ctrl-C, then exits
+    except UserError as exc:
+        _fail(str(exc), exc.exit_code)
+    except (ConfigError, CalibrationFileError, ImageError) as exc:
+        _fail(str(exc), 2)
+    except InfeasibleCalibrationError as exc:
+        _fail(f"calibration is infeasible: {exc}", 3)
+    except Exception as exc:  # last line of defence: one line, not a traceback
+        if os.environ.get("OVIS_DEBUG"):
+            raise
+        _fail(f"{type(exc).__name__}: {exc} (set OVIS_DEBUG=1 for a traceback)", 1)
+
+
+def _fail(message: str, code: int) -> None:
+    print(f"error: {message}", file=sys.stderr)
+    sys.exit(code)

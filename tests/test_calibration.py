@@ -1,0 +1,138 @@
+"""GA calibration end to end on simulated arenas with known ground truth (paper §4–5)."""
+
+from __future__ import annotations
+
+import msgspec
+import numpy as np
+import pytest
+
+from ovis.common.calibration import (
+    INFEASIBLE,
+    CalibrationProblem,
+    InfeasibleCalibrationError,
+    calibrate,
+)
+from ovis.common.config import CALIBRATED_VARIABLES, load_config
+from ovis.common.detection import Detector
+from ovis.common.evaluation import match_to_truth
+from ovis.common.simulator import Arena, control_points
+
+PAPER_DIPE_MM = 0.735214
+
+
+def _calibrated_arena(preset: str, seed: int):
+    cfg = load_config(preset=preset)
+    arena = Arena(cfg, seed)
+    frame, truth = arena.render()
+    points = control_points(truth)
+    calib, result = calibrate(frame, points, cfg)
+    return cfg, arena, points, calib, result
+
+
+def _score(arena: Arena, calib, frames: int):
+    detector = Detector(calib.camera, calib.image, calib.pose)
+    errors, missed, spurious, wrong_kind = [], 0, 0, 0
+    for _ in range(frames):
+        arena.step()
+        frame, truth = arena.render()
+        det = detector.detect(frame)
+        acc = match_to_truth(
+            [(o.x_cm, o.y_cm, o.radius_cm) for o in det.objects],
+            [o.kind for o in det.objects],
+            [(o.x_cm, o.y_cm, o.radius_cm) for o in truth.objects],
+            [o.kind for o in truth.objects],
+        )
+        errors.extend(acc.position_error_cm)
+        missed += acc.missed
+        spurious += acc.spurious
+        wrong_kind += int((~acc.kind_correct).sum())
+    return np.array(errors), missed, spurious, wrong_kind
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_default_arena_640x480_meets_the_paper(seed: int) -> None:
+    # Paper ranges and GA settings (population 100, 90 generations, p_c 0.9, p_m 0.005),
+    # four control points: the robot and three obstacles of the first frame.
+    cfg, arena, points, calib, _ = _calibrated_arena("default", seed)
+    assert cfg.camera.cols == 640 and cfg.camera.rows == 480 and len(points) == 4
+    assert cfg.ga.population == 100 and cfg.ga.generations == 90
+    assert calib.dipe_mm < PAPER_DIPE_MM
+    assert calib.dipe_max_mm < 2 * PAPER_DIPE_MM
+    # Later frames: the objects have moved, so none is at a control point any more.
+    errors, missed, spurious, wrong_kind = _score(arena, calib, frames=8)
+    assert (missed, spurious, wrong_kind) == (0, 0, 0)
+    assert errors.size == 8 * 4
+    assert errors.max() < 1.0, f"worst position error {errors.max():.3f} cm"
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_paper_preset_192x192(seed: int) -> None:
+    _, arena, _, calib, _ = _calibrated_arena("paper", seed)
+    assert calib.dipe_mm < PAPER_DIPE_MM
+    errors, missed, spurious, wrong_kind = _score(arena, calib, frames=4)
+    assert (missed, spurious, wrong_kind) == (0, 0, 0)
+    assert errors.max() < 1.5  # a pixel is about 0.5 cm wide here
+
+
+def test_calibration_is_reproducible_and_speedup_changes_nothing() -> None:
+    cfg = load_config()
+    cfg = msgspec.structs.replace(cfg, ga=msgspec.structs.replace(cfg.ga, generations=25))
+    frame, truth = Arena(cfg, 5).render()
+    points = control_points(truth)
+    a, ra = calibrate(frame, points, cfg)
+    b, rb = calibrate(frame, points, cfg)
+    c, rc = calibrate(frame, points, cfg, dedupe=False)
+    np.testing.assert_array_equal(ra.best_bits, rb.best_bits)
+    np.testing.assert_array_equal(ra.best_bits, rc.best_bits)
+    assert a.dipe_px == b.dipe_px == c.dipe_px
+    assert ra.evaluations < rc.evaluations
+
+
+def test_matching_does_not_depend_on_point_order() -> None:
+    cfg = load_config()
+    frame, truth = Arena(cfg, 2).render()
+    points = control_points(truth)
+    problem = CalibrationProblem(frame, points, cfg)
+    shuffled = CalibrationProblem(frame, points[::-1], cfg)
+    truth_values = np.array(
+        [cfg.image.threshold, 30.0] + [getattr(cfg.camera, n) for n in CALIBRATED_VARIABLES[2:]]
+    )
+    f1 = problem.evaluate(truth_values[None, :])
+    f2 = shuffled.evaluate(truth_values[None, :])
+    assert f1.feasible[0] and f2.feasible[0]
+    assert f1.fitness[0] == pytest.approx(f2.fitness[0])
+    assert f1.fitness[0] < 0.5  # the true camera reproduces the detections to sub-pixel
+
+
+def test_exact_count_constraint_ranks_infeasible_last() -> None:
+    cfg = load_config()
+    frame, truth = Arena(cfg, 2).render()
+    problem = CalibrationProblem(frame, control_points(truth), cfg)
+    nominal = [getattr(cfg.camera, n) for n in CALIBRATED_VARIABLES[2:]]
+    good = [cfg.image.threshold, 30.0, *nominal]
+    no_size_filter = [cfg.image.threshold, 20.0, *nominal]
+    blind = [230.0, 50.0, *nominal]  # so high nothing passes... or fewer objects
+    wrong_camera = [cfg.image.threshold, 30.0, 125.0, 8.0, 0, 0, 0, 1.0, 1.0]
+    ev = problem.evaluate(np.array([good, no_size_filter, blind, wrong_camera]))
+    assert ev.feasible[0] and ev.fitness[0] < 1.0
+    assert ev.count[0] == 4
+    # Infeasible strings rank below every feasible one, however bad its DIPE.
+    infeasible = ~ev.feasible
+    assert (ev.fitness[infeasible] >= INFEASIBLE).all()
+    assert (ev.fitness[ev.feasible] < INFEASIBLE).all()
+
+
+def test_blank_frame_is_infeasible_with_a_clear_message() -> None:
+    cfg = load_config()
+    frame, truth = Arena(cfg, 0).render()
+    blank = np.full_like(frame, 60)
+    cfg = msgspec.structs.replace(cfg, ga=msgspec.structs.replace(cfg.ga, generations=3))
+    with pytest.raises(InfeasibleCalibrationError, match="sees exactly 4 objects"):
+        calibrate(blank, control_points(truth), cfg)
+
+
+def test_frame_size_must_match_camera() -> None:
+    cfg = load_config()
+    frame, truth = Arena(cfg, 0).render()
+    with pytest.raises(ValueError, match="640x480"):
+        CalibrationProblem(frame[:100, :100], control_points(truth), cfg)
