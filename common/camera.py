@@ -33,10 +33,12 @@ from ovis.common.distortion import distort_radius, on_rising_branch, undistort_f
 
 __all__ = [
     "BackProjection",
+    "PixelJacobian",
     "Projection",
     "back_project",
     "camera_centre_mm",
     "pixel_footprint_cm2",
+    "pixel_jacobian",
     "project",
     "rotation_world_cam",
 ]
@@ -169,20 +171,47 @@ def back_project(
     return BackProjection(x_cm, y_cm, valid)
 
 
+class PixelJacobian(NamedTuple):
+    """Floor-plane cm per pixel step at (row, col): ∂(X, Y)/∂row and ∂(X, Y)/∂col."""
+
+    dx_drow: FloatArray
+    dy_drow: FloatArray
+    dx_dcol: FloatArray
+    dy_dcol: FloatArray
+    valid: NDArray[np.bool_]
+
+
+def pixel_jacobian(
+    row: ArrayLike, col: ArrayLike, cam: CameraParams, z_cm: ArrayLike = 0.0
+) -> PixelJacobian:
+    """Jacobian of the pixel → plane Z = ``z_cm`` map, by central differences (±½ px).
+
+    It maps small image offsets (and second moments) to the floor: blob areas in cm²
+    (size filter A^f, radius) and world orientations of elongated blobs.
+    """
+    r, c = _f(row), _f(col)
+    h = 0.5
+    r1 = back_project(r + h, c, cam, z_cm)
+    r0 = back_project(r - h, c, cam, z_cm)
+    c1 = back_project(r, c + h, cam, z_cm)
+    c0 = back_project(r, c - h, cam, z_cm)
+    return PixelJacobian(
+        r1.x_cm - r0.x_cm,
+        r1.y_cm - r0.y_cm,
+        c1.x_cm - c0.x_cm,
+        c1.y_cm - c0.y_cm,
+        r1.valid & r0.valid & c1.valid & c0.valid,
+    )
+
+
 def pixel_footprint_cm2(
     row: ArrayLike, col: ArrayLike, cam: CameraParams, z_cm: ArrayLike = 0.0
 ) -> FloatArray:
     """Floor area (cm²) covered by one pixel at (row, col) on the plane Z = ``z_cm``.
 
-    The absolute Jacobian determinant of the pixel → plane map, by central differences.
-    Used to turn blob areas in pixels into cm² (size filter A^f, object radius);
-    0 where the pixel does not see the plane.
+    The absolute Jacobian determinant of the pixel → plane map; 0 where the pixel does
+    not see the plane.
     """
-    r, c = _f(row), _f(col)
-    h = 0.5
-    xr1, yr1, v1 = back_project(r + h, c, cam, z_cm)
-    xr0, yr0, v2 = back_project(r - h, c, cam, z_cm)
-    xc1, yc1, v3 = back_project(r, c + h, cam, z_cm)
-    xc0, yc0, v4 = back_project(r, c - h, cam, z_cm)
-    det = (xr1 - xr0) * (yc1 - yc0) - (yr1 - yr0) * (xc1 - xc0)
-    return np.where(v1 & v2 & v3 & v4, np.abs(det), 0.0)
+    j = pixel_jacobian(row, col, cam, z_cm)
+    det = j.dx_drow * j.dy_dcol - j.dy_drow * j.dx_dcol
+    return np.where(j.valid, np.abs(det), 0.0)

@@ -5,7 +5,7 @@ labeling, size filter A^f (cm² on the floor, through the camera), Koplowitz–B
 perimeter and compactness (eq. 13); then each blob's centroid is back-projected onto the
 plane of its class's top face (robot or obstacle height) to get its world position, its
 radius is that of the disk of equal floor area, and the orientation of non-circular
-shapes comes from second moments, turned into a world heading.
+shapes comes from second moments carried onto the floor.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
-from ovis.common.camera import back_project, pixel_footprint_cm2
+from ovis.common.camera import back_project, pixel_footprint_cm2, pixel_jacobian
 from ovis.common.config import CameraParams, ImageParams, PoseConfig
 from ovis.common.labeling import Components, filter_components, label_components
 from ovis.common.perimeter import perimeter
@@ -32,6 +32,7 @@ __all__ = [
     "Detector",
     "PlannerEntry",
     "find_blobs",
+    "world_shape",
 ]
 
 #: Blobs less elongated than this (major/minor axis) get no heading.
@@ -75,13 +76,11 @@ class Detection(msgspec.Struct, kw_only=True):
 
 
 class Blobs(NamedTuple):
-    """Size-filtered blobs of a frame with their shape measurements."""
+    """Size-filtered blobs of a frame with their shape measurements (image space)."""
 
     components: Components
     perimeter_px: NDArray[np.float64]
     compactness: NDArray[np.float64]
-    angle_rad: NDArray[np.float64]
-    elongation: NDArray[np.float64]
 
 
 def find_blobs(
@@ -100,24 +99,30 @@ def find_blobs(
     keep = (footprint > 0) & (comp.area_px * footprint >= params.size_filter_cm2)
     comp = filter_components(comp, keep)
     perim = perimeter(comp, params.perimeter)
-    angle, elong = orientation(comp.mu_rr, comp.mu_cc, comp.mu_rc)
-    return Blobs(comp, perim, compactness(comp.area_px, perim), angle, elong)
+    return Blobs(comp, perim, compactness(comp.area_px, perim))
 
 
-def _world_heading_deg(
-    row: NDArray[np.float64],
-    col: NDArray[np.float64],
-    angle_rad: NDArray[np.float64],
-    camera: CameraParams,
-    z_cm: NDArray[np.float64],
-) -> NDArray[np.float64]:
-    """Direction on the floor of the image major axis, deg CCW from +X, in (−90, 90]."""
-    dr, dc = 2.0 * np.cos(angle_rad), 2.0 * np.sin(angle_rad)
-    a = back_project(row - dr, col - dc, camera, z_cm)
-    b = back_project(row + dr, col + dc, camera, z_cm)
-    deg = np.degrees(np.arctan2(b.y_cm - a.y_cm, b.x_cm - a.x_cm))
-    deg = (deg + 90.0) % 180.0 - 90.0
-    return np.where(deg == -90.0, 90.0, deg)
+def world_shape(
+    blobs: Blobs, camera: CameraParams, z_cm: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Floor area (cm²), major-axis heading (deg CCW from +X, in (−90, 90]) and elongation
+    of each blob on its plane Z = ``z_cm``.
+
+    The image second moments are carried to the floor through the local Jacobian J of
+    the pixel → floor map (Σ_world = J·Σ_image·Jᵀ): perspective and unequal s_x, s_y
+    shear a shape, so the image's principal axes are not the floor's.
+    """
+    comp = blobs.components
+    j = pixel_jacobian(comp.row, comp.col, camera, z_cm)
+    a, b, c, d = j.dx_drow, j.dx_dcol, j.dy_drow, j.dy_dcol
+    area_cm2 = np.where(j.valid, comp.area_px * np.abs(a * d - b * c), 0.0)
+    m_rr, m_cc, m_rc = comp.mu_rr, comp.mu_cc, comp.mu_rc
+    s_xx = a * a * m_rr + 2 * a * b * m_rc + b * b * m_cc
+    s_yy = c * c * m_rr + 2 * c * d * m_rc + d * d * m_cc
+    s_xy = a * c * m_rr + (a * d + b * c) * m_rc + b * d * m_cc
+    angle, elongation = orientation(s_xx, s_yy, s_xy)
+    heading = np.degrees(angle)
+    return area_cm2, np.where(heading == -90.0, 90.0, heading), elongation
 
 
 class Detector:
@@ -149,9 +154,8 @@ class Detector:
         is_robot = np.arange(n) == robot
         z = np.where(is_robot, pose.robot_height_cm, pose.obstacle_height_cm)
         world = back_project(comp.row, comp.col, cam, z)
-        area_cm2 = comp.area_px * pixel_footprint_cm2(comp.row, comp.col, cam, z)
+        area_cm2, heading, elongation = world_shape(blobs, cam, z)
         radius = np.sqrt(area_cm2 / np.pi)
-        heading = _world_heading_deg(comp.row, comp.col, blobs.angle_rad, cam, z)
         ok = world.valid
         obstacle = ok & ~is_robot
         ids = np.full(n, -1, dtype=np.int64)
@@ -173,10 +177,8 @@ class Detector:
                 z_cm=float(z[i]),
                 radius_cm=float(radius[i]),
                 area_cm2=float(area_cm2[i]),
-                heading_deg=(
-                    float(heading[i]) if blobs.elongation[i] >= ROUND_ELONGATION else None
-                ),
-                elongation=float(blobs.elongation[i]),
+                heading_deg=float(heading[i]) if elongation[i] >= ROUND_ELONGATION else None,
+                elongation=float(elongation[i]),
                 vx_cm=float(vel[i, 0]),
                 vy_cm=float(vel[i, 1]),
             )

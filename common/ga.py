@@ -137,7 +137,10 @@ def run_ga(
     rng = np.random.default_rng(config.seed)
 
     def evaluate(strings: Population) -> NDArray[np.float64]:
-        f = np.asarray(fitness_fn(decode(strings, bounds, config.bits, config.coding == "gray")), dtype=np.float64)
+        f = np.asarray(
+            fitness_fn(decode(strings, bounds, config.bits, config.coding == "gray")),
+            dtype=np.float64,
+        )
         return np.where(np.isnan(f), np.inf, f)
 
     evaluations = 0

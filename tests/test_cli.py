@@ -208,8 +208,9 @@ def test_bad_inputs_give_one_line_errors(tmp_path: Path, dataset: Path, calibrat
         "<= 1.0",
     )
     assert_one_line_error(
-        ovis("calibrate", frame, "--points", points, "-c", str(nan_config), "--out", out,
-             check=False),
+        ovis(
+            "calibrate", frame, "--points", points, "-c", str(nan_config), "--out", out, check=False
+        ),
         "$.camera.lam_mm",
     )
     # A frame of bare floor can never show four objects: infeasible, exit 3.

@@ -1,0 +1,104 @@
+"""Frame → objects with the true camera: positions, radii, kinds, headings, planner."""
+
+from __future__ import annotations
+
+import msgspec
+import numpy as np
+import pytest
+
+from ovis.common.config import load_config
+from ovis.common.detection import Detector, find_blobs
+from ovis.common.evaluation import match_to_truth
+from ovis.common.planner import planner_inputs
+from ovis.common.preprocess import ImageError
+from ovis.common.simulator import Arena
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return load_config()
+
+
+def _detector(cfg) -> Detector:
+    image = msgspec.structs.replace(cfg.image, threshold=120, size_filter_cm2=25.0)
+    return Detector(cfg.camera, image, cfg.pose)
+
+
+def test_true_camera_finds_every_object_to_a_few_millimetres(cfg) -> None:
+    arena = Arena(cfg, 3)
+    det = _detector(cfg)
+    for _ in range(5):
+        frame, truth = arena.render()
+        found = det.detect(frame)
+        acc = match_to_truth(
+            [(o.x_cm, o.y_cm, o.radius_cm) for o in found.objects],
+            [o.kind for o in found.objects],
+            [(o.x_cm, o.y_cm, o.radius_cm) for o in truth.objects],
+            [o.kind for o in truth.objects],
+        )
+        assert acc.missed == 0 and acc.spurious == 0 and acc.kind_correct.all()
+        assert acc.position_error_cm.max() < 0.3
+        assert np.abs(acc.radius_error_cm).max() < 0.3
+        robot_true = truth.objects[0]
+        robot = next(o for o in found.objects if o.kind == "robot")
+        assert robot.id == 0
+        # The robot's long axis: heading modulo 180°.
+        diff = (robot.heading_deg - robot_true.heading_deg + 90.0) % 180.0 - 90.0
+        assert abs(diff) < 3.0
+        assert all(o.heading_deg is None for o in found.objects if o.kind == "obstacle")
+        arena.step()
+
+
+def test_planner_entries_match_planner_function(cfg) -> None:
+    frame, _ = Arena(cfg, 1).render()
+    found = _detector(cfg).detect(frame, goal_xy=(65.0, 115.0))
+    robot = next(o for o in found.objects if o.kind == "robot")
+    obstacles = [o for o in found.objects if o.kind == "obstacle"]
+    expected = planner_inputs(
+        (robot.x_cm, robot.y_cm),
+        [(o.x_cm, o.y_cm, o.radius_cm) for o in obstacles],
+        goal_xy=(65.0, 115.0),
+    )
+    assert [e.obstacle_id for e in found.planner] == [o.id for o in obstacles]
+    np.testing.assert_allclose([e.distance_cm for e in found.planner], expected.distance_cm)
+    np.testing.assert_allclose([e.angle_deg for e in found.planner], expected.angle_deg)
+    # A goal reference line changes the angles, not the distances.
+    line = _detector(cfg).detect(frame, goal_angle_deg=90.0)
+    np.testing.assert_allclose([e.distance_cm for e in line.planner], expected.distance_cm)
+
+
+def test_size_filter_removes_clutter_only(cfg) -> None:
+    frame, truth = Arena(cfg, 0).render()
+    params = msgspec.structs.replace(cfg.image, threshold=110, size_filter_cm2=0.0)
+    raw = find_blobs(frame, params, cfg.camera, cfg.pose.obstacle_height_cm)
+    filtered = find_blobs(
+        frame,
+        msgspec.structs.replace(params, size_filter_cm2=20.0),
+        cfg.camera,
+        cfg.pose.obstacle_height_cm,
+    )
+    assert raw.components.count > len(truth.objects)  # clutter and noise specks
+    assert filtered.components.count == len(truth.objects)
+
+
+def test_dark_polarity_finds_dark_objects(cfg) -> None:
+    frame, truth = Arena(cfg, 2).render()
+    inverted = 255 - frame
+    image = msgspec.structs.replace(
+        cfg.image, threshold=255 - 120, polarity="dark", size_filter_cm2=25.0, median="ordinary"
+    )
+    found = Detector(cfg.camera, image, cfg.pose).detect(inverted)
+    assert len(found.objects) == len(truth.objects)
+
+
+def test_bad_frames_are_refused(cfg) -> None:
+    det = _detector(cfg)
+    with pytest.raises(ImageError):
+        det.detect(np.zeros((0, 0), np.uint8))
+    with pytest.raises(ImageError):
+        det.detect(np.zeros((480, 640), np.float32))
+    with pytest.raises(ValueError, match="640x480"):
+        det.detect(np.zeros((240, 320), np.uint8))
+    # An empty arena is not an error: no objects, no planner inputs.
+    empty = det.detect(np.full((480, 640), 60, np.uint8))
+    assert empty.objects == [] and empty.planner == []
