@@ -85,8 +85,8 @@ class Calibration(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
             value = getattr(self, name)
             if not math.isfinite(value) or value < 0:
                 raise ValueError(f"{name} must be a finite non-negative number, got {value}")
-        if self.version < 1:
-            raise ValueError(f"version must be >= 1, got {self.version}")
+        if self.version < 0:
+            raise ValueError(f"version must be >= 0 (0: not calibrated), got {self.version}")
 
 
 def now_iso() -> str:

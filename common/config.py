@@ -28,7 +28,9 @@ __all__ = [
     "OvisConfig",
     "PointsFile",
     "PoseConfig",
+    "ServiceConfig",
     "SimulatorConfig",
+    "ZenohConfig",
     "load_config",
     "load_points",
     "preset_text",
@@ -219,6 +221,40 @@ class SimulatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
             raise ValueError("simulator.robot_size_cm must be positive (length, width)")
 
 
+class ZenohConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """How a service joins the Zenoh network.
+
+    ``config_file`` (a Zenoh JSON5 configuration, e.g. the secure profile in ``deploy/``)
+    is loaded first; ``mode``, ``connect`` and ``listen`` then override it when set.
+    """
+
+    mode: Literal["client", "peer", "router"] = "client"
+    connect: list[str] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    listen: list[str] = []
+    config_file: str | None = None
+    multicast_scouting: bool = False
+
+
+class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Settings of the running services (``ovis run``/``ovis up``)."""
+
+    arena: str = "default"
+    #: "sim" (the simulated arena), a folder of images, a video file, or a camera:
+    #: "camera:0" (OpenCV index) or a device path such as "/dev/video0".
+    source: str = "sim"
+    fps: Annotated[float, msgspec.Meta(ge=0.0, le=10000.0)] = 30.0  # 0: as fast as possible
+    loop: bool = True  # replay a folder or video from the start when it ends
+    seed: Annotated[int, msgspec.Meta(ge=0)] = 0  # simulated arena seed
+    #: where the calibrator keeps its versioned calibrations
+    state_dir: str = "ovis-state"
+    #: control points: "simulator" (the simulated frame's ground truth) or a points file
+    points: str = "simulator"
+    auto_calibrate: bool = True  # calibrate on the first frame when nothing is saved
+    status_period_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 1.0
+    frame_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 2.0
+    queue_depth: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 2
+
+
 class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Everything ovis needs: camera, image pipeline, GA ranges and settings, pose, simulator."""
 
@@ -229,6 +265,8 @@ class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     ga: GAConfig = msgspec.field(default_factory=GAConfig)
     pose: PoseConfig = msgspec.field(default_factory=PoseConfig)
     simulator: SimulatorConfig = msgspec.field(default_factory=SimulatorConfig)
+    service: ServiceConfig = msgspec.field(default_factory=ServiceConfig)
+    zenoh: ZenohConfig = msgspec.field(default_factory=ZenohConfig)
 
 
 class ControlPoint(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

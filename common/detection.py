@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from ovis.common.camera import back_project, pixel_footprint_cm2, pixel_jacobian
 from ovis.common.config import CameraParams, ImageParams, PoseConfig
-from ovis.common.labeling import Components, filter_components, label_components
+from ovis.common.labeling import filter_components, label_components
 from ovis.common.perimeter import perimeter
 from ovis.common.planner import planner_inputs
 from ovis.common.pose import ROBOT_ID, Tracker, pick_robot
@@ -32,6 +32,7 @@ __all__ = [
     "Detector",
     "PlannerEntry",
     "find_blobs",
+    "measure_blobs",
     "world_shape",
 ]
 
@@ -56,8 +57,8 @@ class DetectedObject(msgspec.Struct, kw_only=True):
     area_cm2: float
     heading_deg: float | None = None
     elongation: float = 1.0
-    vx_cm: float = 0.0
-    vy_cm: float = 0.0
+    vx_cm_s: float = 0.0
+    vy_cm_s: float = 0.0
 
 
 class PlannerEntry(msgspec.Struct, kw_only=True):
@@ -76,11 +77,16 @@ class Detection(msgspec.Struct, kw_only=True):
 
 
 class Blobs(NamedTuple):
-    """Size-filtered blobs of a frame with their shape measurements (image space)."""
+    """Size-filtered blobs of a frame, (n,) arrays of image measurements (pixels)."""
 
-    components: Components
+    row: NDArray[np.float64]
+    col: NDArray[np.float64]
+    area_px: NDArray[np.float64]
     perimeter_px: NDArray[np.float64]
     compactness: NDArray[np.float64]
+    mu_rr: NDArray[np.float64]
+    mu_cc: NDArray[np.float64]
+    mu_rc: NDArray[np.float64]
 
 
 def find_blobs(
@@ -94,12 +100,28 @@ def find_blobs(
             f"is for {camera.cols}x{camera.rows}"
         )
     binary = binarize(smooth(gray, params.median), params.threshold, params.polarity)
+    return measure_blobs(binary, params, camera, plane_cm)
+
+
+def measure_blobs(
+    binary: NDArray[np.uint8], params: ImageParams, camera: CameraParams, plane_cm: float
+) -> Blobs:
+    """Label a binary frame (8-connected), size-filter in cm² on ``plane_cm``, measure."""
     comp = label_components(binary)
     footprint = pixel_footprint_cm2(comp.row, comp.col, camera, plane_cm)
     keep = (footprint > 0) & (comp.area_px * footprint >= params.size_filter_cm2)
     comp = filter_components(comp, keep)
     perim = perimeter(comp, params.perimeter)
-    return Blobs(comp, perim, compactness(comp.area_px, perim))
+    return Blobs(
+        comp.row,
+        comp.col,
+        comp.area_px,
+        perim,
+        compactness(comp.area_px, perim),
+        comp.mu_rr,
+        comp.mu_cc,
+        comp.mu_rc,
+    )
 
 
 def world_shape(
@@ -112,7 +134,7 @@ def world_shape(
     the pixel → floor map (Σ_world = J·Σ_image·Jᵀ): perspective and unequal s_x, s_y
     shear a shape, so the image's principal axes are not the floor's.
     """
-    comp = blobs.components
+    comp = blobs
     j = pixel_jacobian(comp.row, comp.col, camera, z_cm)
     a, b, c, d = j.dx_drow, j.dx_dcol, j.dy_drow, j.dy_dcol
     area_cm2 = np.where(j.valid, comp.area_px * np.abs(a * d - b * c), 0.0)
@@ -133,6 +155,12 @@ class Detector:
         self.image = image
         self.pose = pose
         self.tracker = Tracker(pose.track_gate_cm)
+        self._last_stamp: float | None = None
+
+    def recalibrate(self, camera: CameraParams, image: ImageParams, pose: PoseConfig) -> None:
+        """Use a new calibration; obstacle identities are kept."""
+        self.camera, self.image, self.pose = camera, image, pose
+        self.tracker.gate_cm = pose.track_gate_cm
 
     def detect(
         self,
@@ -140,14 +168,32 @@ class Detector:
         *,
         goal_xy: tuple[float, float] | None = None,
         goal_angle_deg: float | None = None,
+        stamp_s: float | None = None,
     ) -> Detection:
         """Find the robot and obstacles; planner inputs when a goal is known.
 
         The goal defaults to the calibration's ``pose.goal_cm``/``goal_angle_deg``.
+        ``stamp_s`` is the frame's capture time (s); without it frames are taken to be
+        the paper's Δt = 1 s apart. Obstacle velocities are in cm/s.
         """
+        return self.from_blobs(
+            find_blobs(frame, self.image, self.camera, self.pose.obstacle_height_cm),
+            goal_xy=goal_xy,
+            goal_angle_deg=goal_angle_deg,
+            stamp_s=stamp_s,
+        )
+
+    def from_blobs(
+        self,
+        blobs: Blobs,
+        *,
+        goal_xy: tuple[float, float] | None = None,
+        goal_angle_deg: float | None = None,
+        stamp_s: float | None = None,
+    ) -> Detection:
+        """The pose half of :meth:`detect`, from already measured blobs."""
         cam, pose = self.camera, self.pose
-        blobs = find_blobs(frame, self.image, cam, pose.obstacle_height_cm)
-        comp = blobs.components
+        comp = blobs
         n = comp.area_px.size
         robot_fp = pixel_footprint_cm2(comp.row, comp.col, cam, pose.robot_height_cm)
         robot = pick_robot(blobs.compactness, comp.area_px * robot_fp, pose)
@@ -162,7 +208,11 @@ class Detector:
         vel = np.zeros((n, 2))
         ids[is_robot] = ROBOT_ID
         obs_xy = np.column_stack([world.x_cm, world.y_cm])[obstacle]
-        ids[obstacle], vel[obstacle] = self.tracker.update(obs_xy)
+        ids[obstacle], step = self.tracker.update(obs_xy)
+        now = stamp_s if stamp_s is not None else (self._last_stamp or 0.0) + 1.0
+        dt = now - self._last_stamp if self._last_stamp is not None else 1.0
+        self._last_stamp = now
+        vel[obstacle] = step / dt if dt > 0 else 0.0
         objects = [
             DetectedObject(
                 id=int(ids[i]),
@@ -179,8 +229,8 @@ class Detector:
                 area_cm2=float(area_cm2[i]),
                 heading_deg=float(heading[i]) if elongation[i] >= ROUND_ELONGATION else None,
                 elongation=float(elongation[i]),
-                vx_cm=float(vel[i, 0]),
-                vy_cm=float(vel[i, 1]),
+                vx_cm_s=float(vel[i, 0]),
+                vy_cm_s=float(vel[i, 1]),
             )
             for i in np.flatnonzero(ok)
         ]

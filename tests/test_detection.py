@@ -77,8 +77,8 @@ def test_size_filter_removes_clutter_only(cfg) -> None:
         cfg.camera,
         cfg.pose.obstacle_height_cm,
     )
-    assert raw.components.count > len(truth.objects)  # clutter and noise specks
-    assert filtered.components.count == len(truth.objects)
+    assert raw.row.size > len(truth.objects)  # clutter and noise specks
+    assert filtered.row.size == len(truth.objects)
 
 
 def test_dark_polarity_finds_dark_objects(cfg) -> None:

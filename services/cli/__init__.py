@@ -30,9 +30,10 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
-from ovis.services.cli import offline  # noqa: E402  (registers the offline commands)
+from ovis.services.cli import launcher, offline  # noqa: E402  (they register commands)
 
 offline.register(app)
+launcher.register(app)
 
 
 def main() -> None:

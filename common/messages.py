@@ -1,0 +1,309 @@
+"""Messages between ovis services, and the key expressions they travel on.
+
+Every message is a msgspec Struct encoded as a MessagePack **map** (field names on the
+wire) with a ``type`` tag, so any language decodes it with a plain msgpack library.
+Payloads are published with the Zenoh encoding ``application/msgpack``. Images travel
+as raw bytes plus shape and dtype. New fields get defaults and go at the end.
+
+Key expressions are rooted at ``ovis/<arena>/`` (see :class:`Topics`).
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Annotated, Any, Literal
+
+import msgspec
+import numpy as np
+from numpy.typing import NDArray
+
+from ovis.common.calibration_file import Calibration
+from ovis.common.detection import DetectedObject, PlannerEntry
+from ovis.common.simulator import SimObject
+
+__all__ = [
+    "ENCODING",
+    "MAX_IMAGE_SIDE",
+    "BinaryFrame",
+    "BlobList",
+    "BlobMeasure",
+    "CalibrateReply",
+    "CalibrateRequest",
+    "CalibrationUpdate",
+    "Frame",
+    "Message",
+    "MessageError",
+    "ObstacleFrame",
+    "ServiceStatus",
+    "Topics",
+    "TruthFrame",
+    "decode",
+    "encode",
+    "message_schema",
+]
+
+#: Zenoh encoding of every ovis payload.
+ENCODING = "application/msgpack"
+#: Largest accepted image side, pixels (refuses absurd shapes before allocating).
+MAX_IMAGE_SIDE = 16384
+
+Seq = Annotated[int, msgspec.Meta(ge=0)]
+Stamp = Annotated[int, msgspec.Meta(ge=0)]
+Side = Annotated[int, msgspec.Meta(ge=1, le=MAX_IMAGE_SIDE)]
+Finite = Annotated[float, msgspec.Meta(ge=-1e9, le=1e9)]  # rejects NaN and ±inf too
+NonNeg = Annotated[float, msgspec.Meta(ge=0.0, le=1e12)]
+
+
+class MessageError(ValueError):
+    """A payload that is not a valid ovis message; the text says why."""
+
+
+class _Msg(msgspec.Struct, tag_field="type", kw_only=True, forbid_unknown_fields=False):
+    """Base of all messages (unknown fields are ignored, so newer senders still work)."""
+
+
+class Frame(_Msg, tag="frame", kw_only=True):
+    """A captured image: ``rows × cols × channels`` uint8, row-major, in ``data``."""
+
+    seq: Seq
+    stamp_ns: Stamp  # capture time, ns since the Unix epoch
+    rows: Side
+    cols: Side
+    channels: Literal[1, 3] = 1
+    dtype: Literal["uint8"] = "uint8"
+    data: bytes
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        expected = self.rows * self.cols * self.channels
+        if len(self.data) != expected:
+            raise ValueError(
+                f"data holds {len(self.data)} bytes but rows x cols x channels = "
+                f"{self.rows} x {self.cols} x {self.channels} needs {expected}"
+            )
+
+    def image(self) -> NDArray[np.uint8]:
+        """The image as a read-only array (no copy)."""
+        shape = (self.rows, self.cols) if self.channels == 1 else (self.rows, self.cols, 3)
+        return np.frombuffer(self.data, dtype=np.uint8).reshape(shape)
+
+    @classmethod
+    def from_image(
+        cls, image: NDArray[np.uint8], *, seq: int, stamp_ns: int, source: str = ""
+    ) -> Frame:
+        if image.dtype != np.uint8 or image.ndim not in (2, 3):
+            raise ValueError(f"expected a uint8 grey or BGR image, got {image.dtype} {image.shape}")
+        channels = 1 if image.ndim == 2 else image.shape[2]
+        return cls(
+            seq=seq,
+            stamp_ns=stamp_ns,
+            rows=image.shape[0],
+            cols=image.shape[1],
+            channels=channels,
+            data=np.ascontiguousarray(image).tobytes(),
+            source=source,
+        )
+
+
+class BinaryFrame(_Msg, tag="binary", kw_only=True):
+    """A binarized frame (paper §3), one bit per pixel (``np.packbits``, row-major)."""
+
+    seq: Seq
+    stamp_ns: Stamp
+    rows: Side
+    cols: Side
+    bits: bytes
+    threshold: Annotated[int, msgspec.Meta(ge=0, le=255)]
+    calibration_version: Annotated[int, msgspec.Meta(ge=0)]
+
+    def __post_init__(self) -> None:
+        expected = (self.rows * self.cols + 7) // 8
+        if len(self.bits) != expected:
+            raise ValueError(
+                f"bits holds {len(self.bits)} bytes, {self.rows} x {self.cols} needs {expected}"
+            )
+
+    def mask(self) -> NDArray[np.uint8]:
+        """The 0/1 image, (rows, cols) uint8."""
+        flat = np.unpackbits(np.frombuffer(self.bits, dtype=np.uint8), count=self.rows * self.cols)
+        return flat.reshape(self.rows, self.cols)
+
+
+class BlobMeasure(msgspec.Struct, kw_only=True):
+    """One size-filtered blob: image measurements (pixels) and shape."""
+
+    row: Finite
+    col: Finite
+    area_px: NonNeg
+    perimeter_px: NonNeg
+    compactness: NonNeg
+    mu_rr: NonNeg
+    mu_cc: NonNeg
+    mu_rc: Finite
+
+
+class BlobList(_Msg, tag="blobs", kw_only=True):
+    """The blobs of one frame after labeling and size filtering."""
+
+    seq: Seq
+    stamp_ns: Stamp
+    rows: Side
+    cols: Side
+    calibration_version: Annotated[int, msgspec.Meta(ge=0)]
+    blobs: Annotated[list[BlobMeasure], msgspec.Meta(max_length=100000)]
+
+
+class ObstacleFrame(_Msg, tag="obstacles", kw_only=True):
+    """What the pose service publishes on the obstacle topic, one per processed frame.
+
+    ``robot`` is None when no blob passes the robot rule. ``frame_age_ms`` is how old the
+    frame was when this was published; ``calibration_version`` which calibration made it.
+    """
+
+    seq: Seq
+    stamp_ns: Stamp
+    published_ns: Stamp
+    frame_age_ms: float
+    calibration_version: int
+    robot: DetectedObject | None
+    obstacles: list[DetectedObject]
+    planner: list[PlannerEntry]
+    arena: str = "default"
+
+
+class TruthFrame(_Msg, tag="truth", kw_only=True):
+    """Ground truth of a simulated frame (published by the simulated capture only)."""
+
+    seq: Seq
+    objects: list[SimObject]
+
+
+class CalibrateRequest(_Msg, tag="calibrate", kw_only=True):
+    """Query payload of ``ovis/<arena>/calibrate``; every field is optional."""
+
+    frame_seq: Seq | None = None  # default: the latest frame
+    seed: Seq | None = None
+    population: Annotated[int, msgspec.Meta(ge=2, le=10000)] | None = None
+    generations: Annotated[int, msgspec.Meta(ge=1, le=10000)] | None = None
+
+
+class CalibrateReply(_Msg, tag="calibrate-reply", kw_only=True):
+    """Reply to a calibrate query: the new calibration's version and quality, or why not."""
+
+    ok: bool
+    version: int = 0
+    frame_seq: int = -1
+    dipe_px: float = 0.0
+    dipe_mm: float = 0.0
+    dipe_max_px: float = 0.0
+    elapsed_s: float = 0.0
+    parameters: dict[str, float] = {}
+    saved_to: str = ""
+    error: str = ""
+
+
+class CalibrationUpdate(_Msg, tag="calibration", kw_only=True):
+    """A calibration, published on ``ovis/<arena>/calibration`` whenever it changes."""
+
+    calibration: Calibration
+
+
+class ServiceStatus(_Msg, tag="status", kw_only=True):
+    """A service's health: rates, drops and errors (answer of its status queryable)."""
+
+    service: str
+    pid: int
+    host: str
+    started_ns: Stamp
+    state: str  # "ok", "waiting for frames", "no calibration", …
+    frames_in: int = 0
+    frames_out: int = 0
+    fps: float = 0.0
+    dropped: int = 0
+    errors: dict[str, int] = {}
+    last_error: str = ""
+    calibration_version: int = -1
+    last_frame_age_s: float | None = None
+    rss_mb: float = 0.0
+
+
+Message = (
+    Frame
+    | BinaryFrame
+    | BlobList
+    | ObstacleFrame
+    | TruthFrame
+    | CalibrateRequest
+    | CalibrateReply
+    | CalibrationUpdate
+    | ServiceStatus
+)
+
+_ENCODER = msgspec.msgpack.Encoder()
+_DECODERS: dict[Any, msgspec.msgpack.Decoder] = {}
+
+
+def encode(message: _Msg) -> bytes:
+    """MessagePack bytes of a message (a map with a ``type`` tag)."""
+    return _ENCODER.encode(message)
+
+
+def decode(payload: bytes | memoryview, expected: Any = Message) -> Any:
+    """Decode and validate a payload as ``expected`` (a message class or union).
+
+    Raises :class:`MessageError` naming what is wrong (e.g. ``Expected `int` >= 0 - at
+    `$.seq```), never anything else.
+    """
+    decoder = _DECODERS.get(expected)
+    if decoder is None:
+        decoder = _DECODERS[expected] = msgspec.msgpack.Decoder(expected)
+    if len(payload) == 0:
+        raise MessageError("empty payload")
+    try:
+        return decoder.decode(payload)
+    except msgspec.ValidationError as exc:
+        raise MessageError(f"wrong schema: {exc}") from None
+    except msgspec.DecodeError as exc:
+        raise MessageError(f"not MessagePack: {exc}") from None
+
+
+def message_schema() -> dict[str, Any]:
+    """JSON Schema of every message (``ovis schema``)."""
+    (schemas,), components = msgspec.json.schema_components([Message])
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        **schemas,
+        "$defs": components,
+    }
+
+
+_ARENA_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+
+class Topics:
+    """Key expressions of one arena, all rooted at ``ovis/<arena>/``."""
+
+    def __init__(self, arena: str = "default") -> None:
+        if not _ARENA_RE.match(arena):
+            raise ValueError(
+                f"arena name {arena!r} must be 1-64 letters, digits, '_', '.' or '-' "
+                "(it becomes a Zenoh key chunk)"
+            )
+        self.arena = arena
+        root = f"ovis/{arena}"
+        self.root = root
+        self.frames = f"{root}/frames"
+        self.binary = f"{root}/binary"
+        self.blobs = f"{root}/blobs"
+        self.obstacles = f"{root}/obstacles"
+        self.truth = f"{root}/truth"
+        self.calibration = f"{root}/calibration"
+        self.calibrate = f"{root}/calibrate"
+        self.status_all = f"{root}/status/*"
+        self.alive_all = f"{root}/alive/*"
+
+    def status(self, service: str) -> str:
+        return f"{self.root}/status/{service}"
+
+    def alive(self, service: str) -> str:
+        return f"{self.root}/alive/{service}"

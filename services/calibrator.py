@@ -1,0 +1,194 @@
+"""Calibration worker: a Zenoh queryable on ``ovis/<arena>/calibrate``.
+
+A query runs the GA (paper §4) on the latest frame, or on the frame named in the query,
+with the configured control points (a points file, or for the simulated arena the
+frame's ground truth); the result is saved atomically as a new version, published on
+``ovis/<arena>/calibration`` (the other services switch to it without restarting) and
+returned in the reply. ``ovis/<arena>/calibration`` is also a queryable returning the
+current calibration, so late starters pick it up.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+from typing import Any
+
+import msgspec
+import zenoh
+
+from ovis.common.calibration import InfeasibleCalibrationError, calibrate
+from ovis.common.calibration_store import CalibrationStore
+from ovis.common.config import CALIBRATED_VARIABLES, ControlPoint, load_points
+from ovis.common.messages import (
+    ENCODING,
+    CalibrateReply,
+    CalibrateRequest,
+    CalibrationUpdate,
+    Frame,
+    TruthFrame,
+    encode,
+)
+from ovis.common.preprocess import ImageError
+from ovis.common.simulator import control_points
+from ovis.services.runtime import Inbox, Service
+
+KEEP_FRAMES = 64
+
+
+def main(service: Service) -> None:
+    cfg = service.config
+    store = CalibrationStore(cfg.service.state_dir)
+    saved, problems = store.latest()
+    for problem in problems:
+        service.error("bad_saved_calibration", f"skipped {problem}")
+    if saved is not None:
+        service.calibration = saved
+        service.log.info("loaded calibration v%d from %s", saved.version, store.folder)
+    file_points: list[ControlPoint] | None = None
+    if cfg.service.points != "simulator":
+        file_points = load_points(cfg.service.points).points
+
+    frames: collections.OrderedDict[int, Frame] = collections.OrderedDict()
+    truths: collections.OrderedDict[int, TruthFrame] = collections.OrderedDict()
+    lock = threading.Lock()
+    first_frame = threading.Event()
+
+    def keep(store_: collections.OrderedDict, seq: int, item: Any) -> None:
+        with lock:
+            store_[seq] = item
+            while len(store_) > KEEP_FRAMES:
+                store_.popitem(last=False)
+
+    def on_frame(sample: zenoh.Sample) -> None:
+        frame = service.decode(sample.payload.to_bytes(), Frame, "frame")
+        if frame is not None:
+            service.saw_frame(frame.seq, frame.stamp_ns)
+            keep(frames, frame.seq, frame)
+            first_frame.set()
+
+    def on_truth(sample: zenoh.Sample) -> None:
+        truth = service.decode(sample.payload.to_bytes(), TruthFrame, "truth")
+        if truth is not None:
+            keep(truths, truth.seq, truth)
+
+    service.session.declare_subscriber(service.topics.frames, on_frame)
+    service.session.declare_subscriber(service.topics.truth, on_truth)
+    publish = service.publisher(service.topics.calibration, drop=False)
+
+    def on_current(query: zenoh.Query) -> None:
+        if service.calibration.version > 0:
+            query.reply(
+                service.topics.calibration,
+                encode(CalibrationUpdate(calibration=service.calibration)),
+                encoding=zenoh.Encoding(ENCODING),
+            )
+
+    service.session.declare_queryable(service.topics.calibration, on_current)
+    queries = Inbox(depth=8)
+    service.session.declare_queryable(service.topics.calibrate, queries.put)
+
+    def run_calibration(request: CalibrateRequest) -> CalibrateReply:
+        with lock:
+            if not frames:
+                return CalibrateReply(ok=False, error="no frame received yet from capture")
+            seq = request.frame_seq if request.frame_seq is not None else next(reversed(frames))
+            frame = frames.get(seq)
+            truth = truths.get(seq)
+        if frame is None:
+            return CalibrateReply(
+                ok=False, frame_seq=seq, error=f"frame {seq} is not among the last {KEEP_FRAMES}"
+            )
+        if file_points is not None:
+            points = file_points
+        elif truth is not None:
+            points = control_points(truth)
+        else:
+            return CalibrateReply(
+                ok=False,
+                frame_seq=seq,
+                error="no control points: set service.points to a points file "
+                "(the simulator's ground truth is only there for simulated frames)",
+            )
+        ga = msgspec.structs.replace(
+            cfg.ga,
+            **{
+                k: v
+                for k, v in (
+                    ("seed", request.seed),
+                    ("population", request.population),
+                    ("generations", request.generations),
+                )
+                if v is not None
+            },
+        )
+        run_cfg = msgspec.structs.replace(cfg, ga=ga)
+        service.state = f"calibrating on frame {seq}"
+        try:
+            calib, _ = calibrate(frame.image(), points, run_cfg, source=f"frame {seq}")
+        except (InfeasibleCalibrationError, ImageError, ValueError) as exc:
+            service.error("calibration", f"calibration on frame {seq} failed: {exc}")
+            return CalibrateReply(ok=False, frame_seq=seq, error=str(exc))
+        finally:
+            service.state = "ok"
+        calib = store.save(calib)
+        service.calibration = calib
+        publish(CalibrationUpdate(calibration=calib))
+        service.sent()
+        service.log.info(
+            "calibration v%d on frame %d: DIPE %.3f px (%.4f mm) in %.2f s",
+            calib.version,
+            seq,
+            calib.dipe_px,
+            calib.dipe_mm,
+            calib.elapsed_s,
+        )
+        params = {n: float(getattr(calib.camera, n)) for n in CALIBRATED_VARIABLES[2:]}
+        params["threshold"] = float(calib.image.threshold)
+        params["size_filter_cm2"] = calib.image.size_filter_cm2
+        return CalibrateReply(
+            ok=True,
+            version=calib.version,
+            frame_seq=seq,
+            dipe_px=calib.dipe_px,
+            dipe_mm=calib.dipe_mm,
+            dipe_max_px=calib.dipe_max_px,
+            elapsed_s=calib.elapsed_s,
+            parameters=params,
+            saved_to=str(store.path(calib.version)),
+        )
+
+    def answer(query: zenoh.Query) -> None:
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        if payload:
+            request = service.decode(payload, CalibrateRequest, "calibrate_request")
+            if request is None:
+                reply = CalibrateReply(ok=False, error=f"bad request: {service.last_error}")
+            else:
+                reply = run_calibration(request)
+        else:
+            reply = run_calibration(CalibrateRequest())
+        query.reply(service.topics.calibrate, encode(reply), encoding=zenoh.Encoding(ENCODING))
+
+    service.state = "ok" if service.calibration.version > 0 else "no calibration"
+    if saved is None and cfg.service.auto_calibrate:
+        service.log.info("no saved calibration: calibrating on the first frame")
+        while not service.stop.is_set() and not first_frame.wait(0.2):
+            pass
+        if not service.stop.is_set():
+            service.stop.wait(0.2)  # the simulated truth may trail its frame by a moment
+            with lock:
+                first = CalibrateRequest(frame_seq=next(iter(frames)))
+            reply = run_calibration(first)
+            if not reply.ok:
+                service.log.warning("initial calibration failed: %s", reply.error)
+    while not service.stop.is_set():
+        query = queries.get(timeout=0.2)
+        if query is None:
+            continue
+        try:
+            answer(query)
+        except Exception as exc:
+            service.error("processing", f"calibrate query failed: {type(exc).__name__}: {exc}")
+        finally:
+            del query  # the reply is final when the query is dropped

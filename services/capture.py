@@ -1,0 +1,62 @@
+"""Capture service: frames from the configured source, stamped with a sequence number
+and capture time, published on ``ovis/<arena>/frames`` (and, for the simulated arena,
+the ground truth on ``ovis/<arena>/truth``). A source that fails is retried."""
+
+from __future__ import annotations
+
+import time
+
+from ovis.common.messages import Frame, TruthFrame
+from ovis.common.sources import FrameSource, SourceError, open_source
+from ovis.services.runtime import Service
+
+RETRY_S = 2.0
+
+
+def main(service: Service) -> None:
+    cfg = service.config.service
+    publish_frame = service.publisher(service.topics.frames)
+    publish_truth = service.publisher(service.topics.truth)
+    period = 1.0 / cfg.fps if cfg.fps > 0 else 0.0
+    source: FrameSource | None = None
+    seq = 0
+    next_t = time.monotonic()
+    try:
+        while not service.stop.is_set():
+            if source is None:
+                try:
+                    source = open_source(cfg.source, service.config)
+                    service.log.info("capturing from %s", source.description)
+                    service.state = "ok"
+                except SourceError as exc:
+                    service.state = "source unavailable"
+                    service.error("source", f"{exc}; retrying in {RETRY_S:g} s")
+                    service.stop.wait(RETRY_S)
+                    continue
+            try:
+                image, truth = source.read()
+            except SourceError as exc:
+                service.state = "source unavailable"
+                service.error("source", f"{exc}; reopening in {RETRY_S:g} s")
+                source.close()
+                source = None
+                service.stop.wait(RETRY_S)
+                continue
+            stamp = time.time_ns()
+            frame = Frame.from_image(image, seq=seq, stamp_ns=stamp, source=source.description)
+            if truth is not None:
+                publish_truth(TruthFrame(seq=seq, objects=truth.objects))
+            publish_frame(frame)
+            service.saw_frame(seq, stamp)
+            service.sent()
+            seq += 1
+            if period:
+                next_t += period
+                delay = next_t - time.monotonic()
+                if delay > 0:
+                    service.stop.wait(delay)
+                else:
+                    next_t = time.monotonic()  # running late: do not try to catch up
+    finally:
+        if source is not None:
+            source.close()

@@ -1,0 +1,379 @@
+"""Service commands: router, run, up, watch, recalibrate, status, schema."""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import msgspec
+import typer
+
+from ovis.services.cli.errors import UserError
+
+__all__ = ["register"]
+
+STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+ConfigOpt = Annotated[
+    Path | None,
+    typer.Option("--config", "-c", help="TOML configuration (ovis config show).", dir_okay=False),
+]
+ConnectOpt = Annotated[
+    list[str] | None,
+    typer.Option(help=f"Zenoh endpoint to connect to (repeatable); default {DEFAULT_ENDPOINT}."),
+]
+ArenaOpt = Annotated[
+    str | None, typer.Option(help="Arena name: key expressions are rooted at ovis/<arena>/.")
+]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")]
+
+
+def _config(
+    config: Path | None,
+    *,
+    connect: list[str] | None = None,
+    listen: list[str] | None = None,
+    mode: str | None = None,
+    **service: Any,
+):
+    """The configuration with command-line overrides applied (and validated)."""
+    from ovis.common.config import config_from_dict, load_config
+
+    cfg = load_config(config) if config is not None else load_config()
+    data = msgspec.to_builtins(cfg)
+    if connect:
+        data["zenoh"]["connect"] = connect
+    if listen is not None:
+        data["zenoh"]["listen"] = listen
+    if mode is not None:
+        data["zenoh"]["mode"] = mode
+    data["service"].update({k: v for k, v in service.items() if v is not None})
+    return config_from_dict(data, "configuration with command-line options")
+
+
+def _topics(cfg):
+    from ovis.common.messages import Topics
+
+    try:
+        return Topics(cfg.service.arena)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+
+
+def router(
+    listen: Annotated[
+        list[str] | None, typer.Option(help=f"Endpoint to listen on; default {DEFAULT_ENDPOINT}.")
+    ] = None,
+    config: ConfigOpt = None,
+) -> None:
+    """Run a Zenoh router (from the Python package itself: no separate binary).
+
+    Services connect to it with `--connect`; routers can be meshed with `--config` (a
+    [zenoh] section naming other routers in `connect`).
+    """
+    from ovis.services.runtime import open_session
+
+    cfg = _config(config, listen=listen or [DEFAULT_ENDPOINT], mode="router", connect=None)
+    zc = msgspec.structs.replace(cfg.zenoh, connect=[] if not config else cfg.zenoh.connect)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    with open_session(zc) as session:
+        print(f"zenoh router {session.zid()} listening on {', '.join(zc.listen)}", flush=True)
+        while not stop.wait(0.5):
+            pass
+
+
+def run(
+    stage: Annotated[str, typer.Argument(help=f"One of: {', '.join(STAGES)}.")],
+    connect: ConnectOpt = None,
+    config: ConfigOpt = None,
+    arena: ArenaOpt = None,
+    source: Annotated[
+        str | None,
+        typer.Option(help="capture: 'sim', a folder, a video file, 'camera:N' or /dev/videoN."),
+    ] = None,
+    fps: Annotated[float | None, typer.Option(help="capture: frames per second (0: max).")] = None,
+    state_dir: Annotated[
+        str | None, typer.Option(help="calibrator: folder of versioned calibrations.")
+    ] = None,
+    points: Annotated[
+        str | None, typer.Option(help="calibrator: control points file, or 'simulator'.")
+    ] = None,
+) -> None:
+    """Run one service in this process until Ctrl-C/SIGTERM.
+
+    Stages can run on different machines: each connects to a Zenoh router
+    (`ovis router`) with --connect.
+    """
+    import importlib
+
+    from ovis.services.runtime import run as run_service
+
+    if stage not in STAGES:
+        raise UserError(f"unknown stage {stage!r}; choose one of {', '.join(STAGES)}")
+    cfg = _config(
+        config,
+        connect=connect,
+        arena=arena,
+        source=source,
+        fps=fps,
+        state_dir=state_dir,
+        points=points,
+    )
+    _topics(cfg)
+    module = importlib.import_module(f"ovis.services.{stage}")
+    run_service(stage, cfg, module.main)
+
+
+def _die_with_parent() -> None:
+    """In the child: get SIGTERM when the launching process dies (no orphans)."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
+class _Fleet:
+    """The router and the five stages as child processes."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.log_dir = log_dir
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+
+    def start(self, name: str, args: list[str]) -> None:
+        log = open(self.log_dir / f"{name}.log", "wb")  # noqa: SIM115 (kept open by the child)
+        self.procs[name] = subprocess.Popen(
+            [sys.executable, "-m", "ovis.services.cli", *args],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            preexec_fn=_die_with_parent,
+        )
+
+    def dead(self) -> list[str]:
+        return [n for n, p in self.procs.items() if p.poll() is not None]
+
+    def stop(self, timeout: float = 5.0) -> dict[str, int]:
+        """SIGTERM the stages, then the router; SIGKILL whatever outlives ``timeout``."""
+        codes: dict[str, int] = {}
+        stages = [n for n in self.procs if n != "router"]
+        for group in (stages, ["router"] if "router" in self.procs else []):
+            for name in group:
+                if self.procs[name].poll() is None:
+                    self.procs[name].send_signal(signal.SIGTERM)
+            deadline = time.monotonic() + timeout
+            for name in group:
+                p = self.procs[name]
+                try:
+                    codes[name] = p.wait(max(0.1, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    codes[name] = p.wait()
+        return codes
+
+
+def up(
+    source: Annotated[
+        str | None, typer.Option(help="'sim' (default), a folder, a video, 'camera:N'.")
+    ] = None,
+    listen: Annotated[str, typer.Option(help="Endpoint of the router.")] = DEFAULT_ENDPOINT,
+    duration: Annotated[
+        float | None, typer.Option(min=0.0, help="Stop after this many seconds (default: Ctrl-C).")
+    ] = None,
+    config: ConfigOpt = None,
+    arena: ArenaOpt = None,
+    fps: Annotated[float | None, typer.Option(help="Capture frames per second.")] = None,
+    state_dir: Annotated[
+        str | None, typer.Option(help="Calibrator state folder (default ovis-state).")
+    ] = None,
+    live: Annotated[bool, typer.Option(help="Live view of what is detected.")] = True,
+    json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+) -> None:
+    """Start a router and all five services as separate processes, show what is
+    detected live, and print a summary at the end.
+
+    Ctrl-C or SIGTERM (or --duration) stops everything cleanly; logs of each process
+    are in a temporary folder named at the start.
+    """
+    from ovis.services.cli.watching import LiveView, summary_table
+
+    cfg = _config(
+        config, connect=[listen], arena=arena, source=source, fps=fps, state_dir=state_dir
+    )
+    topics = _topics(cfg)
+    log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-"))
+    cfg_path = log_dir / "config.toml"
+    from ovis.common.config import dump_toml
+
+    cfg_path.write_text(dump_toml(cfg))
+    fleet = _Fleet(log_dir)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    out = sys.stderr if json else sys.stdout
+    print(f"ovis up: arena {topics.arena}, router {listen}, logs in {log_dir}", file=out)
+    fleet.start("router", ["router", "--listen", listen])
+    time.sleep(0.5)
+    for stage in ("calibrator", "pose", "label", "preprocess", "capture"):
+        fleet.start(stage, ["run", stage, "--config", str(cfg_path)])
+    from ovis.common.config import ZenohConfig
+    from ovis.services.runtime import open_session
+
+    view = LiveView(topics, cfg)
+    started = time.monotonic()
+    try:
+        with open_session(ZenohConfig(connect=[listen])) as session:
+            view.attach(session)
+            view.run(
+                stop,
+                until=(started + duration) if duration is not None else None,
+                live=live and not json,
+                fleet_dead=fleet.dead,
+            )
+            statuses = view.poll_status(session)
+    finally:
+        codes = fleet.stop()
+    summary = view.summary(statuses, codes, time.monotonic() - started)
+    if json:
+        sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
+    else:
+        from rich.console import Console
+
+        Console(highlight=False).print(summary_table(summary))
+    bad = [n for n, c in codes.items() if c not in (0, -signal.SIGTERM)]
+    if bad:
+        raise UserError(f"process(es) {', '.join(bad)} exited abnormally; see {log_dir}", 1)
+
+
+def watch(
+    connect: ConnectOpt = None,
+    config: ConfigOpt = None,
+    arena: ArenaOpt = None,
+    json: JsonOpt = False,
+    count: Annotated[int | None, typer.Option(min=1, help="Stop after N frames.")] = None,
+    duration: Annotated[float | None, typer.Option(min=0.0, help="Stop after S seconds.")] = None,
+) -> None:
+    """Subscribe to the obstacle topic and print each frame's objects and planner inputs.
+
+    With --json, one JSON object per line (the message as published).
+    """
+    from ovis.common.messages import ObstacleFrame, decode
+    from ovis.services.cli.watching import format_obstacles
+    from ovis.services.runtime import Inbox, open_session
+
+    cfg = _config(config, connect=connect, arena=arena)
+    topics = _topics(cfg)
+    box = Inbox(depth=64)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    seen = 0
+    deadline = time.monotonic() + duration if duration is not None else None
+    with open_session(cfg.zenoh) as session:
+        session.declare_subscriber(topics.obstacles, lambda s: box.put(s.payload.to_bytes()))
+        while not stop.is_set() and (count is None or seen < count):
+            if deadline is not None and time.monotonic() > deadline:
+                break
+            payload = box.get(0.2)
+            if payload is None:
+                continue
+            try:
+                msg = decode(payload, ObstacleFrame)
+            except ValueError as exc:
+                print(f"skipped a bad message: {exc}", file=sys.stderr)
+                continue
+            seen += 1
+            if json:
+                sys.stdout.write(msgspec.json.encode(msg).decode() + "\n")
+            else:
+                sys.stdout.write(format_obstacles(msg) + "\n")
+            sys.stdout.flush()
+
+
+def recalibrate(
+    connect: ConnectOpt = None,
+    config: ConfigOpt = None,
+    arena: ArenaOpt = None,
+    frame: Annotated[int | None, typer.Option(min=0, help="Frame sequence number.")] = None,
+    seed: Annotated[int | None, typer.Option(min=0, help="GA seed.")] = None,
+    timeout: Annotated[float, typer.Option(min=0.1, help="Seconds to wait for it.")] = 60.0,
+    json: JsonOpt = False,
+) -> None:
+    """Ask the calibrator (a Zenoh query) to recalibrate on the latest frame, or --frame.
+
+    Shows the new calibration's DIPE, parameters and version.
+    """
+    from ovis.common.messages import CalibrateReply, CalibrateRequest, decode, encode
+    from ovis.services.runtime import open_session
+
+    cfg = _config(config, connect=connect, arena=arena)
+    topics = _topics(cfg)
+    request = encode(CalibrateRequest(frame_seq=frame, seed=seed))
+    with open_session(cfg.zenoh) as session:
+        replies = list(session.get(topics.calibrate, payload=request, timeout=timeout))
+    if not replies:
+        raise UserError(
+            f"no calibrator is alive on {topics.calibrate} (connect: "
+            f"{', '.join(cfg.zenoh.connect)}); start one with `ovis run calibrator`"
+        )
+    reply = replies[0]
+    if reply.ok is None:
+        raise UserError(f"the calibrator did not answer: {reply.err.payload.to_bytes().decode()}")
+    answer = decode(reply.ok.payload.to_bytes(), CalibrateReply)
+    if json:
+        sys.stdout.write(msgspec.json.encode(answer).decode() + "\n")
+    if not answer.ok:
+        raise UserError(f"recalibration failed: {answer.error}", 3)
+    if not json:
+        print(
+            f"calibration v{answer.version} on frame {answer.frame_seq}: DIPE "
+            f"{answer.dipe_px:.3f} px = {answer.dipe_mm:.4f} mm (max {answer.dipe_max_px:.3f} px)"
+            f" in {answer.elapsed_s:.2f} s; saved to {answer.saved_to}"
+        )
+        for name, value in answer.parameters.items():
+            print(f"  {name:16s} {value:.6g}")
+
+
+def status(
+    connect: ConnectOpt = None,
+    config: ConfigOpt = None,
+    arena: ArenaOpt = None,
+    json: JsonOpt = False,
+) -> None:
+    """Which services are alive (Zenoh liveliness), their frame rates, drops and errors."""
+    from ovis.services.cli.watching import collect_status, status_table
+    from ovis.services.runtime import open_session
+
+    cfg = _config(config, connect=connect, arena=arena)
+    topics = _topics(cfg)
+    with open_session(cfg.zenoh) as session:
+        report = collect_status(session, topics)
+    if json:
+        sys.stdout.write(msgspec.json.encode(report).decode() + "\n")
+        return
+    from rich.console import Console
+
+    Console(highlight=False).print(status_table(report, topics))
+
+
+def schema() -> None:
+    """Print the JSON Schema of every ovis message (MessagePack maps on the wire)."""
+    from ovis.common.messages import message_schema
+
+    sys.stdout.write(msgspec.json.format(msgspec.json.encode(message_schema()), indent=2).decode())
+    sys.stdout.write("\n")
+
+
+def register(app: typer.Typer) -> None:
+    for command in (router, run, up, watch, recalibrate, status, schema):
+        app.command()(command)
+    os.environ.setdefault("PYTHONUNBUFFERED", "1")

@@ -1,0 +1,57 @@
+"""Labeling service: 8-connected labeling, size filter (A^f in cm² on the floor),
+Koplowitz–Bruckstein perimeter and compactness (paper §3) of each binary frame;
+publishes the blobs on ``ovis/<arena>/blobs``."""
+
+from __future__ import annotations
+
+from ovis.common.detection import measure_blobs
+from ovis.common.messages import BinaryFrame, BlobList, BlobMeasure
+from ovis.services.runtime import Service
+
+
+def main(service: Service) -> None:
+    service.follow_calibration()
+    publish = service.publisher(service.topics.blobs)
+    frames = service.inbox(service.topics.binary)
+
+    def handle(payload: bytes, _receipt_ns: int) -> None:
+        frame = service.decode(payload, BinaryFrame, "binary")
+        if frame is None:
+            return
+        service.saw_frame(frame.seq, frame.stamp_ns)
+        calib = service.calibration
+        cam = calib.camera
+        if (frame.rows, frame.cols) != (cam.rows, cam.cols):
+            service.error(
+                "bad_binary",
+                f"binary frame {frame.seq} is {frame.cols}x{frame.rows}, the camera is "
+                f"{cam.cols}x{cam.rows}",
+            )
+            return
+        blobs = measure_blobs(frame.mask(), calib.image, cam, calib.pose.obstacle_height_cm)
+        publish(
+            BlobList(
+                seq=frame.seq,
+                stamp_ns=frame.stamp_ns,
+                rows=frame.rows,
+                cols=frame.cols,
+                calibration_version=calib.version,
+                blobs=[
+                    BlobMeasure(
+                        row=float(blobs.row[i]),
+                        col=float(blobs.col[i]),
+                        area_px=float(blobs.area_px[i]),
+                        perimeter_px=float(blobs.perimeter_px[i]),
+                        compactness=float(blobs.compactness[i]),
+                        mu_rr=float(blobs.mu_rr[i]),
+                        mu_cc=float(blobs.mu_cc[i]),
+                        mu_rc=float(blobs.mu_rc[i]),
+                    )
+                    for i in range(blobs.row.size)
+                ],
+            )
+        )
+        service.sent()
+        service.state = "ok"
+
+    service.serve(frames, handle)

@@ -1,0 +1,54 @@
+"""Preprocessing service: the paper's median step and binarization (§3) of each frame,
+with the current calibration's threshold and polarity; publishes packed binary frames
+on ``ovis/<arena>/binary``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ovis.common.messages import BinaryFrame, Frame
+from ovis.common.preprocess import ImageError, as_gray, binarize, smooth
+from ovis.services.runtime import Service
+
+
+def main(service: Service) -> None:
+    service.follow_calibration()
+    publish = service.publisher(service.topics.binary)
+    frames = service.inbox(service.topics.frames)
+
+    def handle(payload: bytes, _receipt_ns: int) -> None:
+        frame = service.decode(payload, Frame, "frame")
+        if frame is None:
+            return
+        service.saw_frame(frame.seq, frame.stamp_ns)
+        calib = service.calibration
+        cam = calib.camera
+        if (frame.rows, frame.cols) != (cam.rows, cam.cols):
+            service.error(
+                "bad_frame",
+                f"frame {frame.seq} is {frame.cols}x{frame.rows}, the camera is "
+                f"configured for {cam.cols}x{cam.rows}",
+            )
+            return
+        try:
+            gray = as_gray(frame.image())
+        except ImageError as exc:
+            service.error("bad_frame", f"frame {frame.seq}: {exc}")
+            return
+        params = calib.image
+        binary = binarize(smooth(gray, params.median), params.threshold, params.polarity)
+        publish(
+            BinaryFrame(
+                seq=frame.seq,
+                stamp_ns=frame.stamp_ns,
+                rows=frame.rows,
+                cols=frame.cols,
+                bits=np.packbits(binary).tobytes(),
+                threshold=params.threshold,
+                calibration_version=calib.version,
+            )
+        )
+        service.sent()
+        service.state = "ok"
+
+    service.serve(frames, handle)
