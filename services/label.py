@@ -18,7 +18,6 @@ def main(service: Service) -> None:
         frame = service.decode(payload, BinaryFrame, "binary")
         if frame is None:
             return
-        service.saw_frame(frame.seq, frame.stamp_ns)
         calib = service.calibration
         cam = calib.camera
         if (frame.rows, frame.cols) != (cam.rows, cam.cols):
@@ -28,6 +27,7 @@ def main(service: Service) -> None:
                 f"{cam.cols}x{cam.rows}",
             )
             return
+        service.saw_frame(frame.seq, frame.stamp_ns)
         blobs = measure_blobs(frame.mask(), calib.image, cam, calib.pose.obstacle_height_cm)
         publish(
             BlobList(

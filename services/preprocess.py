@@ -20,7 +20,6 @@ def main(service: Service) -> None:
         frame = service.decode(payload, Frame, "frame")
         if frame is None:
             return
-        service.saw_frame(frame.seq, frame.stamp_ns)
         calib = service.calibration
         cam = calib.camera
         if (frame.rows, frame.cols) != (cam.rows, cam.cols):
@@ -35,6 +34,7 @@ def main(service: Service) -> None:
         except ImageError as exc:
             service.error("bad_frame", f"frame {frame.seq}: {exc}")
             return
+        service.saw_frame(frame.seq, frame.stamp_ns)
         params = calib.image
         binary = binarize(smooth(gray, params.median), params.threshold, params.polarity)
         publish(

@@ -38,6 +38,7 @@ from ovis.common.messages import (
 
 __all__ = [
     "Inbox",
+    "ZenohUnreachableError",
     "Service",
     "calibration_from_config",
     "open_session",
@@ -47,8 +48,13 @@ __all__ = [
 log = logging.getLogger("ovis")
 
 
-def zenoh_config(zc: ZenohConfig) -> zenoh.Config:
-    """A Zenoh configuration from ours: an optional JSON5 file, then mode/connect/listen."""
+def zenoh_config(zc: ZenohConfig, *, wait: bool = True) -> zenoh.Config:
+    """A Zenoh configuration from ours: an optional JSON5 file, then mode/connect/listen.
+
+    With ``wait``, a client keeps trying its routers instead of failing at once (a
+    service started before its router waits for it); tools pass ``wait=False`` to say
+    "no router" straight away.
+    """
     if zc.config_file:
         path = Path(zc.config_file)
         if not path.is_file():
@@ -59,16 +65,29 @@ def zenoh_config(zc: ZenohConfig) -> zenoh.Config:
     conf.insert_json5("mode", msgspec.json.encode(zc.mode).decode())
     if zc.connect:
         conf.insert_json5("connect/endpoints", msgspec.json.encode(zc.connect).decode())
+        if wait:
+            conf.insert_json5("connect/timeout_ms", "-1")
+            conf.insert_json5("connect/exit_on_failure", "false")
     if zc.listen:
         conf.insert_json5("listen/endpoints", msgspec.json.encode(zc.listen).decode())
     conf.insert_json5("scouting/multicast/enabled", "true" if zc.multicast_scouting else "false")
     return conf
 
 
+class ZenohUnreachableError(RuntimeError):
+    """No router answered at the configured endpoints."""
+
+
 @contextmanager
-def open_session(zc: ZenohConfig) -> Iterator[zenoh.Session]:
+def open_session(zc: ZenohConfig, *, wait: bool = True) -> Iterator[zenoh.Session]:
     """Open a Zenoh session and always close it (a session left open hangs the exit)."""
-    session = zenoh.open(zenoh_config(zc))
+    try:
+        session = zenoh.open(zenoh_config(zc, wait=wait))
+    except zenoh.ZError as exc:
+        raise ZenohUnreachableError(
+            f"cannot reach Zenoh at {', '.join(zc.connect or zc.listen)}: {exc}. Is a router "
+            "running there (`ovis router`, `ovis up`)? Use --connect to name another"
+        ) from None
     try:
         yield session
     finally:

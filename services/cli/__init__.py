@@ -42,6 +42,7 @@ def main() -> None:
     from ovis.common.calibration_file import CalibrationFileError
     from ovis.common.config import ConfigError
     from ovis.common.preprocess import ImageError
+    from ovis.services.runtime import ZenohUnreachableError
 
     try:
         app()  # click itself handles usage errors, --help and Ctrl-C, then exits
@@ -49,6 +50,8 @@ def main() -> None:
         _fail(str(exc), exc.exit_code)
     except (ConfigError, CalibrationFileError, ImageError) as exc:
         _fail(str(exc), 2)
+    except ZenohUnreachableError as exc:
+        _fail(str(exc), 4)
     except InfeasibleCalibrationError as exc:
         _fail(f"calibration is infeasible: {exc}", 3)
     except Exception as exc:  # last line of defence: one line, not a traceback

@@ -238,6 +238,7 @@ def up(
                 until=(started + duration) if duration is not None else None,
                 live=live and not json,
                 fleet_dead=fleet.dead,
+                quiet=json,
             )
             statuses = view.poll_status(session)
     finally:
@@ -318,7 +319,7 @@ def recalibrate(
     cfg = _config(config, connect=connect, arena=arena)
     topics = _topics(cfg)
     request = encode(CalibrateRequest(frame_seq=frame, seed=seed))
-    with open_session(cfg.zenoh) as session:
+    with open_session(cfg.zenoh, wait=False) as session:
         replies = list(session.get(topics.calibrate, payload=request, timeout=timeout))
     if not replies:
         raise UserError(
@@ -355,7 +356,7 @@ def status(
 
     cfg = _config(config, connect=connect, arena=arena)
     topics = _topics(cfg)
-    with open_session(cfg.zenoh) as session:
+    with open_session(cfg.zenoh, wait=False) as session:
         report = collect_status(session, topics)
     if json:
         sys.stdout.write(msgspec.json.encode(report).decode() + "\n")

@@ -223,13 +223,14 @@ class LiveView:
         until: float | None,
         live: bool,
         fleet_dead: Callable[[], list[str]],
+        quiet: bool = False,
     ) -> None:
         """Show the newest frame until ``stop``, ``until`` (monotonic) or a child dies."""
         from rich.console import Console
         from rich.live import Live
         from rich.text import Text
 
-        console = Console(highlight=False)
+        console = Console(highlight=False, stderr=quiet)
 
         def render() -> Text:
             with self._lock:
@@ -254,7 +255,7 @@ class LiveView:
                     break
                 if ctx is not None:
                     ctx.update(render())
-                elif time.monotonic() - last_print > 5.0 and self.latest is not None:
+                elif not quiet and time.monotonic() - last_print > 5.0 and self.latest:
                     last_print = time.monotonic()
                     console.print(render(), highlight=False)
                 stop.wait(0.25)

@@ -1,0 +1,292 @@
+"""The services as real processes on loopback Zenoh: each stage via `ovis run` through
+`ovis router`, recalibration while frames flow, liveliness of a killed stage, and
+garbage on every input topic. No mocks: real router, real processes, real images."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import pytest
+import zenoh
+from zenoh_helpers import alive, client, free_port, ovis_cmd, spawn, stop, wait_for
+
+from ovis.common.calibration_file import load_calibration
+from ovis.common.config import load_config
+from ovis.common.evaluation import match_to_truth
+from ovis.common.messages import (
+    ENCODING,
+    BlobList,
+    BlobMeasure,
+    CalibrateReply,
+    Frame,
+    ObstacleFrame,
+    ServiceStatus,
+    Topics,
+    TruthFrame,
+    decode,
+    encode,
+)
+from ovis.services.cli.watching import collect_status
+
+STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
+PAPER_DIPE_MM = 0.735214
+
+
+class Recorder:
+    """Collects obstacle and truth messages from a client session."""
+
+    def __init__(self, session: zenoh.Session, arena: str = "default") -> None:
+        self.obstacles: list[ObstacleFrame] = []
+        self.truth: dict[int, TruthFrame] = {}
+        self.receipt: list[float] = []
+        self.lock = threading.Lock()
+        session.declare_subscriber(f"ovis/{arena}/obstacles", self._obs)
+        session.declare_subscriber(f"ovis/{arena}/truth", self._truth)
+
+    def _obs(self, sample: zenoh.Sample) -> None:
+        msg = decode(sample.payload.to_bytes(), ObstacleFrame)
+        with self.lock:
+            self.obstacles.append(msg)
+            self.receipt.append(time.monotonic())
+
+    def _truth(self, sample: zenoh.Sample) -> None:
+        msg = decode(sample.payload.to_bytes(), TruthFrame)
+        with self.lock:
+            self.truth[msg.seq] = msg
+
+    def since(self, n: int) -> list[ObstacleFrame]:
+        with self.lock:
+            return list(self.obstacles[n:])
+
+    def count(self) -> int:
+        with self.lock:
+            return len(self.obstacles)
+
+
+def _errors_of(msgs: list[ObstacleFrame], truth: dict[int, TruthFrame]) -> tuple[list, int, int]:
+    errors, missed, spurious = [], 0, 0
+    for m in msgs:
+        t = truth.get(m.seq)
+        if t is None:
+            continue
+        objs = ([m.robot] if m.robot else []) + m.obstacles
+        acc = match_to_truth(
+            [(o.x_cm, o.y_cm, o.radius_cm) for o in objs],
+            [o.kind for o in objs],
+            [(o.x_cm, o.y_cm, o.radius_cm) for o in t.objects],
+            [o.kind for o in t.objects],
+        )
+        errors.extend(acc.position_error_cm)
+        missed += acc.missed
+        spurious += acc.spurious + int((~acc.kind_correct).sum())
+    return errors, missed, spurious
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory: pytest.TempPathFactory):
+    """`ovis router` plus each stage as its own `ovis run` process."""
+    tmp = tmp_path_factory.mktemp("pipeline")
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    overrides = tmp / "override.toml"
+    overrides.write_text(
+        'preset = "default"\n[service]\nfps = 15.0\n'
+        f'state_dir = "{tmp / "state"}"\n[zenoh]\nconnect = ["{endpoint}"]\n'
+    )
+    procs: dict[str, subprocess.Popen[bytes]] = {}
+    procs["router"] = spawn(ovis_cmd("router", "--listen", endpoint), tmp / "router.log")
+    time.sleep(0.5)
+    for stage in STAGES:
+        procs[stage] = spawn(
+            ovis_cmd("run", stage, "--config", str(overrides)), tmp / f"{stage}.log"
+        )
+    with client(endpoint) as session:
+        try:
+            wait_for(lambda: alive(session) >= set(STAGES), 30, "all five services alive")
+            rec = Recorder(session)
+            wait_for(
+                lambda: any(m.calibration_version >= 1 for m in rec.since(0)),
+                30,
+                "obstacle messages made with the initial calibration",
+            )
+            yield {
+                "endpoint": endpoint,
+                "session": session,
+                "recorder": rec,
+                "procs": procs,
+                "tmp": tmp,
+                "overrides": overrides,
+            }
+        finally:
+            stop([p for n, p in procs.items() if n != "router"])
+            stop([procs["router"]])
+            for stage in STAGES:
+                log = (tmp / f"{stage}.log").read_text()
+                assert "Traceback" not in log, f"{stage} log:\n{log}"
+
+
+def test_obstacles_arrive_for_consecutive_frames_within_1_cm(pipeline) -> None:
+    rec: Recorder = pipeline["recorder"]
+    start = rec.count()
+    wait_for(lambda: rec.count() - start >= 30, 30, "30 obstacle messages")
+    msgs = [m for m in rec.since(start) if m.calibration_version >= 1]
+    seqs = [m.seq for m in msgs]
+    assert seqs == sorted(seqs)
+    assert max(np.diff(seqs)) <= 2  # consecutive frames (at most a rare newest-wins skip)
+    errors, missed, spurious = _errors_of(msgs, rec.truth)
+    assert len(errors) >= 4 * 25
+    assert (missed, spurious) == (0, 0)
+    assert max(errors) < 1.0, f"worst position error {max(errors):.3f} cm"
+    for m in msgs:
+        assert m.robot is not None and len(m.obstacles) == 3 and len(m.planner) == 3
+        assert 0 < m.frame_age_ms < 1000
+
+
+def test_planner_inputs_match_ovis_plan(pipeline) -> None:
+    rec: Recorder = pipeline["recorder"]
+    msg = rec.since(rec.count() - 1)[-1]
+    goal = load_config().pose.goal_cm
+    args = [
+        "plan",
+        "--robot",
+        f"{msg.robot.x_cm},{msg.robot.y_cm}",
+        "--goal",
+        f"{goal[0]},{goal[1]}",
+        "--json",
+    ]
+    for o in msg.obstacles:
+        args += ["--obstacle", f"{o.x_cm},{o.y_cm},{o.radius_cm}"]
+    out = subprocess.run(ovis_cmd(*args), capture_output=True, text=True, check=True)
+    planned = json.loads(out.stdout)
+    assert [p["distance_cm"] for p in planned] == pytest.approx(
+        [e.distance_cm for e in msg.planner], abs=1e-9
+    )
+    assert [p["angle_deg"] for p in planned] == pytest.approx(
+        [e.angle_deg for e in msg.planner], abs=1e-9
+    )
+
+
+def test_recalibrate_while_frames_flow(pipeline) -> None:
+    rec: Recorder = pipeline["recorder"]
+    before = rec.count()
+    version_before = rec.since(before - 1)[-1].calibration_version
+    t0 = time.monotonic()
+    out = subprocess.run(
+        ovis_cmd("recalibrate", "--connect", pipeline["endpoint"], "--json", "--seed", "1"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr
+    reply = json.loads(out.stdout)
+    assert reply["ok"] and reply["version"] == version_before + 1
+    assert reply["dipe_mm"] < PAPER_DIPE_MM
+    # The saved file is intact and is the one in use.
+    saved = load_calibration(reply["saved_to"])
+    assert saved.version == reply["version"] and saved.dipe_px == reply["dipe_px"]
+    current = load_calibration(Path(reply["saved_to"]).parent / "current.json")
+    assert current.version == reply["version"]
+    # Later obstacle messages carry the new version; frames kept flowing meanwhile.
+    wait_for(
+        lambda: any(m.calibration_version == reply["version"] for m in rec.since(before)),
+        15,
+        "obstacle messages with the new calibration version",
+    )
+    with rec.lock:
+        stamps = [t for t in rec.receipt[before:] if t >= t0]
+    assert len(stamps) > 10
+    assert max(np.diff(stamps)) < 1.0  # no stall of frame processing during the GA
+    msgs = [m for m in rec.since(before) if m.calibration_version == reply["version"]]
+    errors, missed, spurious = _errors_of(msgs, rec.truth)
+    assert (missed, spurious) == (0, 0) and max(errors) < 1.0
+
+
+def test_garbage_on_every_input_topic_is_counted_and_survived(pipeline) -> None:
+    session: zenoh.Session = pipeline["session"]
+    topics = Topics("default")
+    enc = zenoh.Encoding(ENCODING)
+    before = {r.service: r.status for r in collect_status(session, topics) if r.status}
+    good_frame = Frame.from_image(np.zeros((480, 640), np.uint8), seq=0, stamp_ns=1)
+    wrong_size = Frame.from_image(np.zeros((100, 120), np.uint8), seq=10**9, stamp_ns=1)
+    blob = msgspec.to_builtins(
+        BlobMeasure(
+            row=1, col=1, area_px=1, perimeter_px=1, compactness=1, mu_rr=0, mu_cc=0, mu_rc=0
+        )
+    )
+    blob["row"] = float("nan")
+    blobs = msgspec.to_builtins(
+        BlobList(seq=1, stamp_ns=1, rows=480, cols=640, calibration_version=1, blobs=[])
+    )
+    nan_blobs = msgspec.msgpack.encode({**blobs, "blobs": [blob]})
+    garbage = [b"", b"\x00\xff garbage \x13", b"\xc1", encode(good_frame)[:50], b"x" * 5000]
+    wrong_schema = [
+        encode(TruthFrame(seq=1, objects=[])),
+        b"\x81\xa4type\xa5frame",
+        encode(wrong_size),
+    ]
+    for key in (topics.frames, topics.binary, topics.blobs, topics.calibration):
+        for payload in garbage + wrong_schema:
+            session.put(key, payload, encoding=enc)
+            time.sleep(0.03)  # one at a time: a burst would be "newest wins" drops
+    session.put(topics.blobs, nan_blobs, encoding=enc)
+    bad_query = list(session.get(topics.calibrate, payload=b"\x93\x01\x02", timeout=10))
+    assert bad_query and bad_query[0].ok is not None
+    answer = decode(bad_query[0].ok.payload.to_bytes(), CalibrateReply)
+    assert not answer.ok and "bad request" in answer.error
+
+    def counted() -> dict[str, ServiceStatus]:
+        now = {r.service: r.status for r in collect_status(session, topics) if r.status}
+        return (
+            now
+            if all(
+                sum(now[s].errors.values()) > sum(before[s].errors.values())
+                for s in ("preprocess", "label", "pose", "calibrator")
+            )
+            else {}
+        )
+
+    after = wait_for(counted, 10, "errors counted by every service")
+    assert after["preprocess"].errors.get("bad_frame", 0) >= len(garbage) + len(wrong_schema)
+    assert after["label"].errors.get("bad_binary", 0) >= len(garbage)
+    assert after["pose"].errors.get("bad_blobs", 0) >= len(garbage) + 1
+    assert after["calibrator"].errors.get("bad_calibrate_request", 0) >= 1
+    assert all(
+        after[s].errors.get("bad_calibration", 0) >= len(garbage)
+        for s in ("preprocess", "label", "pose")
+    )
+    # Every service is alive and the output is still right.
+    assert alive(session) >= set(STAGES)
+    rec: Recorder = pipeline["recorder"]
+    n = rec.count()
+    wait_for(lambda: rec.count() - n >= 10, 15, "obstacle messages after the garbage")
+    errors, missed, spurious = _errors_of(rec.since(n), rec.truth)
+    assert errors and (missed, spurious) == (0, 0) and max(errors) < 1.0
+
+
+def test_killed_stage_is_seen_in_status_within_2_s(pipeline) -> None:
+    session: zenoh.Session = pipeline["session"]
+    topics = Topics("default")
+    victim = pipeline["procs"]["label"]
+    victim.send_signal(signal.SIGKILL)
+    t0 = time.monotonic()
+    wait_for(lambda: "label" not in alive(session), 2.0, "label to disappear from liveliness")
+    seen_after = time.monotonic() - t0
+    report = {r.service: r for r in collect_status(session, topics)}
+    assert not report["label"].alive and report["pose"].alive
+    out = subprocess.run(
+        ovis_cmd("status", "--connect", pipeline["endpoint"], "--json"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
+    rows = {r["service"]: r for r in json.loads(out.stdout)}
+    assert rows["label"]["alive"] is False and rows["capture"]["alive"] is True
+    assert rows["capture"]["status"]["frames_out"] > 0
+    assert seen_after < 2.0

@@ -1,0 +1,121 @@
+"""`ovis up` end to end: router + five processes, an independent subscriber, a summary,
+and a clean shutdown with no orphans."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_services import Recorder, _errors_of
+from zenoh_helpers import client, free_port, ovis_cmd, pids_with, wait_for
+
+from ovis.common.config import load_config
+from ovis.common.planner import planner_inputs
+
+
+def _log_dir(stderr_text: str) -> str:
+    m = re.search(r"logs in (\S+)", stderr_text)
+    assert m, stderr_text
+    return m.group(1)
+
+
+def test_up_runs_the_pipeline_and_summarises(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    err = tmp_path / "up.err"
+    with open(err, "wb") as fh:
+        proc = subprocess.Popen(
+            ovis_cmd(
+                "up",
+                "--duration",
+                "14",
+                "--listen",
+                endpoint,
+                "--state-dir",
+                str(tmp_path / "state"),
+                "--fps",
+                "15",
+                "--json",
+            ),
+            stdout=subprocess.PIPE,
+            stderr=fh,
+        )
+    try:
+        with client(endpoint) as session:
+            rec = Recorder(session)
+            wait_for(lambda: rec.count() >= 40, 40, "40 obstacle messages from ovis up")
+            msgs = [m for m in rec.since(0) if m.calibration_version >= 1]
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err.read_text()
+    seqs = [m.seq for m in msgs]
+    assert len(msgs) >= 20 and max(np.diff(seqs)) <= 2
+    errors, missed, spurious = _errors_of(msgs, rec.truth)
+    assert (missed, spurious) == (0, 0) and len(errors) >= 60 and max(errors) < 1.0
+    # The planner inputs are those of `ovis plan` on the published positions.
+    m = msgs[-1]
+    goal = load_config().pose.goal_cm
+    expected = planner_inputs(
+        (m.robot.x_cm, m.robot.y_cm),
+        [(o.x_cm, o.y_cm, o.radius_cm) for o in m.obstacles],
+        goal_xy=goal,
+    )
+    assert [e.distance_cm for e in m.planner] == pytest.approx(expected.distance_cm.tolist())
+    summary = json.loads(out)
+    assert summary["frames_processed"] >= 40 and summary["frames_captured"] >= 40
+    assert summary["objects_missed"] == 0 and summary["position_error_cm_max"] < 1.0
+    assert summary["latency_ms_p50"] > 0 and summary["calibration_version"] >= 1
+    assert set(summary["exit_codes"]) == {
+        "router",
+        "capture",
+        "preprocess",
+        "label",
+        "pose",
+        "calibrator",
+    }
+    log_dir = _log_dir(err.read_text())
+    assert pids_with(log_dir) == []  # no orphans
+
+
+def test_up_stops_cleanly_on_sigterm(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    err = tmp_path / "up.err"
+    with open(err, "wb") as fh:
+        proc = subprocess.Popen(
+            ovis_cmd(
+                "up",
+                "--listen",
+                endpoint,
+                "--state-dir",
+                str(tmp_path / "state"),
+                "--fps",
+                "10",
+                "--json",
+            ),
+            stdout=subprocess.PIPE,
+            stderr=fh,
+        )
+    try:
+        with client(endpoint) as session:
+            rec = Recorder(session)
+            wait_for(lambda: rec.count() >= 5, 40, "obstacle messages")
+        log_dir = _log_dir(err.read_text())
+        assert len(pids_with(log_dir)) == 5  # the five stages (the router has no config)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err.read_text()
+    assert time.monotonic() - t0 < 15
+    assert json.loads(out)["frames_processed"] >= 5
+    assert pids_with(log_dir) == []
+    assert "Traceback" not in "".join(p.read_text() for p in Path(log_dir).glob("*.log"))
