@@ -38,8 +38,8 @@ from ovis.common.messages import (
 
 __all__ = [
     "Inbox",
-    "ZenohUnreachableError",
     "Service",
+    "ZenohUnreachableError",
     "calibration_from_config",
     "open_session",
     "zenoh_config",
