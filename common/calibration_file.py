@@ -49,7 +49,7 @@ class PointResidual(msgspec.Struct, kw_only=True):
     dipe_mm: float
 
 
-class GenerationRecord(msgspec.Struct, array_like=True):
+class GenerationRecord(msgspec.Struct):
     """One GA generation: best and mean feasible fitness (px), best so far, feasible share."""
 
     generation: int

@@ -10,7 +10,7 @@ shapes comes from second moments carried onto the floor.
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple
+from typing import Annotated, Literal, NamedTuple
 
 import msgspec
 import numpy as np
@@ -40,33 +40,38 @@ __all__ = [
 ROUND_ELONGATION = 1.15
 
 
+#: A finite number (decoding refuses NaN and ±inf).
+Finite = Annotated[float, msgspec.Meta(ge=-1e12, le=1e12)]
+NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=1e12)]
+
+
 class DetectedObject(msgspec.Struct, kw_only=True):
     """One object seen in a frame: image measurements and world pose."""
 
-    id: int
+    id: Annotated[int, msgspec.Meta(ge=0)]
     kind: Literal["robot", "obstacle"]
-    row: float
-    col: float
-    area_px: float
-    perimeter_px: float
-    compactness: float
-    x_cm: float
-    y_cm: float
-    z_cm: float
-    radius_cm: float
-    area_cm2: float
-    heading_deg: float | None = None
-    elongation: float = 1.0
-    vx_cm_s: float = 0.0
-    vy_cm_s: float = 0.0
+    row: Finite
+    col: Finite
+    area_px: NonNegative
+    perimeter_px: NonNegative
+    compactness: NonNegative
+    x_cm: Finite
+    y_cm: Finite
+    z_cm: Finite
+    radius_cm: NonNegative
+    area_cm2: NonNegative
+    heading_deg: Finite | None = None
+    elongation: NonNegative = 1.0
+    vx_cm_s: Finite = 0.0
+    vy_cm_s: Finite = 0.0
 
 
 class PlannerEntry(msgspec.Struct, kw_only=True):
     """Motion-planner inputs for one obstacle (model-notes §6)."""
 
-    obstacle_id: int
-    distance_cm: float
-    angle_deg: float
+    obstacle_id: Annotated[int, msgspec.Meta(ge=0)]
+    distance_cm: Finite
+    angle_deg: Annotated[float, msgspec.Meta(gt=-180.0, le=180.0)]
 
 
 class Detection(msgspec.Struct, kw_only=True):

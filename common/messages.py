@@ -91,8 +91,15 @@ class Frame(_Msg, tag="frame", kw_only=True):
     def from_image(
         cls, image: NDArray[np.uint8], *, seq: int, stamp_ns: int, source: str = ""
     ) -> Frame:
-        if image.dtype != np.uint8 or image.ndim not in (2, 3):
-            raise ValueError(f"expected a uint8 grey or BGR image, got {image.dtype} {image.shape}")
+        if (
+            image.dtype != np.uint8
+            or image.ndim not in (2, 3)
+            or (image.ndim == 3 and image.shape[2] != 3)
+        ):
+            raise ValueError(
+                f"expected a uint8 grey (H, W) or BGR (H, W, 3) image, got {image.dtype} "
+                f"{image.shape}"
+            )
         channels = 1 if image.ndim == 2 else image.shape[2]
         return cls(
             seq=seq,
@@ -163,8 +170,8 @@ class ObstacleFrame(_Msg, tag="obstacles", kw_only=True):
     seq: Seq
     stamp_ns: Stamp
     published_ns: Stamp
-    frame_age_ms: float
-    calibration_version: int
+    frame_age_ms: Finite
+    calibration_version: Annotated[int, msgspec.Meta(ge=0)]
     robot: DetectedObject | None
     obstacles: list[DetectedObject]
     planner: list[PlannerEntry]
@@ -265,6 +272,10 @@ def decode(payload: bytes | memoryview, expected: Any = Message) -> Any:
         raise MessageError(f"wrong schema: {exc}") from None
     except msgspec.DecodeError as exc:
         raise MessageError(f"not MessagePack: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise MessageError(f"a string is not valid UTF-8: {exc}") from None
+    except RecursionError:
+        raise MessageError("nested too deeply") from None
 
 
 def message_schema() -> dict[str, Any]:
@@ -277,14 +288,14 @@ def message_schema() -> dict[str, Any]:
     }
 
 
-_ARENA_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+_ARENA_RE = re.compile(r"[A-Za-z0-9_.-]{1,64}")
 
 
 class Topics:
     """Key expressions of one arena, all rooted at ``ovis/<arena>/``."""
 
     def __init__(self, arena: str = "default") -> None:
-        if not _ARENA_RE.match(arena):
+        if not _ARENA_RE.fullmatch(arena):
             raise ValueError(
                 f"arena name {arena!r} must be 1-64 letters, digits, '_', '.' or '-' "
                 "(it becomes a Zenoh key chunk)"

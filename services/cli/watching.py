@@ -43,14 +43,13 @@ def format_obstacles(msg: ObstacleFrame) -> str:
         lines.append("  robot: not found")
     else:
         r = msg.robot
-        lines.append(f"  robot    at ({r.x_cm:7.2f}, {r.y_cm:7.2f}) cm  r {r.radius_cm:.2f} cm")
+        lines.append(f"  R    x {r.x_cm:7.2f}  y {r.y_cm:7.2f}  r {r.radius_cm:5.2f} cm")
     plan = {p.obstacle_id: p for p in msg.planner}
     for o in msg.obstacles:
         p = plan.get(o.id)
-        extra = f"  distance {p.distance_cm:7.2f} cm  angle {p.angle_deg:+8.2f}°" if p else ""
+        extra = f"   distance {p.distance_cm:7.2f} cm  angle {p.angle_deg:+7.1f}°" if p else ""
         lines.append(
-            f"  obstacle {o.id:<3d} at ({o.x_cm:7.2f}, {o.y_cm:7.2f}) cm  r {o.radius_cm:.2f} cm"
-            + extra
+            f"  O{o.id:<3d} x {o.x_cm:7.2f}  y {o.y_cm:7.2f}  r {o.radius_cm:5.2f} cm" + extra
         )
     if not msg.obstacles:
         lines.append("  no obstacles")

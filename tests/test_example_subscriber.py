@@ -1,0 +1,293 @@
+"""deploy/examples/subscribe_obstacles.py against real Zenoh on loopback (no mocks).
+
+A router runs in this test process; the example runs as a subprocess with only zenoh and
+msgpack, and receives ObstacleFrames encoded by ovis itself.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import math
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO
+
+import pytest
+import zenoh
+
+from ovis.common.detection import DetectedObject, PlannerEntry
+from ovis.common.messages import ENCODING, ObstacleFrame, Topics, TruthFrame, encode
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "deploy" / "examples" / "subscribe_obstacles.py"
+TIMEOUT_S = 20.0
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextmanager
+def _router() -> Iterator[tuple[zenoh.Session, str]]:
+    """A Zenoh router in this process, listening on a free loopback port."""
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"router"')
+    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    try:
+        yield session, endpoint
+    finally:
+        session.close()
+
+
+class _Lines:
+    """Collects a pipe's lines on a thread (so the test never blocks on a read)."""
+
+    def __init__(self, stream: IO[str]) -> None:
+        self.lines: list[str] = []
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream: IO[str]) -> None:
+        for line in stream:
+            self.lines.append(line.rstrip("\n"))
+
+    def join(self, timeout: float = 5.0) -> None:
+        self._thread.join(timeout)
+
+
+def _spawn(*args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, str(EXAMPLE), *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        stdin=subprocess.DEVNULL,
+        text=True,
+    )
+
+
+def _stop(proc: subprocess.Popen[str]) -> None:
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait(5)
+
+
+def _obj(id: int, kind: str, x: float, y: float, r: float) -> DetectedObject:
+    return DetectedObject(
+        id=id,
+        kind=kind,
+        row=100.0 + y,
+        col=200.0 + x,
+        area_px=321.0,
+        perimeter_px=64.5,
+        compactness=1.02 if kind == "obstacle" else 1.6,
+        x_cm=x,
+        y_cm=y,
+        z_cm=5.0 if kind == "obstacle" else 12.0,
+        radius_cm=r,
+        area_cm2=math.pi * r * r,
+        heading_deg=30.0 if kind == "robot" else None,
+        elongation=1.0,
+    )
+
+
+def _frame(seq: int, *, robot: bool = True) -> ObstacleFrame:
+    """A frame whose values depend on seq, so a line printed can be matched to its frame."""
+    obstacles = [
+        _obj(2 + seq % 3, "obstacle", 10.0 + seq, 20.5, 4.25),
+        _obj(7, "obstacle", -3.5, 40.0, 6.0),
+    ]
+    return ObstacleFrame(
+        seq=seq,
+        stamp_ns=1_700_000_000_000_000_000 + seq,
+        published_ns=1_700_000_000_010_000_000 + seq,
+        frame_age_ms=10.0,
+        calibration_version=4,
+        robot=_obj(1, "robot", 50.0, 60.25, 9.0) if robot else None,
+        obstacles=obstacles,
+        planner=[
+            PlannerEntry(obstacle_id=o.id, distance_cm=12.5 + seq + i, angle_deg=-45.25 + 90 * i)
+            for i, o in enumerate(obstacles)
+        ],
+    )
+
+
+def _publish_until(
+    session: zenoh.Session,
+    proc: subprocess.Popen[str],
+    out: _Lines,
+    n_lines: int,
+    *,
+    robot: bool = True,
+    junk: bool = False,
+) -> dict[int, ObstacleFrame]:
+    """Publish frames (seq 0, 1, …) every 50 ms until ``n_lines`` lines or the process ends."""
+    publisher = session.declare_publisher(
+        Topics("default").obstacles, encoding=zenoh.Encoding(ENCODING)
+    )
+    sent: dict[int, ObstacleFrame] = {}
+    deadline = time.monotonic() + TIMEOUT_S
+    seq = 0
+    try:
+        while len(out.lines) < n_lines and proc.poll() is None:
+            assert time.monotonic() < deadline, f"only {out.lines} after {TIMEOUT_S} s"
+            if junk:  # each must be skipped, not printed and not fatal
+                publisher.put(b"\xc1 not msgpack")
+                publisher.put(encode(TruthFrame(seq=seq, objects=[])))
+                publisher.put(b"\x93\x01\x02\x03")  # an array, not a map
+            sent[seq] = _frame(seq, robot=robot)
+            publisher.put(encode(sent[seq]))
+            seq += 1
+            time.sleep(0.05)
+    finally:
+        publisher.undeclare()
+    return sent
+
+
+def test_json_lines_carry_the_published_frames() -> None:
+    with _router() as (session, endpoint):
+        proc = _spawn("--connect", endpoint, "--count", "3", "--json")
+        try:
+            assert proc.stdout is not None and proc.stderr is not None
+            out, err = _Lines(proc.stdout), _Lines(proc.stderr)
+            sent = _publish_until(session, proc, out, 3, junk=True)
+            assert proc.wait(TIMEOUT_S) == 0, "\n".join(err.lines)
+        finally:
+            _stop(proc)
+    out.join()
+    err.join()
+    got = [json.loads(line) for line in out.lines]
+    assert len(got) == 3, out.lines
+    seqs = [g["seq"] for g in got]
+    assert seqs == list(range(seqs[0], seqs[0] + 3))  # FIFO on loopback: none lost
+    for g in got:
+        frame = sent[g["seq"]]
+        assert set(g) == {"seq", "stamp_ns", "calibration_version", "robot", "obstacles", "planner"}
+        assert g["stamp_ns"] == frame.stamp_ns
+        assert g["calibration_version"] == 4
+        assert g["robot"]["id"] == 1 and g["robot"]["kind"] == "robot"
+        assert (g["robot"]["x_cm"], g["robot"]["y_cm"]) == (50.0, 60.25)
+        assert [o["id"] for o in g["obstacles"]] == [o.id for o in frame.obstacles]
+        assert [o["x_cm"] for o in g["obstacles"]] == [o.x_cm for o in frame.obstacles]
+        assert [o["radius_cm"] for o in g["obstacles"]] == [4.25, 6.0]
+        assert g["obstacles"][0]["heading_deg"] is None
+        assert [(p["obstacle_id"], p["distance_cm"], p["angle_deg"]) for p in g["planner"]] == [
+            (p.obstacle_id, p.distance_cm, p.angle_deg) for p in frame.planner
+        ]
+    skipped = [line for line in err.lines if line.startswith("skipped")]
+    assert any("not MessagePack" in line for line in skipped), err.lines
+    assert any("expected type 'obstacles', got 'truth'" in line for line in skipped), err.lines
+    assert any("expected a map, got list" in line for line in skipped), err.lines
+
+
+def test_text_output_names_robot_and_each_obstacle() -> None:
+    with _router() as (session, endpoint):
+        proc = _spawn("--connect", endpoint, "--count", "2")
+        try:
+            assert proc.stdout is not None and proc.stderr is not None
+            out, err = _Lines(proc.stdout), _Lines(proc.stderr)
+            sent = _publish_until(session, proc, out, 6)  # 3 lines per frame
+            assert proc.wait(TIMEOUT_S) == 0, "\n".join(err.lines)
+        finally:
+            _stop(proc)
+    out.join()
+    assert len(out.lines) == 6, out.lines
+    first = int(out.lines[0].split()[1])
+    frame = sent[first]
+    assert out.lines[0] == (
+        f"frame {first} (calibration v4): robot at (50.0, 60.2) cm heading 30.0 deg, 2 obstacle(s)"
+    )
+    o, p = frame.obstacles[0], frame.planner[0]
+    assert out.lines[1] == (
+        f"  obstacle {o.id}: at ({o.x_cm:.1f}, 20.5) cm, radius 4.2 cm, "
+        f"distance {p.distance_cm:.1f} cm, angle -45.2 deg"
+    )
+    assert out.lines[2] == (
+        "  obstacle 7: at (-3.5, 40.0) cm, radius 6.0 cm, "
+        f"distance {frame.planner[1].distance_cm:.1f} cm, angle 44.8 deg"
+    )
+
+
+def test_a_frame_without_robot_is_printed_too() -> None:
+    with _router() as (session, endpoint):
+        proc = _spawn("--connect", endpoint, "--count", "1", "--json")
+        try:
+            assert proc.stdout is not None and proc.stderr is not None
+            out, err = _Lines(proc.stdout), _Lines(proc.stderr)
+            _publish_until(session, proc, out, 1, robot=False)
+            assert proc.wait(TIMEOUT_S) == 0, "\n".join(err.lines)
+        finally:
+            _stop(proc)
+    out.join()
+    assert json.loads(out.lines[0])["robot"] is None
+
+
+def test_ctrl_c_closes_the_session_and_exits() -> None:
+    with _router() as (_session, endpoint):
+        proc = _spawn("--connect", endpoint)
+        try:
+            assert proc.stderr is not None
+            err = _Lines(proc.stderr)
+            deadline = time.monotonic() + TIMEOUT_S
+            while not any(line.startswith("subscribed to") for line in err.lines):
+                assert proc.poll() is None, err.lines
+                assert time.monotonic() < deadline, err.lines
+                time.sleep(0.05)
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(10) == 130
+        finally:
+            _stop(proc)
+    err.join()
+    assert err.lines[-1] == "interrupted"
+
+
+def test_no_router_is_a_one_line_error() -> None:
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    proc = subprocess.run(
+        [sys.executable, str(EXAMPLE), "--connect", endpoint, "--count", "1"],
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
+    assert proc.returncode == 1
+    assert proc.stdout == ""
+    assert proc.stderr.startswith("error: ") and endpoint in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["--arena", "a/b"], "arena name 'a/b' must be 1-64 letters"),
+        (["--count", "0"], "must be >= 1, got 0"),
+    ],
+)
+def test_bad_arguments_exit_2(args: list[str], needle: str) -> None:
+    proc = subprocess.run(
+        [sys.executable, str(EXAMPLE), *args], capture_output=True, text=True, timeout=TIMEOUT_S
+    )
+    assert proc.returncode == 2
+    assert needle in proc.stderr
+
+
+def test_example_needs_only_zenoh_and_msgpack() -> None:
+    tree = ast.parse(EXAMPLE.read_text())
+    imported = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            imported |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            imported.add(node.module.split(".")[0])
+    third_party = imported - set(sys.stdlib_module_names) - {"__future__"}
+    assert third_party == {"zenoh", "msgpack"}
