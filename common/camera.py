@@ -172,35 +172,41 @@ def back_project(
 
 
 class PixelJacobian(NamedTuple):
-    """Floor-plane cm per pixel step at (row, col): ∂(X, Y)/∂row and ∂(X, Y)/∂col."""
+    """The pixel → floor map near (row, col): the floor point itself (cm) and the floor
+    cm per pixel step, ∂(X, Y)/∂row and ∂(X, Y)/∂col."""
 
+    x_cm: FloatArray
+    y_cm: FloatArray
     dx_drow: FloatArray
     dy_drow: FloatArray
     dx_dcol: FloatArray
     dy_dcol: FloatArray
     valid: NDArray[np.bool_]
 
+    @property
+    def area_cm2(self) -> FloatArray:
+        """|det J|: floor area of one pixel (0 where the pixel does not see the plane)."""
+        det = self.dx_drow * self.dy_dcol - self.dy_drow * self.dx_dcol
+        return np.where(self.valid, np.abs(det), 0.0)
+
 
 def pixel_jacobian(
     row: ArrayLike, col: ArrayLike, cam: CameraParams, z_cm: ArrayLike = 0.0
 ) -> PixelJacobian:
-    """Jacobian of the pixel → plane Z = ``z_cm`` map, by central differences (±½ px).
+    """The pixel → plane Z = ``z_cm`` map at (row, col) and its Jacobian (central
+    differences, ±½ px), in one back-projection of the five points.
 
     It maps small image offsets (and second moments) to the floor: blob areas in cm²
     (size filter A^f, radius) and world orientations of elongated blobs.
     """
-    r, c = _f(row), _f(col)
+    r, c, z = np.broadcast_arrays(_f(row), _f(col), _f(z_cm))
     h = 0.5
-    r1 = back_project(r + h, c, cam, z_cm)
-    r0 = back_project(r - h, c, cam, z_cm)
-    c1 = back_project(r, c + h, cam, z_cm)
-    c0 = back_project(r, c - h, cam, z_cm)
+    rows = np.stack([r, r + h, r - h, r, r])
+    cols = np.stack([c, c, c, c + h, c - h])
+    b = back_project(rows, cols, cam, np.stack([z] * 5))
+    x, y = b.x_cm, b.y_cm
     return PixelJacobian(
-        r1.x_cm - r0.x_cm,
-        r1.y_cm - r0.y_cm,
-        c1.x_cm - c0.x_cm,
-        c1.y_cm - c0.y_cm,
-        r1.valid & r0.valid & c1.valid & c0.valid,
+        x[0], y[0], x[1] - x[2], y[1] - y[2], x[3] - x[4], y[3] - y[4], b.valid.all(axis=0)
     )
 
 
@@ -212,6 +218,4 @@ def pixel_footprint_cm2(
     The absolute Jacobian determinant of the pixel → plane map; 0 where the pixel does
     not see the plane.
     """
-    j = pixel_jacobian(row, col, cam, z_cm)
-    det = j.dx_drow * j.dy_dcol - j.dy_drow * j.dx_dcol
-    return np.where(j.valid, np.abs(det), 0.0)
+    return pixel_jacobian(row, col, cam, z_cm).area_cm2

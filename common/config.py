@@ -245,6 +245,10 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     fps: Annotated[float, msgspec.Meta(ge=0.0, le=10000.0)] = 30.0  # 0: as fast as possible
     loop: bool = True  # replay a folder or video from the start when it ends
     seed: Annotated[int, msgspec.Meta(ge=0)] = 0  # simulated arena seed
+    #: simulated arena only: 0 renders each frame live; N renders N frames once at start
+    #: and replays them in a loop (fresh sequence numbers and stamps), so that the
+    #: renderer is not the bottleneck when measuring the pipeline (``benchmarks/``)
+    prerender: Annotated[int, msgspec.Meta(ge=0, le=100000)] = 0
     #: where the calibrator keeps its versioned calibrations
     state_dir: str = "ovis-state"
     #: control points: "simulator" (the simulated frame's ground truth) or a points file

@@ -16,7 +16,7 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
-from ovis.common.camera import back_project, pixel_footprint_cm2, pixel_jacobian
+from ovis.common.camera import PixelJacobian, pixel_footprint_cm2, pixel_jacobian
 from ovis.common.config import CameraParams, ImageParams, PoseConfig
 from ovis.common.labeling import filter_components, label_components
 from ovis.common.perimeter import perimeter
@@ -33,6 +33,7 @@ __all__ = [
     "PlannerEntry",
     "find_blobs",
     "measure_blobs",
+    "size_filter_px",
     "world_shape",
 ]
 
@@ -95,7 +96,12 @@ class Blobs(NamedTuple):
 
 
 def find_blobs(
-    image: NDArray[np.uint8], params: ImageParams, camera: CameraParams, plane_cm: float
+    image: NDArray[np.uint8],
+    params: ImageParams,
+    camera: CameraParams,
+    plane_cm: float,
+    *,
+    min_area_px: float = 0.0,
 ) -> Blobs:
     """Paper §3 on one frame: smooth, binarize, label, size-filter (cm² on ``plane_cm``)."""
     gray = as_gray(image)
@@ -105,14 +111,32 @@ def find_blobs(
             f"is for {camera.cols}x{camera.rows}"
         )
     binary = binarize(smooth(gray, params.median), params.threshold, params.polarity)
-    return measure_blobs(binary, params, camera, plane_cm)
+    return measure_blobs(binary, params, camera, plane_cm, min_area_px=min_area_px)
+
+
+def size_filter_px(params: ImageParams, camera: CameraParams, plane_cm: float) -> float:
+    """A lower bound, in pixels, of the blobs the size filter A^f (cm²) can keep anywhere
+    in the frame: A^f over the largest pixel footprint (sampled on a 9×9 grid, with a 25 %
+    margin). Smaller specks are skipped before they are measured."""
+    r, c = np.meshgrid(np.linspace(0, camera.rows - 1, 9), np.linspace(0, camera.cols - 1, 9))
+    largest = float(np.max(pixel_footprint_cm2(r, c, camera, plane_cm)))
+    return params.size_filter_cm2 / (1.25 * largest) if largest > 0 else 0.0
 
 
 def measure_blobs(
-    binary: NDArray[np.uint8], params: ImageParams, camera: CameraParams, plane_cm: float
+    binary: NDArray[np.uint8],
+    params: ImageParams,
+    camera: CameraParams,
+    plane_cm: float,
+    *,
+    min_area_px: float = 0.0,
 ) -> Blobs:
-    """Label a binary frame (8-connected), size-filter in cm² on ``plane_cm``, measure."""
-    comp = label_components(binary)
+    """Label a binary frame (8-connected), size-filter in cm² on ``plane_cm``, measure.
+
+    ``min_area_px`` (see :func:`size_filter_px`) skips specks early; it must not exceed
+    what the size filter would keep.
+    """
+    comp = label_components(binary, min_area_px=min_area_px)
     footprint = pixel_footprint_cm2(comp.row, comp.col, camera, plane_cm)
     keep = (footprint > 0) & (comp.area_px * footprint >= params.size_filter_cm2)
     comp = filter_components(comp, keep)
@@ -130,20 +154,18 @@ def measure_blobs(
 
 
 def world_shape(
-    blobs: Blobs, camera: CameraParams, z_cm: NDArray[np.float64]
+    blobs: Blobs, j: PixelJacobian
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Floor area (cm²), major-axis heading (deg CCW from +X, in (−90, 90]) and elongation
-    of each blob on its plane Z = ``z_cm``.
+    of each blob, given the pixel → floor Jacobian ``j`` at its centroid on its plane.
 
-    The image second moments are carried to the floor through the local Jacobian J of
-    the pixel → floor map (Σ_world = J·Σ_image·Jᵀ): perspective and unequal s_x, s_y
-    shear a shape, so the image's principal axes are not the floor's.
+    The image second moments are carried to the floor through J (Σ_world = J·Σ_image·Jᵀ):
+    perspective and unequal s_x, s_y shear a shape, so the image's principal axes are
+    not the floor's.
     """
-    comp = blobs
-    j = pixel_jacobian(comp.row, comp.col, camera, z_cm)
     a, b, c, d = j.dx_drow, j.dx_dcol, j.dy_drow, j.dy_dcol
-    area_cm2 = np.where(j.valid, comp.area_px * np.abs(a * d - b * c), 0.0)
-    m_rr, m_cc, m_rc = comp.mu_rr, comp.mu_cc, comp.mu_rc
+    area_cm2 = blobs.area_px * j.area_cm2
+    m_rr, m_cc, m_rc = blobs.mu_rr, blobs.mu_cc, blobs.mu_rc
     s_xx = a * a * m_rr + 2 * a * b * m_rc + b * b * m_cc
     s_yy = c * c * m_rr + 2 * c * d * m_rc + d * d * m_cc
     s_xy = a * c * m_rr + (a * d + b * c) * m_rc + b * d * m_cc
@@ -161,11 +183,13 @@ class Detector:
         self.pose = pose
         self.tracker = Tracker(pose.track_gate_cm)
         self._last_stamp: float | None = None
+        self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
 
     def recalibrate(self, camera: CameraParams, image: ImageParams, pose: PoseConfig) -> None:
         """Use a new calibration; obstacle identities are kept."""
         self.camera, self.image, self.pose = camera, image, pose
         self.tracker.gate_cm = pose.track_gate_cm
+        self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
 
     def detect(
         self,
@@ -182,7 +206,13 @@ class Detector:
         the paper's Δt = 1 s apart. Obstacle velocities are in cm/s.
         """
         return self.from_blobs(
-            find_blobs(frame, self.image, self.camera, self.pose.obstacle_height_cm),
+            find_blobs(
+                frame,
+                self.image,
+                self.camera,
+                self.pose.obstacle_height_cm,
+                min_area_px=self.min_area_px,
+            ),
             goal_xy=goal_xy,
             goal_angle_deg=goal_angle_deg,
             stamp_s=stamp_s,
@@ -200,19 +230,22 @@ class Detector:
         cam, pose = self.camera, self.pose
         comp = blobs
         n = comp.area_px.size
-        robot_fp = pixel_footprint_cm2(comp.row, comp.col, cam, pose.robot_height_cm)
-        robot = pick_robot(blobs.compactness, comp.area_px * robot_fp, pose)
+        # The floor map at each centroid on both planes (robot, obstacle), in one go.
+        heights = np.array([[pose.robot_height_cm], [pose.obstacle_height_cm]])
+        both = pixel_jacobian(comp.row[None, :], comp.col[None, :], cam, heights)
+        robot = pick_robot(blobs.compactness, comp.area_px * both.area_cm2[0], pose)
         is_robot = np.arange(n) == robot
         z = np.where(is_robot, pose.robot_height_cm, pose.obstacle_height_cm)
-        world = back_project(comp.row, comp.col, cam, z)
-        area_cm2, heading, elongation = world_shape(blobs, cam, z)
+        plane = np.where(is_robot, 0, 1)
+        j = PixelJacobian(*(np.take_along_axis(f, plane[None, :], 0)[0] for f in both))
+        area_cm2, heading, elongation = world_shape(blobs, j)
         radius = np.sqrt(area_cm2 / np.pi)
-        ok = world.valid
+        ok = j.valid
         obstacle = ok & ~is_robot
         ids = np.full(n, -1, dtype=np.int64)
         vel = np.zeros((n, 2))
         ids[is_robot] = ROBOT_ID
-        obs_xy = np.column_stack([world.x_cm, world.y_cm])[obstacle]
+        obs_xy = np.column_stack([j.x_cm, j.y_cm])[obstacle]
         ids[obstacle], step = self.tracker.update(obs_xy)
         now = stamp_s if stamp_s is not None else (self._last_stamp or 0.0) + 1.0
         dt = now - self._last_stamp if self._last_stamp is not None else 1.0
@@ -227,8 +260,8 @@ class Detector:
                 area_px=float(comp.area_px[i]),
                 perimeter_px=float(blobs.perimeter_px[i]),
                 compactness=float(blobs.compactness[i]),
-                x_cm=float(world.x_cm[i]),
-                y_cm=float(world.y_cm[i]),
+                x_cm=float(j.x_cm[i]),
+                y_cm=float(j.y_cm[i]),
                 z_cm=float(z[i]),
                 radius_cm=float(radius[i]),
                 area_cm2=float(area_cm2[i]),

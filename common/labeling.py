@@ -1,21 +1,28 @@
 """Connected-component labeling and per-object moments (paper §3, "Labeling").
 
 "All spatially close pixels of a binary image having value 1 are grouped into connected
-components" (paper §3, after Kim et al. 2004). Here the grouping is 8-connected and done
-by ``cv2.connectedComponentsWithStats``; area, sub-pixel centroid, bounding box and the
-central second moments of every component are then read off in one pass.
+components" (paper §3, after Kim et al. 2004). Here the grouping is 8-connected and
+contour-based: one ``cv2.findContours`` (``RETR_CCOMP``) traces the outer border of every
+8-connected component (and the borders of its holes) in a single raster scan, which is
+several times faster than ``cv2.connectedComponentsWithStats`` on blob scenes; then each
+component is drawn into its own bounding-box crop (outer border filled, holes cleared,
+hole borders put back) and measured there with ``cv2.moments``. The per-pixel work is
+proportional to the objects' area, not the frame's, and the outer chain is kept for the
+Koplowitz–Bruckstein perimeter.
 
 Coordinates: pixel ``(i, j)`` has its centre at ``row = i``, ``col = j``. Moments treat
 every pixel as a unit point mass at its centre (no 1/12 pixel-extent term), so a single
 pixel has zero second moments.
 
 The size filter of paper §3 is :func:`filter_components` with a mask built from
-``area_px`` (converted to cm² with the calibrated pixel footprint by the caller).
+``area_px`` (converted to cm² with the calibrated pixel footprint by the caller);
+``min_area_px`` skips specks smaller than a lower bound early, before any drawing.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -27,20 +34,20 @@ __all__ = ["Components", "filter_components", "label_components"]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+Chain = NDArray[np.int32]
 
 
-@dataclass(frozen=True, eq=False, slots=True)
+@dataclass(frozen=True, eq=False)
 class Components:
     """Labeled 8-connected components of a binary image and their per-object statistics.
 
-    Component ``k`` (``k = 1 … count``) is the set of pixels where ``labels == k``; 0 is
-    the background. Every per-component array has shape ``(count,)`` and entry ``k - 1``
-    describes component ``k``.
+    Every per-component array has shape ``(count,)``; components are in raster order of
+    their first (top-most, then left-most) pixel.
 
     Attributes
     ----------
-    labels : (H, W) int32 array
-        Label image; 0 = background, components numbered 1 … ``count``.
+    shape : (H, W)
+        Shape of the binary image.
     count : int
         Number of components n.
     area_px : (n,) float64 array
@@ -53,9 +60,14 @@ class Components:
         Central second moments divided by the area:
         ``mu_rr = mean((r - row)²)``, ``mu_cc = mean((c - col)²)``,
         ``mu_rc = mean((r - row)·(c - col))``.
+    outer : list of (m, 2) int32 arrays
+        The closed 8-connected outer border chain of each component, (col, row) points
+        in image coordinates (``cv2.findContours``, ``CHAIN_APPROX_NONE``).
+    masks : list of (height, width) uint8 arrays
+        Each component's pixels (0/1) in its bounding-box crop, holes excluded.
     """
 
-    labels: NDArray[np.int32]
+    shape: tuple[int, int]
     count: int
     area_px: FloatArray
     row: FloatArray
@@ -67,36 +79,21 @@ class Components:
     mu_rr: FloatArray
     mu_cc: FloatArray
     mu_rc: FloatArray
+    outer: list[Chain] = field(default_factory=list)
+    masks: list[NDArray[np.uint8]] = field(default_factory=list)
+
+    @cached_property
+    def labels(self) -> NDArray[np.int32]:
+        """(H, W) int32 label image: 0 = background, component ``k`` (1-based) = k."""
+        out = np.zeros(self.shape, dtype=np.int32)
+        for k, mask in enumerate(self.masks):
+            t, lf = int(self.top[k]), int(self.left[k])
+            view = out[t : t + mask.shape[0], lf : lf + mask.shape[1]]
+            view[mask > 0] = k + 1
+        return out
 
 
-def label_components(binary: NDArray[np.uint8] | NDArray[np.bool_]) -> Components:
-    """Label the 8-connected components of a binary image and measure them.
-
-    Parameters
-    ----------
-    binary : (H, W) uint8 or bool array
-        Object pixels are the non-zero ones (the output of
-        :func:`ovis.common.preprocess.binarize`).
-
-    Returns
-    -------
-    Components
-        Labels are numbered in OpenCV's scan order (its block-based algorithms visit
-        2×2 blocks, so this is not strictly the row-by-row order of first pixels);
-        callers must not rely on the order.
-
-    Raises
-    ------
-    ImageError
-        If ``binary`` is not a non-empty 2-D uint8 or bool array.
-
-    Notes
-    -----
-    Moments come from ``cv2.moments`` on each component's bounding-box crop: on a
-    640×480 frame with ~10 blobs this is ~20× faster than ``np.bincount`` over the
-    whole label image, and still faster with a few hundred noise specks. The loop runs
-    over components, never over pixels.
-    """
+def _validated(binary: NDArray[np.uint8] | NDArray[np.bool_]) -> NDArray[np.uint8]:
     if (
         not isinstance(binary, np.ndarray)
         or binary.ndim != 2
@@ -106,38 +103,91 @@ def label_components(binary: NDArray[np.uint8] | NDArray[np.bool_]) -> Component
         shape = (binary.shape, binary.dtype) if isinstance(binary, np.ndarray) else binary
         raise ImageError(f"binary: expected a non-empty 2-D uint8 or bool image, got {shape!r}")
     image = binary.view(np.uint8) if binary.dtype == np.bool_ else binary
-    n_with_bg, labels, stats, _ = cv2.connectedComponentsWithStats(
-        np.ascontiguousarray(image), connectivity=8, ltype=cv2.CV_32S
-    )
-    n = n_with_bg - 1
-    stats = stats[1:].astype(np.int64)
-    left = stats[:, cv2.CC_STAT_LEFT]
-    top = stats[:, cv2.CC_STAT_TOP]
-    width = stats[:, cv2.CC_STAT_WIDTH]
-    height = stats[:, cv2.CC_STAT_HEIGHT]
-    area = stats[:, cv2.CC_STAT_AREA].astype(np.float64)
+    return np.ascontiguousarray(image)
 
-    # Per component: [m01, m10, mu02, mu20, mu11] of the crop (cv2: x = col, y = row).
-    sums = np.empty((n, 5), dtype=np.float64)
-    for k in range(n):
-        t, lf, h, w = top[k], left[k], height[k], width[k]
-        mask = (labels[t : t + h, lf : lf + w] == k + 1).view(np.uint8)
-        m = cv2.moments(mask, binaryImage=True)
-        sums[k] = (m["m01"], m["m10"], m["mu02"], m["mu20"], m["mu11"])
+
+def _holes(hierarchy: NDArray[np.int32], i: int) -> list[int]:
+    """Indices of the hole borders (children) of outer border ``i`` (RETR_CCOMP)."""
+    out = []
+    child = int(hierarchy[i, 2])
+    while child >= 0:
+        out.append(child)
+        child = int(hierarchy[child, 0])
+    return out
+
+
+def label_components(
+    binary: NDArray[np.uint8] | NDArray[np.bool_], *, min_area_px: float = 0.0
+) -> Components:
+    """Label the 8-connected components of a binary image and measure them.
+
+    Parameters
+    ----------
+    binary : (H, W) uint8 or bool array
+        Object pixels are the non-zero ones (the output of
+        :func:`ovis.common.preprocess.binarize`).
+    min_area_px : float
+        Components that surely have fewer pixels are left out without being drawn (the
+        bound is Pick's theorem on the outer border: polygon area + border points / 2 + 1
+        is at least the pixel count).
+
+    Returns
+    -------
+    Components
+        In raster order of their first pixel.
+
+    Raises
+    ------
+    ImageError
+        If ``binary`` is not a non-empty 2-D uint8 or bool array.
+    """
+    image = _validated(binary)
+    contours, hierarchy = cv2.findContours(image, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+    outer: list[Chain] = []
+    masks: list[NDArray[np.uint8]] = []
+    boxes: list[tuple[int, int, int, int]] = []
+    sums: list[tuple[float, float, float, float, float, float]] = []
+    if contours:
+        h_arr = hierarchy[0]
+        tops = np.flatnonzero(h_arr[:, 3] < 0)  # outer borders: one per component
+        # A border's trace starts at its component's first pixel in raster order.
+        first = np.array([contours[i][0, 0] for i in tops]).reshape(-1, 2)
+        for i in tops[np.lexsort((first[:, 0], first[:, 1]))]:
+            chain = contours[i]
+            if min_area_px > 0 and cv2.contourArea(chain) + 0.5 * len(chain) + 1 < min_area_px:
+                continue
+            x, y, w, h = cv2.boundingRect(chain)
+            mask = np.zeros((h, w), np.uint8)
+            cv2.drawContours(mask, [chain], -1, 1, thickness=cv2.FILLED, offset=(-x, -y))
+            holes = [contours[j] for j in _holes(h_arr, i)]
+            if holes:  # clear the holes, then put back their border pixels (object pixels)
+                cv2.drawContours(mask, holes, -1, 0, thickness=cv2.FILLED, offset=(-x, -y))
+                cv2.drawContours(mask, holes, -1, 1, thickness=1, offset=(-x, -y))
+            m = cv2.moments(mask, binaryImage=True)
+            outer.append(chain.reshape(-1, 2))
+            masks.append(mask)
+            boxes.append((y, x, h, w))
+            sums.append((m["m00"], m["m01"], m["m10"], m["mu02"], m["mu20"], m["mu11"]))
+    n = len(outer)
+    box = np.array(boxes, dtype=np.int64).reshape(n, 4)
+    st = np.array(sums, dtype=np.float64).reshape(n, 6)
+    area = st[:, 0]
     area_safe = np.maximum(area, 1.0)
     return Components(
-        labels=labels,
+        shape=(image.shape[0], image.shape[1]),
         count=n,
         area_px=area,
-        row=top + sums[:, 0] / area_safe,
-        col=left + sums[:, 1] / area_safe,
-        top=top,
-        left=left,
-        height=height,
-        width=width,
-        mu_rr=sums[:, 2] / area_safe,
-        mu_cc=sums[:, 3] / area_safe,
-        mu_rc=sums[:, 4] / area_safe,
+        row=box[:, 0] + st[:, 1] / area_safe,
+        col=box[:, 1] + st[:, 2] / area_safe,
+        top=box[:, 0],
+        left=box[:, 1],
+        height=box[:, 2],
+        width=box[:, 3],
+        mu_rr=st[:, 3] / area_safe,
+        mu_cc=st[:, 4] / area_safe,
+        mu_rc=st[:, 5] / area_safe,
+        outer=outer,
+        masks=masks,
     )
 
 
@@ -148,14 +198,13 @@ def filter_components(components: Components, keep_mask: NDArray[np.bool_]) -> C
     ----------
     components : Components
     keep_mask : (n,) bool array
-        ``True`` for the components to keep, in label order.
+        ``True`` for the components to keep, in order.
 
     Returns
     -------
     Components
-        The kept components renumbered 1 … m in their original order; the label image is
-        relabeled to match (dropped components become background 0) with one lookup-table
-        pass, so ``labels == k`` is component ``k`` of the result.
+        The kept components, renumbered 1 … m in their original order (no pass over the
+        image: the label image is rebuilt only if asked for).
     """
     keep = np.asarray(keep_mask)
     if keep.dtype != np.bool_ or keep.shape != (components.count,):
@@ -163,12 +212,11 @@ def filter_components(components: Components, keep_mask: NDArray[np.bool_]) -> C
             f"keep_mask: expected a bool array of shape ({components.count},), "
             f"got shape {keep.shape} {keep.dtype}"
         )
-    lut = np.zeros(components.count + 1, dtype=np.int32)
-    lut[1:][keep] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
     c = components
+    idx = np.flatnonzero(keep)
     return Components(
-        labels=lut[c.labels],
-        count=int(keep.sum()),
+        shape=c.shape,
+        count=int(idx.size),
         area_px=c.area_px[keep],
         row=c.row[keep],
         col=c.col[keep],
@@ -179,4 +227,6 @@ def filter_components(components: Components, keep_mask: NDArray[np.bool_]) -> C
         mu_rr=c.mu_rr[keep],
         mu_cc=c.mu_cc[keep],
         mu_rc=c.mu_rc[keep],
+        outer=[c.outer[i] for i in idx],
+        masks=[c.masks[i] for i in idx],
     )

@@ -46,13 +46,34 @@ class FrameSource(Protocol):
 
 
 class SimSource:
-    """The simulated arena: renders the current state, then advances one step."""
+    """The simulated arena: renders the current state, then advances one step.
 
-    def __init__(self, config: OvisConfig, seed: int) -> None:
+    With ``prerender`` = N > 0 (default ``config.service.prerender``), the first N frames
+    are rendered once, here, and then replayed in a loop, so that reading a frame costs
+    nothing and the renderer cannot be the bottleneck of whatever consumes the frames.
+    The frames are read-only arrays shared between loops.
+    """
+
+    def __init__(self, config: OvisConfig, seed: int, prerender: int | None = None) -> None:
         self.arena = Arena(config, seed)
-        self.description = f"simulated arena (seed {seed})"
+        n = config.service.prerender if prerender is None else int(prerender)
+        if n < 0:
+            raise ValueError(f"prerender must be 0 (live) or a number of frames, got {n}")
+        self._frames: list[tuple[NDArray[np.uint8], FrameTruth]] = []
+        for _ in range(n):
+            image, truth = self.arena.render()
+            image.setflags(write=False)
+            self._frames.append((image, truth))
+            self.arena.step()
+        self._next = 0
+        replay = f", replaying {n} pre-rendered frames" if n else ""
+        self.description = f"simulated arena (seed {seed}{replay})"
 
     def read(self) -> tuple[NDArray[np.uint8], FrameTruth | None]:
+        if self._frames:
+            frame = self._frames[self._next]
+            self._next = (self._next + 1) % len(self._frames)
+            return frame
         image, truth = self.arena.render()
         self.arena.step()
         return image, truth

@@ -4,7 +4,7 @@ publishes the blobs on ``ovis/<arena>/blobs``."""
 
 from __future__ import annotations
 
-from ovis.common.detection import measure_blobs
+from ovis.common.detection import measure_blobs, size_filter_px
 from ovis.common.messages import BinaryFrame, BlobList, BlobMeasure
 from ovis.services.runtime import Service
 
@@ -13,6 +13,14 @@ def main(service: Service) -> None:
     service.follow_calibration()
     publish = service.publisher(service.topics.blobs)
     frames = service.inbox(service.topics.binary)
+    bound: dict[int, float] = {}  # calibration version -> smallest blob worth measuring
+
+    def min_area(calib) -> float:
+        if calib.version not in bound:
+            bound.clear()
+            plane = calib.pose.obstacle_height_cm
+            bound[calib.version] = size_filter_px(calib.image, calib.camera, plane)
+        return bound[calib.version]
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
         frame = service.decode(payload, BinaryFrame, "binary")
@@ -28,7 +36,13 @@ def main(service: Service) -> None:
             )
             return
         service.saw_frame(frame.seq, frame.stamp_ns)
-        blobs = measure_blobs(frame.mask(), calib.image, cam, calib.pose.obstacle_height_cm)
+        blobs = measure_blobs(
+            frame.mask(),
+            calib.image,
+            cam,
+            calib.pose.obstacle_height_cm,
+            min_area_px=min_area(calib),
+        )
         publish(
             BlobList(
                 seq=frame.seq,

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -43,9 +45,10 @@ def assert_matches_brute_force(comp: Components) -> None:
 
 def _reorder(comp: Components, order: np.ndarray) -> Components:
     """The per-component arrays of ``comp`` permuted by ``order`` (labels unchanged)."""
-    return Components(
-        labels=comp.labels,
-        count=comp.count,
+    return dataclasses.replace(
+        comp,
+        outer=[comp.outer[i] for i in order],
+        masks=[comp.masks[i] for i in order],
         **{name: getattr(comp, name)[order] for name in FIELDS},
     )
 
@@ -62,9 +65,9 @@ def test_diagonal_neighbours_are_one_component() -> None:
     binary[0, 4] = 1  # isolated
     comp = label_components(binary)
     assert comp.count == 2
-    np.testing.assert_array_equal(comp.area_px, [3.0, 1.0])
-    assert comp.labels[1, 1] == comp.labels[2, 2] == comp.labels[3, 1] == 1
-    assert comp.labels[0, 4] == 2
+    np.testing.assert_array_equal(comp.area_px, [1.0, 3.0])  # raster order of first pixels
+    assert comp.labels[1, 1] == comp.labels[2, 2] == comp.labels[3, 1] == 2
+    assert comp.labels[0, 4] == 1
     assert comp.labels.dtype == np.int32 and comp.labels.shape == (5, 5)
 
 
@@ -205,3 +208,42 @@ def test_translation_moves_centroid_and_keeps_moments(shape: np.ndarray, dr: int
     np.testing.assert_array_equal(cb.top, ca.top + dr)
     for name in ("area_px", "mu_rr", "mu_cc", "mu_rc"):
         np.testing.assert_allclose(getattr(cb, name), getattr(ca, name), atol=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    arrays(np.uint8, st.tuples(st.integers(1, 24), st.integers(1, 24)), elements=st.integers(0, 1))
+)
+def test_matches_scipy_8_connected_labeling_exactly(binary: np.ndarray) -> None:
+    # Random images are full of holes, nested components and one-pixel-wide parts:
+    # every component's area, centroid and moments must be those of its own pixels.
+    from scipy import ndimage
+
+    ref, n = ndimage.label(binary, structure=np.ones((3, 3)))
+    comp = label_components(binary)
+    assert comp.count == n
+    assert_matches_brute_force(comp)
+    # Same partition as scipy's (up to numbering).
+    pairs = {(int(a), int(b)) for a, b in zip(comp.labels.ravel(), ref.ravel(), strict=True)}
+    assert len(pairs) == n + (1 if (binary == 0).any() else 0)
+
+
+def test_ring_with_an_island_in_its_hole() -> None:
+    binary = np.zeros((30, 30), np.uint8)
+    binary[2:28, 2:28] = 1
+    binary[6:24, 6:24] = 0  # the hole
+    binary[12:18, 12:18] = 1  # an island inside it
+    comp = label_components(binary)
+    assert comp.count == 2
+    assert comp.area_px.tolist() == [26 * 26 - 18 * 18, 36.0]
+    assert_matches_brute_force(comp)
+
+
+def test_min_area_skips_specks_but_never_a_big_enough_component() -> None:
+    rng = np.random.default_rng(0)
+    binary = (rng.random((120, 160)) > 0.97).astype(np.uint8)  # specks
+    binary[40:60, 50:90] = 1
+    all_ = label_components(binary)
+    big = label_components(binary, min_area_px=100)
+    assert big.count == int((all_.area_px >= 100).sum()) >= 1
+    np.testing.assert_array_equal(big.area_px, all_.area_px[all_.area_px >= 100])
