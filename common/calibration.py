@@ -238,12 +238,64 @@ def calibrate(
     return build_calibration(problem, result, elapsed=elapsed, source=source), result
 
 
+def centre_image_settings(
+    problem: CalibrationProblem, best: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], tuple[int, int]]:
+    """Move the threshold and the size filter to the middle of what works.
+
+    The constraint of eq. 15 only asks for the right object count, so the GA may return
+    a threshold at the edge of the feasible band (objects in darker corners of later
+    frames then break up) or a size filter just above a clutter blob. Keeping the camera
+    of ``best``: the threshold becomes the middle of the run of integer thresholds around
+    the GA's one that still see exactly one blob per control point; then the size filter
+    becomes the geometric mean of the largest blob it must reject and the smallest it
+    must keep (within its range). Returns the new values and the feasible threshold run.
+    """
+    lo, hi = (int(v) for v in (np.ceil(problem.bounds[0, 0]), np.floor(problem.bounds[0, 1])))
+    thresholds = np.arange(lo, hi + 1)
+    trial = np.repeat(best[None, :], thresholds.size, axis=0)
+    trial[:, 0] = thresholds
+    feasible = problem.evaluate(trial).feasible
+    t0 = int(np.clip(np.rint(best[0]), lo, hi)) - lo
+    if not feasible[t0]:
+        return best, (t0 + lo, t0 + lo)
+    a = t0
+    while a > 0 and feasible[a - 1]:
+        a -= 1
+    b = t0
+    while b < feasible.size - 1 and feasible[b + 1]:
+        b += 1
+    out = best.copy()
+    out[0] = lo + (a + b) // 2
+    # Size filter: between the largest rejected and the smallest kept blob (cm²).
+    table = problem.blobs_at(int(out[0]))
+    cam = camera_with(problem.config.camera, out)
+    area = table.area_px * pixel_footprint_cm2(table.row, table.col, cam, problem.size_plane_cm)
+    order = np.sort(area)[::-1]
+    n = problem.n_points
+    smallest_kept = order[n - 1]
+    largest_rejected = order[n] if order.size > n else 0.0
+    a_lo, a_hi = problem.bounds[1]
+    if largest_rejected > 0:
+        middle = float(np.sqrt(largest_rejected * smallest_kept))
+    else:
+        middle = 0.5 * float(smallest_kept)
+    out[1] = float(np.clip(middle, max(a_lo, largest_rejected), min(a_hi, smallest_kept)))
+    if not problem.evaluate(out[None, :]).feasible[0]:  # never trade feasibility
+        return best, (a + lo, b + lo)
+    return out, (a + lo, b + lo)
+
+
 def build_calibration(
     problem: CalibrationProblem, result: GAResult, *, elapsed: float, source: str
 ) -> Calibration:
-    """Package the GA's best string as a self-contained :class:`Calibration`."""
+    """Package the GA's best string as a self-contained :class:`Calibration` (with the
+    threshold and size filter centred, :func:`centre_image_settings`, when configured)."""
     config = problem.config
     best = result.best_values
+    band = None
+    if config.calibration.centre_image_settings:
+        best, band = centre_image_settings(problem, best)
     ev = problem.evaluate(best[None, :])
     cam = camera_with(config.camera, best)
     pred = project(*problem.points_xyz.T, cam)
@@ -295,4 +347,7 @@ def build_calibration(
         evaluations=result.evaluations,
         elapsed_s=elapsed,
         source_image=source,
+        ga_threshold=int(np.rint(result.best_values[0])),
+        ga_size_filter_cm2=float(result.best_values[1]),
+        feasible_thresholds=band,
     )

@@ -79,6 +79,11 @@ class Calibration(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     evaluations: int = 0
     elapsed_s: float = 0.0
     source_image: str = ""
+    #: what the GA itself chose, before the threshold and size filter were centred
+    ga_threshold: int | None = None
+    ga_size_filter_cm2: float | None = None
+    #: the run of thresholds that see exactly one object per control point
+    feasible_thresholds: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
         for name in ("dipe_px", "dipe_mm", "dipe_max_px", "dipe_max_mm"):

@@ -134,6 +134,9 @@ class CalibrationRanges(msgspec.Struct, forbid_unknown_fields=True, kw_only=True
     k3: PairF = (-1e-6, 1e-6)
     s_x: PairF = (0.1, 1.0)
     s_y: PairF = (0.1, 1.0)
+    #: after the GA, move the threshold and size filter to the middle of the values that
+    #: still see exactly one object per control point (robust on later frames)
+    centre_image_settings: bool = True
 
     def __post_init__(self) -> None:
         limits = {

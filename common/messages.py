@@ -31,6 +31,7 @@ __all__ = [
     "CalibrateRequest",
     "CalibrationUpdate",
     "Frame",
+    "FrameHeader",
     "Message",
     "MessageError",
     "ObstacleFrame",
@@ -110,6 +111,15 @@ class Frame(_Msg, tag="frame", kw_only=True):
             data=np.ascontiguousarray(image).tobytes(),
             source=source,
         )
+
+
+class FrameHeader(_Msg, tag="frame", kw_only=True):
+    """The small fields of a :class:`Frame` (decoding it skips the image bytes)."""
+
+    seq: Seq
+    stamp_ns: Stamp
+    rows: Side
+    cols: Side
 
 
 class BinaryFrame(_Msg, tag="binary", kw_only=True):

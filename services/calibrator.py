@@ -26,6 +26,7 @@ from ovis.common.messages import (
     CalibrateRequest,
     CalibrationUpdate,
     Frame,
+    FrameHeader,
     TruthFrame,
     encode,
 )
@@ -49,7 +50,7 @@ def main(service: Service) -> None:
     if cfg.service.points != "simulator":
         file_points = load_points(cfg.service.points).points
 
-    frames: collections.OrderedDict[int, Frame] = collections.OrderedDict()
+    frames: collections.OrderedDict[int, bytes] = collections.OrderedDict()  # raw payloads
     truths: collections.OrderedDict[int, TruthFrame] = collections.OrderedDict()
     lock = threading.Lock()
     first_frame = threading.Event()
@@ -61,10 +62,12 @@ def main(service: Service) -> None:
                 store_.popitem(last=False)
 
     def on_frame(sample: zenoh.Sample) -> None:
-        frame = service.decode(sample.payload.to_bytes(), Frame, "frame")
-        if frame is not None:
-            service.saw_frame(frame.seq, frame.stamp_ns)
-            keep(frames, frame.seq, frame)
+        # Only the header is decoded here (cheap); the image when a calibration needs it.
+        payload = sample.payload.to_bytes()
+        header = service.decode(payload, FrameHeader, "frame")
+        if header is not None:
+            service.saw_frame(header.seq, header.stamp_ns)
+            keep(frames, header.seq, payload)
             first_frame.set()
 
     def on_truth(sample: zenoh.Sample) -> None:
@@ -93,11 +96,16 @@ def main(service: Service) -> None:
             if not frames:
                 return CalibrateReply(ok=False, error="no frame received yet from capture")
             seq = request.frame_seq if request.frame_seq is not None else next(reversed(frames))
-            frame = frames.get(seq)
+            payload = frames.get(seq)
             truth = truths.get(seq)
-        if frame is None:
+        if payload is None:
             return CalibrateReply(
                 ok=False, frame_seq=seq, error=f"frame {seq} is not among the last {KEEP_FRAMES}"
+            )
+        frame = service.decode(payload, Frame, "frame")
+        if frame is None:
+            return CalibrateReply(
+                ok=False, frame_seq=seq, error=f"frame {seq}: {service.last_error}"
             )
         if file_points is not None:
             points = file_points

@@ -12,7 +12,6 @@ from ovis.services.runtime import Service
 def main(service: Service) -> None:
     service.follow_calibration()
     publish = service.publisher(service.topics.blobs)
-    frames = service.inbox(service.topics.binary)
     bound: dict[int, float] = {}  # calibration version -> smallest blob worth measuring
 
     def min_area(calib) -> float:
@@ -68,4 +67,5 @@ def main(service: Service) -> None:
         service.sent()
         service.state = "ok"
 
-    service.serve(frames, handle)
+    service.consume(service.topics.binary, handle)
+    service.stop.wait()

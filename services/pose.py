@@ -21,7 +21,6 @@ def main(service: Service) -> None:
 
     service.follow_calibration(lambda c: detector.recalibrate(c.camera, c.image, c.pose))
     publish = service.publisher(service.topics.obstacles)
-    inbox = service.inbox(service.topics.blobs)
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
         msg = service.decode(payload, BlobList, "blobs")
@@ -50,4 +49,5 @@ def main(service: Service) -> None:
         service.sent()
         service.state = "ok"
 
-    service.serve(inbox, handle)
+    service.consume(service.topics.blobs, handle)
+    service.stop.wait()

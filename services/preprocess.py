@@ -14,7 +14,6 @@ from ovis.services.runtime import Service
 def main(service: Service) -> None:
     service.follow_calibration()
     publish = service.publisher(service.topics.binary)
-    frames = service.inbox(service.topics.frames)
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
         frame = service.decode(payload, Frame, "frame")
@@ -51,4 +50,5 @@ def main(service: Service) -> None:
         service.sent()
         service.state = "ok"
 
-    service.serve(frames, handle)
+    service.consume(service.topics.frames, handle)
+    service.stop.wait()

@@ -112,7 +112,7 @@ class Inbox:
 
     def get(self, timeout: float) -> Any | None:
         with self._cond:
-            if not self._items:
+            if not self._items and timeout > 0:
                 self._cond.wait(timeout)
             return self._items.popleft() if self._items else None
 
@@ -173,6 +173,37 @@ class Service:
 
         self.session.declare_subscriber(key, on_sample)
         return box
+
+    def consume(self, key: str, handle: Callable[[bytes, int], None]) -> None:
+        """Process each sample of ``key`` as it arrives, on Zenoh's own thread (no hand-off
+        to another thread: that costs latency). While one sample is being processed, only
+        the newest arrival is kept (older ones are dropped and counted). ``handle``
+        receives (payload bytes, receipt ns); its exceptions are counted and logged.
+        """
+        pending = Inbox(1)
+        self._inboxes.append(pending)
+        busy = threading.Lock()
+
+        def run_one(item: tuple[bytes, int]) -> None:
+            try:
+                handle(*item)
+            except Exception as exc:
+                self.error("processing", f"{type(exc).__name__}: {exc}")
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            pending.put((sample.payload.to_bytes(), time.time_ns()))
+            while busy.acquire(blocking=False):  # else the busy thread takes it next
+                try:
+                    item = pending.get(timeout=0)
+                    if item is None:
+                        return
+                    run_one(item)
+                finally:
+                    busy.release()
+
+        self.session.declare_subscriber(key, on_sample)
+        if self.state == "starting":
+            self.state = "waiting for input"
 
     def decode(self, payload: bytes, expected: Any, what: str) -> Any | None:
         """Decode a payload, or count and log why not (``bad_<what>``) and return None."""

@@ -136,3 +136,24 @@ def test_frame_size_must_match_camera() -> None:
     frame, truth = Arena(cfg, 0).render()
     with pytest.raises(ValueError, match="640x480"):
         CalibrationProblem(frame[:100, :100], control_points(truth), cfg)
+
+
+def test_threshold_and_size_filter_are_centred_in_what_works() -> None:
+    cfg = load_config()
+    frame, truth = Arena(cfg, 6).render()
+    calib, result = calibrate(frame, control_points(truth), cfg)
+    lo, hi = calib.feasible_thresholds
+    assert lo <= result.best_values[0] + 0.5 and result.best_values[0] - 0.5 <= hi
+    assert abs(calib.image.threshold - (lo + hi) / 2) <= 1
+    # The centred settings still see exactly the four objects, at the same camera.
+    problem = CalibrationProblem(frame, control_points(truth), cfg)
+    values = np.array(
+        [calib.image.threshold, calib.image.size_filter_cm2]
+        + [getattr(calib.camera, n) for n in CALIBRATED_VARIABLES[2:]]
+    )
+    assert problem.evaluate(values[None, :]).feasible[0]
+    off = msgspec.structs.replace(
+        cfg, calibration=msgspec.structs.replace(cfg.calibration, centre_image_settings=False)
+    )
+    raw, _ = calibrate(frame, control_points(truth), off)
+    assert raw.image.threshold == int(np.rint(result.best_values[0]))

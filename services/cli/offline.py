@@ -204,9 +204,16 @@ def _print_calibration(calib, out: Path, plot: Path | None) -> None:
     t = Table(title="calibrated parameters", title_justify="left")
     t.add_column("parameter")
     t.add_column("value", justify="right")
+    band = calib.feasible_thresholds
+    centred = f" (GA {calib.ga_threshold}; {band[0]}-{band[1]} see the right count)" if band else ""
+    ga_af = calib.ga_size_filter_cm2
     rows = [
-        ("threshold", f"{calib.image.threshold}"),
-        ("size filter A^f", f"{calib.image.size_filter_cm2:.2f} cm²"),
+        ("threshold", f"{calib.image.threshold}{centred}"),
+        (
+            "size filter A^f",
+            f"{calib.image.size_filter_cm2:.2f} cm²"
+            + (f" (GA {ga_af:.2f})" if ga_af is not None and band else ""),
+        ),
         ("Z0", f"{cam.Z0_cm:.3f} cm"),
         ("λ", f"{cam.lam_mm:.4f} mm"),
         ("k1", f"{cam.k1:.3e}"),
