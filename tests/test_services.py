@@ -290,3 +290,34 @@ def test_killed_stage_is_seen_in_status_within_2_s(pipeline) -> None:
     assert rows["label"]["alive"] is False and rows["capture"]["alive"] is True
     assert rows["capture"]["status"]["frames_out"] > 0
     assert seen_after < 2.0
+
+
+def test_capture_with_a_missing_camera_keeps_retrying(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")
+    capture = spawn(
+        ovis_cmd("run", "capture", "--connect", endpoint, "--source", "/dev/video-ovis-none"),
+        tmp_path / "capture.log",
+    )
+    try:
+        with client(endpoint) as session:
+            topics = Topics("default")
+
+            def retried() -> ServiceStatus | None:
+                for r in collect_status(session, topics):
+                    if (
+                        r.service == "capture"
+                        and r.status
+                        and r.status.errors.get("source", 0) >= 2
+                    ):
+                        return r.status
+                return None
+
+            st = wait_for(retried, 20, "capture to report the missing camera twice")
+            assert st.state == "source unavailable" and "check that it is connected" in (
+                st.last_error
+            )
+            assert capture.poll() is None  # still running, still retrying
+    finally:
+        stop([capture, router])
+    assert "Traceback" not in (tmp_path / "capture.log").read_text()
