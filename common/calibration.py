@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.calibration_file import Calibration, GenerationRecord, PointResidual, now_iso
-from ovis.common.camera import pixel_footprint_cm2, project
+from ovis.common.projection import pixel_footprint_cm2, project
 from ovis.common.config import (
     CALIBRATED_VARIABLES,
     CameraParams,
@@ -156,7 +156,7 @@ class CalibrationProblem:
         P, N = values.shape[0], self.n_points
         thresholds = np.clip(np.rint(values[:, 0]), 0, 255).astype(np.int64)
         size_filter = values[:, 1:2]
-        cam = camera_with(self.config.camera, values)
+        cam = self.camera_for(values)
         area, row, col = self._gather(thresholds)
         footprint = pixel_footprint_cm2(row, col, cam, self.size_plane_cm)
         keep = (area > 0) & (footprint > 0) & (area * footprint >= size_filter)
@@ -181,6 +181,15 @@ class CalibrationProblem:
             fitness[feasible] = match.dipe_px.mean(axis=1)
         return Evaluation(fitness, count, feasible, dipe, blob_row, blob_col)
 
+    def camera_for(self, values: NDArray[np.float64]) -> CameraParams:
+        """The camera of decoded strings (…, V): :func:`camera_with` for the paper model
+        (subclasses for other camera models override it, and :meth:`nominal_values`)."""
+        return camera_with(self.config.camera, values)
+
+    def nominal_values(self) -> NDArray[np.float64]:
+        """The configured camera (and 0 for the image settings) as a string's values."""
+        return np.array([getattr(self.config.camera, n, 0.0) for n in CALIBRATED_VARIABLES])
+
     def fitness(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
         """Fitness only (the GA's objective)."""
         return self.evaluate(values).fitness
@@ -191,7 +200,7 @@ class CalibrationProblem:
         a diagnostic for infeasible calibrations."""
         lo, hi = self.bounds[0]
         thresholds = np.arange(int(np.ceil(lo)), int(np.floor(hi)) + 1)
-        nominal = np.array([getattr(self.config.camera, n, 0.0) for n in CALIBRATED_VARIABLES])
+        nominal = self.nominal_values()
         values = np.repeat(nominal[None, :], thresholds.size, axis=0)
         values[:, 0] = thresholds
         values[:, 1] = self.bounds[1, 1]
@@ -214,6 +223,12 @@ def calibrate(
     Raises :class:`InfeasibleCalibrationError` when no string in the ranges sees exactly one
     object per control point, with what was seen and what to change.
     """
+    if config.camera.model == "pinhole":  # the general camera: GA + least squares
+        from ovis.common.pinhole_calibration import calibrate_pinhole
+
+        return calibrate_pinhole(
+            image, points, config, on_generation=on_generation, source=source, dedupe=dedupe
+        )
     t0 = time.perf_counter()
     problem = CalibrationProblem(image, points, config)
     result = run_ga(
@@ -269,7 +284,7 @@ def centre_image_settings(
     out[0] = lo + (a + b) // 2
     # Size filter: between the largest rejected and the smallest kept blob (cm²).
     table = problem.blobs_at(int(out[0]))
-    cam = camera_with(problem.config.camera, out)
+    cam = problem.camera_for(out)
     area = table.area_px * pixel_footprint_cm2(table.row, table.col, cam, problem.size_plane_cm)
     order = np.sort(area)[::-1]
     n = problem.n_points
@@ -297,7 +312,7 @@ def build_calibration(
     if config.calibration.centre_image_settings:
         best, band = centre_image_settings(problem, best)
     ev = problem.evaluate(best[None, :])
-    cam = camera_with(config.camera, best)
+    cam = problem.camera_for(best)
     pred = project(*problem.points_xyz.T, cam)
     residuals = []
     for i, p in enumerate(problem.points):

@@ -20,12 +20,16 @@ __all__ = [
     "CALIBRATED_VARIABLES",
     "PRESETS",
     "CalibrationRanges",
+    "CameraModel",
     "CameraParams",
     "ConfigError",
     "ControlPoint",
     "GAConfig",
     "ImageParams",
+    "PINHOLE_VARIABLES",
     "OvisConfig",
+    "PinholeParams",
+    "PinholeRanges",
     "PointsFile",
     "PoseConfig",
     "ServiceConfig",
@@ -36,7 +40,7 @@ __all__ = [
     "preset_text",
 ]
 
-PRESETS = ("default", "paper")
+PRESETS = ("default", "paper", "pinhole")
 
 #: The nine variables the GA tunes (paper §4), in the paper's order.
 CALIBRATED_VARIABLES = (
@@ -77,17 +81,19 @@ def _check_pair(owner: str, name: str, pair: PairF, lo: float, hi: float) -> Non
         raise ValueError(f"{owner}.{name} = [{a}, {b}] must lie within [{lo}, {hi}]")
 
 
-class CameraParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+class CameraParams(
+    msgspec.Struct, tag_field="model", tag="paper", forbid_unknown_fields=True, kw_only=True
+):
     """Constants and parameters of the paper's camera model (eqs. 4–10).
 
     Lengths of the set-up are in cm, of the image plane in mm; ``c_x``/``c_y`` are the row
     and column of the image centre (the paper's x_f is the row). ``Z0_cm, lam_mm, k1, k2,
     k3, s_x, s_y`` are the calibrated ones; the rest are fixed constants of the set-up.
     Functions of :mod:`ovis.common.camera` also accept instances whose calibrated fields
-    hold numpy arrays (a GA population).
+    hold numpy arrays (a GA population). ``model = "paper"`` is the tag that tells it
+    from :class:`PinholeParams` in a configuration or calibration file.
     """
 
-    model: Literal["paper"] = "paper"
     rows: Annotated[int, msgspec.Meta(ge=8, le=20000)]
     cols: Annotated[int, msgspec.Meta(ge=8, le=20000)]
     d_x_mm: Positive
@@ -110,6 +116,119 @@ class CameraParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     k3: Coefficient = 0.0
     s_x: Positive
     s_y: Positive
+
+    @property
+    def model(self) -> Literal["paper"]:
+        """The camera model's tag, ``"paper"``."""
+        return "paper"
+
+
+class PinholeParams(
+    msgspec.Struct, tag_field="model", tag="pinhole", forbid_unknown_fields=True, kw_only=True
+):
+    """A pinhole camera with 6-DoF pose and Brown–Conrady distortion, exactly OpenCV's.
+
+    OpenCV's pixel x is the **column** and y the **row**: ``fx``, ``cx`` act on columns,
+    ``fy``, ``cy`` on rows (ovis's own APIs always say row/col). The pose maps world
+    points (cm) into the camera, ``p_cam = R(rvec)·p_world + tvec_cm`` (OpenCV's
+    world → camera convention; ``rvec`` is a Rodrigues vector in radians, so the
+    camera centre is ``−Rᵀ·tvec_cm``). Distortion coefficients are in OpenCV's order
+    ``(k1, k2, p1, p2, k3)``. A negative focal length mirrors the image (the paper
+    model's equivalent pinhole has one, see :mod:`ovis.common.camera_export`).
+    ``pixel_pitch_mm`` only converts pixel errors to millimetres on the image plane
+    (the paper's DIPE unit); it plays no part in the projection. Functions of
+    :mod:`ovis.common.pinhole` also accept instances whose fields hold numpy arrays (a
+    GA population).
+    """
+
+    rows: Annotated[int, msgspec.Meta(ge=8, le=20000)]
+    cols: Annotated[int, msgspec.Meta(ge=8, le=20000)]
+    fx: _rng(-1e6, 1e6)  # focal length along columns, px
+    fy: _rng(-1e6, 1e6)  # focal length along rows, px
+    cx: Length  # principal point column (OpenCV x), px
+    cy: Length  # principal point row (OpenCV y), px
+    k1: _rng(-1e3, 1e3) = 0.0
+    k2: _rng(-1e3, 1e3) = 0.0
+    p1: _rng(-1e3, 1e3) = 0.0
+    p2: _rng(-1e3, 1e3) = 0.0
+    k3: _rng(-1e3, 1e3) = 0.0
+    rvec: tuple[Length, Length, Length]  # Rodrigues vector, world → camera, rad
+    tvec_cm: tuple[Length, Length, Length]  # translation, world → camera, cm
+    pixel_pitch_mm: Positive = 0.01
+
+    def __post_init__(self) -> None:
+        for name in ("fx", "fy"):
+            if abs(getattr(self, name)) < 1e-9:
+                raise ValueError(f"camera.{name} must not be 0 (a focal length in pixels)")
+
+    @property
+    def model(self) -> Literal["pinhole"]:
+        """The camera model's tag, ``"pinhole"``."""
+        return "pinhole"
+
+    @property
+    def d_x_mm(self) -> float:
+        """Pixel pitch along rows, mm (square pixels: ``pixel_pitch_mm``)."""
+        return self.pixel_pitch_mm
+
+    @property
+    def d_y_mm(self) -> float:
+        """Pixel pitch along columns, mm (square pixels: ``pixel_pitch_mm``)."""
+        return self.pixel_pitch_mm
+
+
+#: Either camera model; the ``model`` field of ``[camera]`` says which.
+CameraModel = CameraParams | PinholeParams
+
+#: The pinhole variables the GA can tune (see :class:`PinholeRanges`), in GA order.
+PINHOLE_VARIABLES = (
+    "fx",
+    "fy",
+    "cx",
+    "cy",
+    "k1",
+    "k2",
+    "p1",
+    "p2",
+    "k3",
+    "rvec_x",
+    "rvec_y",
+    "rvec_z",
+    "tvec_x_cm",
+    "tvec_y_cm",
+    "tvec_z_cm",
+)
+
+
+class PinholeRanges(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Search range [lo, hi] of each pinhole variable (``[calibration.pinhole]``).
+
+    A variable left out (or given as ``[v, v]``) is fixed at the configured camera's
+    value. ``rvec_x..z`` are the Rodrigues vector's components (rad), ``tvec_*_cm`` the
+    translation's (cm); ``fx, cx`` act on columns, ``fy, cy`` on rows (OpenCV).
+    """
+
+    fx: PairF | None = None
+    fy: PairF | None = None
+    cx: PairF | None = None
+    cy: PairF | None = None
+    k1: PairF | None = None
+    k2: PairF | None = None
+    p1: PairF | None = None
+    p2: PairF | None = None
+    k3: PairF | None = None
+    rvec_x: PairF | None = None
+    rvec_y: PairF | None = None
+    rvec_z: PairF | None = None
+    tvec_x_cm: PairF | None = None
+    tvec_y_cm: PairF | None = None
+    tvec_z_cm: PairF | None = None
+
+    def __post_init__(self) -> None:
+        for name in PINHOLE_VARIABLES:
+            pair = getattr(self, name)
+            if pair is not None:
+                _check_pair("calibration.pinhole", name, pair, -1e6, 1e6)
 
 
 class ImageParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -137,6 +256,9 @@ class CalibrationRanges(msgspec.Struct, forbid_unknown_fields=True, kw_only=True
     #: after the GA, move the threshold and size filter to the middle of the values that
     #: still see exactly one object per control point (robust on later frames)
     centre_image_settings: bool = True
+    #: ranges of the pinhole model's variables (used when ``camera.model = "pinhole"``;
+    #: the camera variables above are then unused, threshold and size filter are shared)
+    pinhole: PinholeRanges | None = None
 
     def __post_init__(self) -> None:
         limits = {
@@ -259,14 +381,14 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     auto_calibrate: bool = True  # calibrate on the first frame when nothing is saved
     status_period_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 1.0
     frame_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 2.0
-    queue_depth: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 2
+    queue_depth: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 1
 
 
 class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Everything ovis needs: camera, image pipeline, GA ranges and settings, pose, simulator."""
 
-    preset: Literal["default", "paper"] = "default"
-    camera: CameraParams
+    preset: Literal["default", "paper", "pinhole"] = "default"
+    camera: CameraModel
     image: ImageParams = msgspec.field(default_factory=ImageParams)
     calibration: CalibrationRanges = msgspec.field(default_factory=CalibrationRanges)
     ga: GAConfig = msgspec.field(default_factory=GAConfig)
@@ -324,7 +446,13 @@ def config_from_dict(data: dict[str, Any], source: str = "configuration") -> Ovi
             f"{source}: unknown preset {preset!r} - at `$.preset`; choose one of "
             f"{', '.join(PRESETS)}"
         )
-    merged = _deep_merge(tomllib.loads(preset_text(preset)), data)
+    base = tomllib.loads(preset_text(preset))
+    camera = data.get("camera")
+    if isinstance(camera, dict) and camera.get("model", base["camera"]["model"]) != (
+        base["camera"]["model"]
+    ):  # another camera model than the preset's: its [camera] table is not a base
+        base = {k: v for k, v in base.items() if k != "camera"}
+    merged = _deep_merge(base, data)
     try:
         return msgspec.convert(merged, OvisConfig)
     except msgspec.ValidationError as exc:

@@ -16,13 +16,13 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
-from ovis.common.camera import PixelJacobian, pixel_footprint_cm2, pixel_jacobian
-from ovis.common.config import CameraParams, ImageParams, PoseConfig
+from ovis.common.config import CameraModel, ImageParams, PoseConfig
 from ovis.common.labeling import filter_components, label_components
 from ovis.common.perimeter import perimeter
 from ovis.common.planner import planner_inputs
 from ovis.common.pose import ROBOT_ID, Tracker, pick_robot
 from ovis.common.preprocess import as_gray, binarize, smooth
+from ovis.common.projection import PixelJacobian, pixel_footprint_cm2, pixel_jacobian
 from ovis.common.shape import compactness, orientation
 
 __all__ = [
@@ -98,7 +98,7 @@ class Blobs(NamedTuple):
 def find_blobs(
     image: NDArray[np.uint8],
     params: ImageParams,
-    camera: CameraParams,
+    camera: CameraModel,
     plane_cm: float,
     *,
     min_area_px: float = 0.0,
@@ -114,7 +114,7 @@ def find_blobs(
     return measure_blobs(binary, params, camera, plane_cm, min_area_px=min_area_px)
 
 
-def size_filter_px(params: ImageParams, camera: CameraParams, plane_cm: float) -> float:
+def size_filter_px(params: ImageParams, camera: CameraModel, plane_cm: float) -> float:
     """A lower bound, in pixels, of the blobs the size filter A^f (cm²) can keep anywhere
     in the frame: A^f over the largest pixel footprint (sampled on a 9×9 grid, with a 25 %
     margin). Smaller specks are skipped before they are measured."""
@@ -126,7 +126,7 @@ def size_filter_px(params: ImageParams, camera: CameraParams, plane_cm: float) -
 def measure_blobs(
     binary: NDArray[np.uint8],
     params: ImageParams,
-    camera: CameraParams,
+    camera: CameraModel,
     plane_cm: float,
     *,
     min_area_px: float = 0.0,
@@ -177,7 +177,7 @@ def world_shape(
 class Detector:
     """Frame → :class:`Detection` with a calibration, keeping obstacle ids across frames."""
 
-    def __init__(self, camera: CameraParams, image: ImageParams, pose: PoseConfig) -> None:
+    def __init__(self, camera: CameraModel, image: ImageParams, pose: PoseConfig) -> None:
         self.camera = camera
         self.image = image
         self.pose = pose
@@ -185,7 +185,7 @@ class Detector:
         self._last_stamp: float | None = None
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
 
-    def recalibrate(self, camera: CameraParams, image: ImageParams, pose: PoseConfig) -> None:
+    def recalibrate(self, camera: CameraModel, image: ImageParams, pose: PoseConfig) -> None:
         """Use a new calibration; obstacle identities are kept."""
         self.camera, self.image, self.pose = camera, image, pose
         self.tracker.gate_cm = pose.track_gate_cm

@@ -36,6 +36,7 @@ __all__ = [
     "MessageError",
     "ObstacleFrame",
     "ServiceStatus",
+    "StreamHealth",
     "Topics",
     "TruthFrame",
     "decode",
@@ -188,6 +189,20 @@ class ObstacleFrame(_Msg, tag="obstacles", kw_only=True):
     arena: str = "default"
 
 
+class StreamHealth(_Msg, tag="health", kw_only=True):
+    """Published by the pose service on ``ovis/<arena>/health`` every status period,
+    whether frames flow or not, so that a consumer can tell "no obstacles" (an
+    ObstacleFrame with an empty list) from "no data" (``state`` "stalled")."""
+
+    state: Literal["waiting", "ok", "stalled"]
+    published_ns: Stamp
+    last_seq: int = -1
+    seconds_since_frame: float | None = None  # by the publisher's clock, since receipt
+    last_frame_age_ms: float | None = None  # capture → publication of the last frame
+    frames_dropped: int = 0
+    calibration_version: int = 0
+
+
 class TruthFrame(_Msg, tag="truth", kw_only=True):
     """Ground truth of a simulated frame (published by the simulated capture only)."""
 
@@ -242,6 +257,7 @@ class ServiceStatus(_Msg, tag="status", kw_only=True):
     calibration_version: int = -1
     last_frame_age_s: float | None = None
     rss_mb: float = 0.0
+    restarts: int = 0  # times `ovis up` restarted this service
 
 
 Message = (
@@ -254,6 +270,7 @@ Message = (
     | CalibrateReply
     | CalibrationUpdate
     | ServiceStatus
+    | StreamHealth
 )
 
 _ENCODER = msgspec.msgpack.Encoder()
@@ -318,6 +335,7 @@ class Topics:
         self.blobs = f"{root}/blobs"
         self.obstacles = f"{root}/obstacles"
         self.truth = f"{root}/truth"
+        self.health = f"{root}/health"
         self.calibration = f"{root}/calibration"
         self.calibrate = f"{root}/calibrate"
         self.status_all = f"{root}/status/*"

@@ -24,7 +24,8 @@ simulator reproduces what the vision pipeline needs from it, and nothing more:
   camera centre onto the floor: a top face 7 cm up appears up to ~5 % farther from the
   camera's foot, so a world gap alone could let two blobs touch in the image). The
   invariants therefore hold in every frame, not just on average.
-* **Photometry**, all through :func:`ovis.common.camera.back_project`, so a perfectly
+* **Photometry**, all through :func:`ovis.common.projection.back_project` (either
+  camera model, ``[camera] model``), so a perfectly
   calibrated camera sees exactly the truth: the floor has intensity
   ``floor_level × ℓ(row, col)`` and a top face ``object_level × ℓ``, where the lighting
   field ℓ is a linear gradient of relative amplitude ``lighting_gradient`` across the
@@ -65,8 +66,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.atomic import write_atomic
-from ovis.common.camera import back_project, camera_centre_mm, project
-from ovis.common.config import CameraParams, ControlPoint, OvisConfig, dump_toml
+from ovis.common.camera import camera_centre_mm
+from ovis.common.config import CameraModel, CameraParams, ControlPoint, OvisConfig, dump_toml
+from ovis.common.projection import (
+    back_project,
+    camera_centre_cm,
+    principal_point_rowcol,
+    project,
+)
 
 __all__ = [
     "CLUTTER_CLEARANCE_CM",
@@ -158,7 +165,7 @@ class _TruthFile(msgspec.Struct, kw_only=True):
 
 
 def lighting_field(
-    cam: CameraParams, *, gradient: float, vignetting: float, direction_rad: float
+    cam: CameraModel, *, gradient: float, vignetting: float, direction_rad: float
 ) -> NDArray[np.float32]:
     """Relative illumination ℓ of every pixel, shape ``(cam.rows, cam.cols)`` float32.
 
@@ -175,7 +182,7 @@ def lighting_field(
     corners = [0.0, (rows - 1) * cr, (cols - 1) * cc, (rows - 1) * cr + (cols - 1) * cc]
     lo, hi = min(corners), max(corners)
     u = (along - 0.5 * (lo + hi)) / max(hi - lo, 1e-12)
-    c_x, c_y = float(cam.c_x), float(cam.c_y)
+    c_x, c_y = principal_point_rowcol(cam)  # (row, col) of the principal point
     corner_r2 = max(
         (rr - c_x) ** 2 + (cc_ - c_y) ** 2 for rr in (0.0, rows - 1.0) for cc_ in (0.0, cols - 1.0)
     )
@@ -251,9 +258,12 @@ class Arena:
         self._rng = np.random.default_rng(self._seed)
         self._index = 0
 
-        cx_mm, cy_mm, cz_mm = camera_centre_mm(self._cam)
-        self._foot = (float(cx_mm) / 10.0, float(cy_mm) / 10.0)  # camera's foot, cm
-        cz = float(cz_mm) / 10.0
+        if isinstance(self._cam, CameraParams):
+            cx_mm, cy_mm, cz_mm = camera_centre_mm(self._cam)
+            cx_cm, cy_cm, cz = float(cx_mm) / 10.0, float(cy_mm) / 10.0, float(cz_mm) / 10.0
+        else:  # any other model: its centre of projection
+            cx_cm, cy_cm, cz = camera_centre_cm(self._cam)
+        self._foot = (cx_cm, cy_cm)  # camera's foot, cm
         z_robot, z_obst = config.pose.robot_height_cm, config.pose.obstacle_height_cm
         if cz <= max(z_robot, z_obst) + 1.0:
             raise ValueError(
@@ -290,7 +300,7 @@ class Arena:
 
     # ------------------------------------------------------------------ properties
     @property
-    def truth_camera(self) -> CameraParams:
+    def truth_camera(self) -> CameraModel:
         """The camera the frames are rendered with (``config.camera``)."""
         return self._cam
 

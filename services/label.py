@@ -67,5 +67,4 @@ def main(service: Service) -> None:
         service.sent()
         service.state = "ok"
 
-    service.consume(service.topics.binary, handle)
-    service.stop.wait()
+    service.serve(service.inbox(service.topics.binary), handle)

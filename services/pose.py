@@ -4,12 +4,13 @@ velocities and the motion planner's inputs (paper §5.2); publishes one
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
 
 from ovis.common.detection import Blobs, Detector
-from ovis.common.messages import BlobList, ObstacleFrame
+from ovis.common.messages import BlobList, ObstacleFrame, StreamHealth
 from ovis.services.runtime import Service
 
 FIELDS = Blobs._fields
@@ -47,7 +48,35 @@ def main(service: Service) -> None:
             )
         )
         service.sent()
-        service.state = "ok"
+        service.last_latency_ms = (now - msg.stamp_ns) / 1e6
 
-    service.consume(service.topics.blobs, handle)
-    service.stop.wait()
+    inbox = service.inbox(service.topics.blobs)
+    threading.Thread(target=service.serve, args=(inbox, handle), daemon=True).start()
+    publish_health = service.publisher(service.topics.health, drop=False)
+    period = service.config.service.status_period_s
+    timeout = service.config.service.frame_timeout_s
+    last_state = "waiting"
+    while not service.stop.wait(period):
+        st = service.status()
+        since = (
+            None
+            if service.last_receipt_ns is None
+            else ((time.time_ns() - service.last_receipt_ns) / 1e9)
+        )
+        state = "waiting" if since is None else "ok" if since <= timeout else "stalled"
+        if state != last_state:
+            log = service.log.warning if state == "stalled" else service.log.info
+            log("frames %s (last seq %s, %.1f s ago)", state, service.last_seq, since or 0.0)
+            service.state = {"ok": "ok", "stalled": "no frames", "waiting": "waiting"}[state]
+            last_state = state
+        publish_health(
+            StreamHealth(
+                state=state,
+                published_ns=time.time_ns(),
+                last_seq=-1 if service.last_seq is None else service.last_seq,
+                seconds_since_frame=since,
+                last_frame_age_ms=service.last_latency_ms,
+                frames_dropped=st.dropped,
+                calibration_version=service.calibration.version,
+            )
+        )

@@ -4,11 +4,17 @@ on ``ovis/<arena>/binary``."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from ovis.common.messages import BinaryFrame, Frame
 from ovis.common.preprocess import ImageError, as_gray, binarize, smooth
 from ovis.services.runtime import Service
+
+#: Frames stamped further than this from the local clock are refused (a broken clock or
+#: a forged frame would otherwise give nonsense ages and velocities downstream).
+MAX_CLOCK_SKEW_S = 3600.0
 
 
 def main(service: Service) -> None:
@@ -18,6 +24,14 @@ def main(service: Service) -> None:
     def handle(payload: bytes, _receipt_ns: int) -> None:
         frame = service.decode(payload, Frame, "frame")
         if frame is None:
+            return
+        skew = abs(time.time_ns() - frame.stamp_ns) / 1e9
+        if skew > MAX_CLOCK_SKEW_S:
+            service.error(
+                "bad_frame",
+                f"frame {frame.seq} is stamped {skew:.0f} s away from this machine's clock; "
+                "check the capture host's clock (NTP)",
+            )
             return
         calib = service.calibration
         cam = calib.camera
@@ -50,5 +64,4 @@ def main(service: Service) -> None:
         service.sent()
         service.state = "ok"
 
-    service.consume(service.topics.frames, handle)
-    service.stop.wait()
+    service.serve(service.inbox(service.topics.frames), handle)

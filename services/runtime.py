@@ -120,6 +120,18 @@ class Inbox:
         return len(self._items)
 
 
+def _rss_mb() -> float:
+    """Current resident set size (VmRSS), MB; the peak if /proc is unavailable."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
 def calibration_from_config(config: OvisConfig) -> Calibration:
     """Version 0: the configured (nominal, uncalibrated) camera and image settings."""
     return Calibration(
@@ -152,6 +164,8 @@ class Service:
         self.errors: collections.Counter[str] = collections.Counter()
         self.last_error = ""
         self.last_frame_ns: int | None = None
+        self.last_receipt_ns: int | None = None  # our clock, when the last frame came in
+        self.last_latency_ms: float | None = None
         self._last_seq: int | None = None
         self._seq_gaps = 0
         self._inboxes: list[Inbox] = []
@@ -173,37 +187,6 @@ class Service:
 
         self.session.declare_subscriber(key, on_sample)
         return box
-
-    def consume(self, key: str, handle: Callable[[bytes, int], None]) -> None:
-        """Process each sample of ``key`` as it arrives, on Zenoh's own thread (no hand-off
-        to another thread: that costs latency). While one sample is being processed, only
-        the newest arrival is kept (older ones are dropped and counted). ``handle``
-        receives (payload bytes, receipt ns); its exceptions are counted and logged.
-        """
-        pending = Inbox(1)
-        self._inboxes.append(pending)
-        busy = threading.Lock()
-
-        def run_one(item: tuple[bytes, int]) -> None:
-            try:
-                handle(*item)
-            except Exception as exc:
-                self.error("processing", f"{type(exc).__name__}: {exc}")
-
-        def on_sample(sample: zenoh.Sample) -> None:
-            pending.put((sample.payload.to_bytes(), time.time_ns()))
-            while busy.acquire(blocking=False):  # else the busy thread takes it next
-                try:
-                    item = pending.get(timeout=0)
-                    if item is None:
-                        return
-                    run_one(item)
-                finally:
-                    busy.release()
-
-        self.session.declare_subscriber(key, on_sample)
-        if self.state == "starting":
-            self.state = "waiting for input"
 
     def decode(self, payload: bytes, expected: Any, what: str) -> Any | None:
         """Decode a payload, or count and log why not (``bad_<what>``) and return None."""
@@ -231,7 +214,12 @@ class Service:
             if self._last_seq is None or seq > self._last_seq:
                 self._last_seq = seq
             self.last_frame_ns = stamp_ns
+            self.last_receipt_ns = time.time_ns()
             self._rate.append(time.monotonic())
+
+    @property
+    def last_seq(self) -> int | None:
+        return self._last_seq
 
     def sent(self) -> None:
         with self._lock:
@@ -310,7 +298,8 @@ class Service:
                 last_error=self.last_error,
                 calibration_version=self.calibration.version,
                 last_frame_age_s=age,
-                rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+                rss_mb=_rss_mb(),
+                restarts=int(os.environ.get("OVIS_RESTARTS", "0") or 0),
             )
 
     def _on_status(self, query: zenoh.Query) -> None:
@@ -326,7 +315,12 @@ class Service:
     # --- main loop ----------------------------------------------------------------
     def serve(self, inbox: Inbox, handle: Callable[[bytes, int], None]) -> None:
         """Run ``handle(payload, receipt_ns)`` on the newest input until stopped; an
-        exception in ``handle`` is counted and logged, and the loop goes on."""
+        exception in ``handle`` is counted and logged, and the loop goes on.
+
+        Zenoh's thread only drops each sample into the inbox and returns, so it is never
+        blocked by the processing: when frames come faster than they can be processed,
+        the older ones are dropped (counted) instead of queueing up in the network
+        stack, and what is processed is always the newest."""
         self.state = "waiting for input"
         while not self.stop.is_set():
             item = inbox.get(timeout=0.2)

@@ -2,11 +2,8 @@
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
 import os
 import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -75,21 +72,38 @@ def router(
         list[str] | None, typer.Option(help=f"Endpoint to listen on; default {DEFAULT_ENDPOINT}.")
     ] = None,
     config: ConfigOpt = None,
+    connect: Annotated[
+        list[str] | None, typer.Option(help="Another router to mesh with (repeatable).")
+    ] = None,
 ) -> None:
     """Run a Zenoh router (from the Python package itself: no separate binary).
 
-    Services connect to it with `--connect`; routers can be meshed with `--config` (a
-    [zenoh] section naming other routers in `connect`).
+    Services connect to it with `--connect`; routers are meshed with --connect, or with
+    `--config` (a [zenoh] section naming other routers in `connect`, and/or a Zenoh JSON5
+    file in `config_file`). Only what the command line or the [zenoh] section sets
+    overrides the JSON5 file.
     """
+    import tomllib
+
     from ovis.services.runtime import open_session
 
-    cfg = _config(config, listen=listen or [DEFAULT_ENDPOINT], mode="router", connect=None)
-    zc = msgspec.structs.replace(cfg.zenoh, connect=[] if not config else cfg.zenoh.connect)
+    cfg = _config(config, mode="router")  # a bad file has been refused here
+    given: dict[str, Any] = {}
+    if config is not None:
+        given = tomllib.loads(config.read_text("utf-8")).get("zenoh", {})
+    default_listen = [] if cfg.zenoh.config_file else [DEFAULT_ENDPOINT]
+    zc = msgspec.structs.replace(
+        cfg.zenoh,
+        listen=listen or (cfg.zenoh.listen if "listen" in given else default_listen),
+        connect=connect or (cfg.zenoh.connect if "connect" in given else []),
+    )
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     with open_session(zc) as session:
-        print(f"zenoh router {session.zid()} listening on {', '.join(zc.listen)}", flush=True)
+        where = ", ".join(zc.listen) or f"the endpoints of {zc.config_file}"
+        meshed = f"; meshed with {', '.join(zc.connect)}" if zc.connect else ""
+        print(f"zenoh router {session.zid()} listening on {where}{meshed}", flush=True)
         while not stop.wait(0.5):
             pass
 
@@ -136,51 +150,6 @@ def run(
     run_service(stage, cfg, module.main)
 
 
-def _die_with_parent() -> None:
-    """In the child: get SIGTERM when the launching process dies (no orphans)."""
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-
-
-class _Fleet:
-    """The router and the five stages as child processes."""
-
-    def __init__(self, log_dir: Path) -> None:
-        self.log_dir = log_dir
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
-
-    def start(self, name: str, args: list[str]) -> None:
-        log = open(self.log_dir / f"{name}.log", "wb")  # noqa: SIM115 (kept open by the child)
-        self.procs[name] = subprocess.Popen(
-            [sys.executable, "-m", "ovis.services.cli", *args],
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
-            preexec_fn=_die_with_parent,
-        )
-
-    def dead(self) -> list[str]:
-        return [n for n, p in self.procs.items() if p.poll() is not None]
-
-    def stop(self, timeout: float = 5.0) -> dict[str, int]:
-        """SIGTERM the stages, then the router; SIGKILL whatever outlives ``timeout``."""
-        codes: dict[str, int] = {}
-        stages = [n for n in self.procs if n != "router"]
-        for group in (stages, ["router"] if "router" in self.procs else []):
-            for name in group:
-                if self.procs[name].poll() is None:
-                    self.procs[name].send_signal(signal.SIGTERM)
-            deadline = time.monotonic() + timeout
-            for name in group:
-                p = self.procs[name]
-                try:
-                    codes[name] = p.wait(max(0.1, deadline - time.monotonic()))
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    codes[name] = p.wait()
-        return codes
-
-
 def up(
     source: Annotated[
         str | None, typer.Option(help="'sim' (default), a folder, a video, 'camera:N'.")
@@ -197,12 +166,17 @@ def up(
     ] = None,
     live: Annotated[bool, typer.Option(help="Live view of what is detected.")] = True,
     json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    max_restarts: Annotated[
+        int, typer.Option(min=0, help="Restarts allowed per process within a minute.")
+    ] = 5,
 ) -> None:
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
 
-    Ctrl-C or SIGTERM (or --duration) stops everything cleanly; logs of each process
-    are in a temporary folder named at the start.
+    A process that dies is restarted (back-off 1 s doubling to 10 s, at most
+    --max-restarts a minute) and the reason logged. Ctrl-C or SIGTERM (or --duration)
+    stops everything cleanly; logs of each process are in a temporary folder named at the
+    start.
     """
     from ovis.services.cli.watching import LiveView, summary_table
 
@@ -215,7 +189,9 @@ def up(
     from ovis.common.config import dump_toml
 
     cfg_path.write_text(dump_toml(cfg))
-    fleet = _Fleet(log_dir)
+    from ovis.services.supervisor import Supervisor
+
+    fleet = Supervisor(log_dir, max_restarts=max_restarts)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
@@ -237,13 +213,13 @@ def up(
                 stop,
                 until=(started + duration) if duration is not None else None,
                 live=live and not json,
-                fleet_dead=fleet.dead,
+                supervise=fleet.supervise,
                 quiet=json,
             )
             statuses = view.poll_status(session)
     finally:
         codes = fleet.stop()
-    summary = view.summary(statuses, codes, time.monotonic() - started)
+    summary = view.summary(statuses, codes, time.monotonic() - started, fleet.restarts())
     if json:
         sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
     else:
@@ -251,8 +227,9 @@ def up(
 
         Console(highlight=False).print(summary_table(summary))
     bad = [n for n, c in codes.items() if c not in (0, -signal.SIGTERM)]
-    if bad:
-        raise UserError(f"process(es) {', '.join(bad)} exited abnormally; see {log_dir}", 1)
+    if bad or fleet.gave_up():
+        reasons = "; ".join(fleet.gave_up()) or f"process(es) {', '.join(bad)} exited abnormally"
+        raise UserError(f"{reasons}; see the logs in {log_dir}", 1)
 
 
 def watch(
@@ -265,9 +242,11 @@ def watch(
 ) -> None:
     """Subscribe to the obstacle topic and print each frame's objects and planner inputs.
 
-    With --json, one JSON object per line (the message as published).
+    Also follows the pose service's health topic: when frames stop, it says "no data"
+    (instead of going quiet). With --json, one JSON object per line, as published:
+    "type" is "obstacles" for a frame, "health" for the stream's state.
     """
-    from ovis.common.messages import ObstacleFrame, decode
+    from ovis.common.messages import ObstacleFrame, StreamHealth, decode
     from ovis.services.cli.watching import format_obstacles
     from ovis.services.runtime import Inbox, open_session
 
@@ -281,6 +260,7 @@ def watch(
     deadline = time.monotonic() + duration if duration is not None else None
     with open_session(cfg.zenoh) as session:
         session.declare_subscriber(topics.obstacles, lambda s: box.put(s.payload.to_bytes()))
+        session.declare_subscriber(topics.health, lambda s: box.put(s.payload.to_bytes()))
         while not stop.is_set() and (count is None or seen < count):
             if deadline is not None and time.monotonic() > deadline:
                 break
@@ -288,15 +268,23 @@ def watch(
             if payload is None:
                 continue
             try:
-                msg = decode(payload, ObstacleFrame)
+                msg = decode(payload, ObstacleFrame | StreamHealth)
             except ValueError as exc:
                 print(f"skipped a bad message: {exc}", file=sys.stderr)
                 continue
-            seen += 1
             if json:
                 sys.stdout.write(msgspec.json.encode(msg).decode() + "\n")
-            else:
+            elif isinstance(msg, ObstacleFrame):
                 sys.stdout.write(format_obstacles(msg) + "\n")
+            elif msg.state != "ok":
+                since = msg.seconds_since_frame
+                ago = (
+                    f"the last frame ({msg.last_seq}) came {since:.1f} s ago"
+                    if since
+                    else ("no frame yet")
+                )
+                sys.stdout.write(f"NO DATA: frames {msg.state}; {ago}\n")
+            seen += isinstance(msg, ObstacleFrame)
             sys.stdout.flush()
 
 

@@ -152,6 +152,7 @@ class RunSummary(msgspec.Struct):
     dropped: dict[str, int]
     errors: dict[str, dict[str, int]]
     exit_codes: dict[str, int]
+    restarts: dict[str, int] = {}
 
 
 class LiveView:
@@ -221,10 +222,11 @@ class LiveView:
         *,
         until: float | None,
         live: bool,
-        fleet_dead: Callable[[], list[str]],
+        supervise: Callable[[], list[str]],
         quiet: bool = False,
     ) -> None:
-        """Show the newest frame until ``stop``, ``until`` (monotonic) or a child dies."""
+        """Show the newest frame until ``stop`` or ``until`` (monotonic); every tick, let
+        the supervisor restart what died, and say so."""
         from rich.console import Console
         from rich.live import Live
         from rich.text import Text
@@ -248,10 +250,8 @@ class LiveView:
             while not stop.is_set():
                 if until is not None and time.monotonic() >= until:
                     break
-                dead = fleet_dead()
-                if dead:
-                    console.print(f"[red]process(es) stopped unexpectedly: {', '.join(dead)}[/]")
-                    break
+                for event in supervise():
+                    console.print(f"[yellow]{event}[/]")
                 if ctx is not None:
                     ctx.update(render())
                 elif not quiet and time.monotonic() - last_print > 5.0 and self.latest:
@@ -263,7 +263,11 @@ class LiveView:
         return {r.service: r.status for r in collect_status(session, self.topics) if r.status}
 
     def summary(
-        self, statuses: dict[str, ServiceStatus], codes: dict[str, int], duration: float
+        self,
+        statuses: dict[str, ServiceStatus],
+        codes: dict[str, int],
+        duration: float,
+        restarts: dict[str, int] | None = None,
     ) -> RunSummary:
         with self._lock:
             lat = np.asarray(self.latency_ms)
@@ -288,6 +292,7 @@ class LiveView:
             dropped={n: s.dropped for n, s in statuses.items()},
             errors={n: s.errors for n, s in statuses.items() if s.errors},
             exit_codes=codes,
+            restarts={n: r for n, r in (restarts or {}).items() if r},
         )
 
 
@@ -319,4 +324,5 @@ def summary_table(s: RunSummary):
     t.add_row("dropped frames", ", ".join(f"{k} {v}" for k, v in s.dropped.items()) or "0")
     errs = "; ".join(f"{k}: {v}" for k, v in s.errors.items())
     t.add_row("errors", errs or "0")
+    t.add_row("restarts", ", ".join(f"{k} {v}" for k, v in s.restarts.items()) or "0")
     return t

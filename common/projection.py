@@ -1,0 +1,132 @@
+"""One interface to every camera model: world (cm) ⇄ pixel (row, col), whichever model.
+
+ovis has two camera models, selected by ``[camera] model``:
+
+* ``"paper"`` — the paper's tripod model, eqs. 4–10 (:mod:`ovis.common.camera`,
+  :class:`~ovis.common.config.CameraParams`);
+* ``"pinhole"`` — a pinhole with 6-DoF pose and Brown–Conrady distortion, OpenCV's
+  model (:mod:`ovis.common.pinhole`, :class:`~ovis.common.config.PinholeParams`).
+
+Everything that projects (detection, calibration, the simulator) calls the functions
+here; they take the same arguments as :mod:`ovis.common.camera` (camera last) and
+dispatch on the camera's type, so a population camera (fields holding ``(P, 1)``
+arrays) works for both models.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ovis.common import camera as paper
+from ovis.common import pinhole
+from ovis.common.camera import BackProjection, PixelJacobian, Projection
+from ovis.common.config import CALIBRATED_VARIABLES, CameraModel, CameraParams, PinholeParams
+
+__all__ = [
+    "BackProjection",
+    "CameraModel",
+    "PixelJacobian",
+    "Projection",
+    "back_project",
+    "camera_centre_cm",
+    "camera_parameters",
+    "pixel_footprint_cm2",
+    "pixel_jacobian",
+    "principal_point_rowcol",
+    "project",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+def _check(cam: object) -> None:
+    if not isinstance(cam, CameraParams | PinholeParams):
+        raise TypeError(
+            f"expected a camera (CameraParams or PinholeParams), got {type(cam).__name__}"
+        )
+
+
+def project(x_cm: ArrayLike, y_cm: ArrayLike, z_cm: ArrayLike, cam: CameraModel) -> Projection:
+    """World point (cm) → pixel (row, col), with a ``valid`` mask, for either model."""
+    if isinstance(cam, PinholeParams):
+        return pinhole.project(x_cm, y_cm, z_cm, cam)
+    _check(cam)
+    return paper.project(x_cm, y_cm, z_cm, cam)
+
+
+def back_project(
+    row: ArrayLike, col: ArrayLike, cam: CameraModel, z_cm: ArrayLike = 0.0
+) -> BackProjection:
+    """Pixel (row, col) → point on the plane Z = ``z_cm`` (cm), for either model."""
+    if isinstance(cam, PinholeParams):
+        return pinhole.back_project(row, col, cam, z_cm)
+    _check(cam)
+    return paper.back_project(row, col, cam, z_cm)
+
+
+def pixel_jacobian(
+    row: ArrayLike, col: ArrayLike, cam: CameraModel, z_cm: ArrayLike = 0.0
+) -> PixelJacobian:
+    """The pixel → plane Z = ``z_cm`` map at (row, col) and its Jacobian (cm per pixel,
+    central differences ±½ px), for either model (see
+    :func:`ovis.common.camera.pixel_jacobian`)."""
+    if not isinstance(cam, PinholeParams):
+        _check(cam)
+        return paper.pixel_jacobian(row, col, cam, z_cm)
+    r, c, z = np.broadcast_arrays(np.asarray(row, float), np.asarray(col, float), z_cm)
+    h = 0.5
+    rows = np.stack([r, r + h, r - h, r, r])
+    cols = np.stack([c, c, c, c + h, c - h])
+    b = pinhole.back_project(rows, cols, cam, np.stack([np.asarray(z, float)] * 5))
+    x, y = b.x_cm, b.y_cm
+    return PixelJacobian(
+        x[0], y[0], x[1] - x[2], y[1] - y[2], x[3] - x[4], y[3] - y[4], b.valid.all(axis=0)
+    )
+
+
+def pixel_footprint_cm2(
+    row: ArrayLike, col: ArrayLike, cam: CameraModel, z_cm: ArrayLike = 0.0
+) -> FloatArray:
+    """Floor area (cm²) of one pixel at (row, col) on the plane Z = ``z_cm``; 0 where
+    the pixel does not see the plane."""
+    return pixel_jacobian(row, col, cam, z_cm).area_cm2
+
+
+def camera_centre_cm(cam: CameraModel) -> tuple[float, float, float]:
+    """The camera's centre of projection in world cm.
+
+    Pinhole: ``−Rᵀ·tvec``. Paper model: the lens, at ``(0, 0, λ)`` in the camera frame
+    of eq. 4, which is where rays converge (eqs. 5–6).
+    """
+    if isinstance(cam, PinholeParams):
+        return tuple(float(v) for v in pinhole.camera_centre_cm(cam))  # type: ignore[return-value]
+    _check(cam)
+    R = paper.rotation_world_cam(cam.theta_deg)
+    c = np.array([float(v) for v in paper.camera_centre_mm(cam)])
+    lens = c + R[:, 2] * float(cam.lam_mm)
+    return tuple(float(v) / paper.CM_TO_MM for v in lens)  # type: ignore[return-value]
+
+
+def principal_point_rowcol(cam: CameraModel) -> tuple[float, float]:
+    """(row, col) of the principal point: paper (c_x, c_y); pinhole (cy, cx)."""
+    if isinstance(cam, PinholeParams):
+        return float(cam.cy), float(cam.cx)
+    _check(cam)
+    return float(cam.c_x), float(cam.c_y)
+
+
+def camera_parameters(cam: CameraModel) -> dict[str, float]:
+    """The calibrated parameters of a camera by name (for reports and replies).
+
+    Paper: ``Z0_cm, lam_mm, k1, k2, k3, s_x, s_y``; pinhole: ``fx, fy, cx, cy, k1, k2,
+    p1, p2, k3, rvec_x..z, tvec_x_cm..z_cm``.
+    """
+    if isinstance(cam, PinholeParams):
+        out = {n: float(getattr(cam, n)) for n in ("fx", "fy", "cx", "cy")}
+        out |= {n: float(getattr(cam, n)) for n in ("k1", "k2", "p1", "p2", "k3")}
+        out |= {f"rvec_{a}": float(v) for a, v in zip("xyz", cam.rvec, strict=True)}
+        out |= {f"tvec_{a}_cm": float(v) for a, v in zip("xyz", cam.tvec_cm, strict=True)}
+        return out
+    _check(cam)
+    return {n: float(getattr(cam, n)) for n in CALIBRATED_VARIABLES[2:]}
