@@ -40,6 +40,7 @@ from ovis.common.messages import (
     MessageError,
     ObstacleFrame,
     ServiceStatus,
+    StreamHealth,
     Topics,
     TruthFrame,
     decode,
@@ -58,6 +59,7 @@ MESSAGE_TYPES = [
     CalibrateReply,
     CalibrationUpdate,
     ServiceStatus,
+    StreamHealth,
 ]
 
 
@@ -259,6 +261,16 @@ def sample_messages() -> dict[str, Any]:
         "status-starting": ServiceStatus(
             service="capture", pid=1, host="h", started_ns=0, state="starting"
         ),
+        "health-stalled": StreamHealth(
+            state="stalled",
+            published_ns=1_700_000_000_000_000_000,
+            last_seq=41,
+            seconds_since_frame=2.5,
+            last_frame_age_ms=3.2,
+            frames_dropped=1,
+            calibration_version=2,
+        ),
+        "health-waiting": StreamHealth(state="waiting", published_ns=1),
     }
 
 
