@@ -21,7 +21,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["Child", "Supervisor", "describe_exit"]
+__all__ = ["Child", "Supervisor", "describe_exit", "die_with_parent"]
 
 log = logging.getLogger("ovis.up")
 
@@ -29,7 +29,7 @@ BACKOFF_START_S = 1.0
 BACKOFF_MAX_S = 10.0
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
     """In the child: get SIGTERM when the launching process dies (no orphans)."""
     with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
@@ -85,7 +85,7 @@ class Supervisor:
             stdout=logfile,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
-            preexec_fn=_die_with_parent,
+            preexec_fn=die_with_parent,
             env=env,
         )
         logfile.close()

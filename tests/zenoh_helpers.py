@@ -29,8 +29,17 @@ def ovis_cmd(*args: str) -> list[str]:
 
 
 def spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
+    """Start a child that gets SIGTERM if the test process dies (no orphans)."""
+    from ovis.services.supervisor import die_with_parent
+
     fh = open(log, "wb")  # noqa: SIM115 (the child keeps it)
-    return subprocess.Popen(args, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+    return subprocess.Popen(
+        args,
+        stdout=fh,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        preexec_fn=die_with_parent,
+    )
 
 
 def stop(procs: list[subprocess.Popen[bytes]], timeout: float = 10.0) -> None:
