@@ -43,11 +43,11 @@ from ovis.common.calibration import (
     centre_image_settings,
 )
 from ovis.common.calibration_file import Calibration
-from ovis.common.camera import back_project, pixel_footprint_cm2, project
-from ovis.common.config import CameraParams, ConfigError, ControlPoint, OvisConfig
+from ovis.common.config import CameraModel, ConfigError, ControlPoint, OvisConfig
 from ovis.common.ga import run_ga
 from ovis.common.labeling import label_components
 from ovis.common.preprocess import as_gray, binarize, smooth
+from ovis.common.projection import back_project, pixel_footprint_cm2, project
 from ovis.common.quality import AccuracyReport, HeldOut, HeldOutPoint, ParameterDetermination
 from ovis.common.refine import (
     CONTINUOUS,
@@ -112,7 +112,7 @@ def _held_out_stats(points: list[HeldOutPoint]) -> dict[str, float | None]:
     }
 
 
-def _floor_error(row: float, col: float, cam: CameraParams, point: ControlPoint) -> float | None:
+def _floor_error(row: float, col: float, cam: CameraModel, point: ControlPoint) -> float | None:
     b = back_project(row, col, cam, point.z_cm)
     if not bool(b.valid):
         return None
@@ -284,16 +284,16 @@ def restarts(
     problem: CalibrationProblem,
     seeds: Sequence[int],
     *,
-    polish_them: bool | None = None,
+    polish_them: bool = False,
     on_restart: Callable[[int], None] | None = None,
 ) -> list[Restart]:
-    """Rerun the calibration (GA, centring, and the polish if configured) with other seeds.
+    """Rerun the GA (and the centring of threshold and size filter) with other seeds.
 
-    Infeasible restarts are left out. ``polish_them`` defaults to ``config.ga.polish``.
+    Infeasible restarts are left out. The spread of the GA's values is what shows the
+    undetermined parameters: the polish (``polish_them``) would drive each of them
+    towards the same bound of its range and so hide that spread.
     """
     cfg = problem.config
-    if polish_them is None:
-        polish_them = bool(getattr(cfg.ga, "polish", False))
     out: list[Restart] = []
     for k, seed in enumerate(seeds):
         ga = msgspec.structs.replace(cfg.ga, seed=int(seed))
@@ -318,8 +318,8 @@ class Determination(NamedTuple):
     condition_all: float
     condition_determined: float
     correlations: list[tuple[str, str, float]]
-    #: relative standard errors of the scale products λ·s_x and λ·s_y (None if not
-    #: all three are determinable)
+    #: relative standard errors of the scale products λ·s_x and λ·s_y with λ held
+    #: (None if not all three are determinable)
     product_relative_error: tuple[float, float] | None = None
 
 
@@ -385,7 +385,6 @@ def determination(
     sigma = float(np.sqrt(ssr / dof)) if dof > 0 else float(np.sqrt(ssr / max(2 * n, 1)))
     se = np.full(len(CONTINUOUS), np.nan)
     corr = np.full((len(CONTINUOUS), len(CONTINUOUS)), np.nan)
-    cov = np.full((len(CONTINUOUS), len(CONTINUOUS)), np.nan)
     if p:
         Ja = Jn[:, active]
         cov_n = np.linalg.pinv(Ja.T @ Ja, rcond=1e-15) * sigma**2
@@ -395,7 +394,6 @@ def determination(
             c = cov_n / np.outer(se_n, se_n)
         idx = np.flatnonzero(active)
         corr[np.ix_(idx, idx)] = c
-        cov[np.ix_(idx, idx)] = cov_n * np.outer(width[active], width[active])
     cond_all = float(np.linalg.cond(Jn))
     cond_det = float(np.linalg.cond(Jn[:, active])) if p else float("inf")
 
@@ -429,13 +427,26 @@ def determination(
     products = None
     i_lam, i_sx, i_sy = (CONTINUOUS.index(n) for n in ("lam_mm", "s_x", "s_y"))
     if active[[i_lam, i_sx, i_sy]].all():
-        rel = []
-        for i_s in (i_sx, i_sy):
-            g = np.zeros(len(CONTINUOUS))
-            g[i_lam], g[i_s] = 1.0 / at[2 + i_lam], 1.0 / at[2 + i_s]
-            sub = np.nan_to_num(cov)
-            rel.append(float(np.sqrt(max(g @ sub @ g, 0.0))))
-        products = (rel[0], rel[1])
+        # Reparametrise (λ, s_x, s_y) → (λ, log a_x, log a_y), a = λ·s: well conditioned.
+        lam, sx, sy = at[2 + i_lam], at[2 + i_sx], at[2 + i_sy]
+        Jr = J.copy()
+        Jr[:, i_lam] = J[:, i_lam] - (sx / lam) * J[:, i_sx] - (sy / lam) * J[:, i_sy]
+        Jr[:, i_sx] = J[:, i_sx] * sx  # ∂r/∂log a_x = s_x·∂r/∂s_x (λ fixed)
+        Jr[:, i_sy] = J[:, i_sy] * sy
+        # λ held at its value (the search ranges hold it; free, it moves the scales only
+        # through the tiny perspective term λ/(λ − z), and so by a few per cent).
+        keep = active.copy()
+        keep[i_lam] = False
+        Ja = Jr[:, keep]
+        scale = np.linalg.norm(Ja, axis=0)
+        scale = np.where(scale > 0, scale, 1.0)
+        cov_r = np.linalg.pinv((Ja / scale).T @ (Ja / scale), rcond=1e-15) * sigma**2
+        cov_r /= np.outer(scale, scale)
+        pos = {int(k): i for i, k in enumerate(np.flatnonzero(keep))}
+        products = (
+            float(np.sqrt(max(cov_r[pos[i_sx], pos[i_sx]], 0.0))),
+            float(np.sqrt(max(cov_r[pos[i_sy], pos[i_sy]], 0.0))),
+        )
     return Determination(params, sigma, cond_all, cond_det, pairs[:3], products)
 
 
@@ -459,8 +470,9 @@ def _notes(
             "arbitrary"
         )
         if spread:
-            text += f" (GA restarts spread over {100 * min(spread):.0f}-{100 * max(spread):.0f} % "
-            text += "of the range)"
+            lo_s, hi_s = round(100 * min(spread)), round(100 * max(spread))
+            span = f"{lo_s}" if lo_s == hi_s else f"{lo_s}-{hi_s}"
+            text += f" (GA restarts spread over {span} % of the range)"
         notes.append(text)
     by_name = {q.name: q for q in params}
     c_sx = next((c for a, b, c in correlations if {a, b} == {"lam_mm", "s_x"}), None)
@@ -473,7 +485,9 @@ def _notes(
             "only the scales λ·s_x and λ·s_y are determined"
         )
         if products is not None:
-            text += f" (to ±{100 * products[0]:.2g} % and ±{100 * products[1]:.2g} %)"
+            text += (
+                f" (to ±{100 * products[0]:.2g} % and ±{100 * products[1]:.2g} % at the λ found)"
+            )
         if lam.standard_error is not None:
             text += f"; λ alone only to ±{lam.standard_error:.3g} mm"
         # What the search ranges leave of λ, the scale products held fixed.
@@ -537,6 +551,23 @@ def assess(
     ``points`` with ``config``); ``n_restarts`` GA restarts with seeds after the
     calibration's. ``checks`` are evaluated in ``check_image`` (default ``image``).
     ``on_step(stage, done, total)`` reports progress."""
+    if calibration.camera.model != "paper":  # LOO and identifiability: paper model only
+        check = None
+        if checks is not None:
+            check = check_errors(
+                image if check_image is None else check_image,
+                checks.points,
+                calibration,
+                median=config.image.median,
+                source=checks.source,
+            )
+        return AccuracyReport(
+            check=check,
+            notes=[
+                "leave-one-out and parameter identifiability are computed for the paper's "
+                f"camera model only (this calibration is {calibration.camera.model})"
+            ],
+        )
     problem = CalibrationProblem(image, points, config)
     values = calibration_values(calibration)
     if not problem.evaluate(values[None, :]).feasible[0]:
@@ -584,8 +615,8 @@ def assess(
 
 
 def floor_error_grid(
-    cam: CameraParams,
-    true_cam: CameraParams,
+    cam: CameraModel,
+    true_cam: CameraModel,
     *,
     z_cm: float = 0.0,
     step_px: int = 8,
@@ -607,8 +638,8 @@ def floor_error_grid(
 
 
 def arena_world_error(
-    cam: CameraParams,
-    true_cam: CameraParams,
+    cam: CameraModel,
+    true_cam: CameraModel,
     x_range: tuple[float, float],
     y_range: tuple[float, float],
     *,

@@ -24,7 +24,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.calibration_file import Calibration, GenerationRecord, PointResidual, now_iso
-from ovis.common.projection import pixel_footprint_cm2, project
 from ovis.common.config import (
     CALIBRATED_VARIABLES,
     CameraParams,
@@ -35,6 +34,7 @@ from ovis.common.dipe import match_points, pixel_error_mm
 from ovis.common.ga import GAResult, GenerationStats, run_ga
 from ovis.common.labeling import label_components
 from ovis.common.preprocess import as_gray, binarize, smooth
+from ovis.common.projection import pixel_footprint_cm2, project
 
 __all__ = [
     "INFEASIBLE",
@@ -311,6 +311,11 @@ def build_calibration(
     band = None
     if config.calibration.centre_image_settings:
         best, band = centre_image_settings(problem, best)
+    refined: dict = {}
+    if config.camera.model == "paper":  # least-squares polish, `[ga] polish` (refine.py)
+        from ovis.common.refine import refine_for_calibration
+
+        best, refined = refine_for_calibration(problem, best, apply=config.ga.polish)
     ev = problem.evaluate(best[None, :])
     cam = problem.camera_for(best)
     pred = project(*problem.points_xyz.T, cam)
@@ -365,4 +370,5 @@ def build_calibration(
         ga_threshold=int(np.rint(result.best_values[0])),
         ga_size_filter_cm2=float(result.best_values[1]),
         feasible_thresholds=band,
+        **refined,
     )

@@ -17,7 +17,8 @@ from typing import Literal
 import msgspec
 
 from ovis.common.atomic import write_atomic
-from ovis.common.config import CalibrationRanges, CameraParams, GAConfig, ImageParams, PoseConfig
+from ovis.common.config import CalibrationRanges, CameraModel, GAConfig, ImageParams, PoseConfig
+from ovis.common.quality import AccuracyReport
 
 __all__ = [
     "Calibration",
@@ -69,7 +70,7 @@ class Calibration(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     dipe_mm: float
     dipe_max_px: float
     dipe_max_mm: float
-    camera: CameraParams
+    camera: CameraModel  # the paper model or a pinhole (its `model` field says which)
     image: ImageParams
     pose: PoseConfig
     points: list[PointResidual] = []
@@ -84,6 +85,17 @@ class Calibration(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     ga_size_filter_cm2: float | None = None
     #: the run of thresholds that see exactly one object per control point
     feasible_thresholds: tuple[int, int] | None = None
+    #: hybrid refinement (ovis.common.refine; `[ga] polish`): whether `camera` is the
+    #: least-squares polish of the GA's, the mean DIPE of the GA's camera alone and of
+    #: the polished one (both at the final threshold and size filter; both are reported
+    #: whichever one `camera` holds)
+    polished: bool = False
+    ga_dipe_px: float | None = None
+    ga_dipe_mm: float | None = None
+    polish_dipe_px: float | None = None
+    polish_dipe_mm: float | None = None
+    #: held-out errors and which parameters the data determine (ovis.common.accuracy)
+    accuracy: AccuracyReport | None = None
 
     def __post_init__(self) -> None:
         for name in ("dipe_px", "dipe_mm", "dipe_max_px", "dipe_max_mm"):

@@ -1,8 +1,10 @@
 """Configuration: msgspec Structs validated on load, TOML presets, control-point files.
 
-A configuration file is TOML. It may name a ``preset`` (``default`` or ``paper``) and
-override any subset of its fields; the merged result is validated in one pass, and a
-bad value is reported with its path and the allowed range, e.g.
+A configuration file is TOML. It may name a ``preset`` (``default``, ``paper`` or
+``pinhole``) and override any subset of its fields (a ``[camera]`` table of another
+``model`` than the preset's replaces the preset's camera instead); the merged result
+is validated in one pass, and a bad value is reported with its path and the allowed
+range, e.g.
 ``Expected `float` <= 1.0 - at `$.camera.s_x```.
 """
 
@@ -18,6 +20,7 @@ import msgspec
 
 __all__ = [
     "CALIBRATED_VARIABLES",
+    "PINHOLE_VARIABLES",
     "PRESETS",
     "CalibrationRanges",
     "CameraModel",
@@ -26,7 +29,6 @@ __all__ = [
     "ControlPoint",
     "GAConfig",
     "ImageParams",
-    "PINHOLE_VARIABLES",
     "OvisConfig",
     "PinholeParams",
     "PinholeRanges",
@@ -158,7 +160,8 @@ class PinholeParams(
 
     def __post_init__(self) -> None:
         for name in ("fx", "fy"):
-            if abs(getattr(self, name)) < 1e-9:
+            value = getattr(self, name)  # (population cameras hold arrays: not checked)
+            if isinstance(value, float | int) and abs(value) < 1e-9:
                 raise ValueError(f"camera.{name} must not be 0 (a focal length in pixels)")
 
     @property
@@ -292,6 +295,10 @@ class GAConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     elitism: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 1
     seed: Annotated[int, msgspec.Meta(ge=0)] = 0
     coding: Literal["binary", "gray"] = "gray"
+    #: after the GA, polish the continuous camera parameters by bounded least squares
+    #: (:mod:`ovis.common.refine`; beyond the paper). False here and in the ``paper``
+    #: preset (the paper's method); the ``default`` preset turns it on.
+    polish: bool = False
 
 
 class PoseConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -447,10 +454,9 @@ def config_from_dict(data: dict[str, Any], source: str = "configuration") -> Ovi
             f"{', '.join(PRESETS)}"
         )
     base = tomllib.loads(preset_text(preset))
-    camera = data.get("camera")
-    if isinstance(camera, dict) and camera.get("model", base["camera"]["model"]) != (
-        base["camera"]["model"]
-    ):  # another camera model than the preset's: its [camera] table is not a base
+    camera, preset_model = data.get("camera"), base["camera"]["model"]
+    if isinstance(camera, dict) and camera.get("model", preset_model) != preset_model:
+        # another camera model than the preset's: its [camera] table is not a base
         base = {k: v for k, v in base.items() if k != "camera"}
     merged = _deep_merge(base, data)
     try:

@@ -80,11 +80,19 @@ class Components:
     mu_cc: FloatArray
     mu_rc: FloatArray
     outer: list[Chain] = field(default_factory=list)
+    #: the whole-image labels of OpenCV (many-object path) and, per component, its label
+    #: there; else None and each component's crop mask is in ``masks``
+    cc_labels: NDArray[np.int32] | None = None
+    cc_index: NDArray[np.int64] | None = None
     masks: list[NDArray[np.uint8]] = field(default_factory=list)
 
     @cached_property
     def labels(self) -> NDArray[np.int32]:
         """(H, W) int32 label image: 0 = background, component ``k`` (1-based) = k."""
+        if self.cc_labels is not None and self.cc_index is not None:
+            lut = np.zeros(int(self.cc_labels.max()) + 1, dtype=np.int32)
+            lut[self.cc_index] = np.arange(1, self.count + 1, dtype=np.int32)
+            return lut[self.cc_labels]
         out = np.zeros(self.shape, dtype=np.int32)
         for k, mask in enumerate(self.masks):
             t, lf = int(self.top[k]), int(self.left[k])
@@ -143,51 +151,109 @@ def label_components(
     """
     image = _validated(binary)
     contours, hierarchy = cv2.findContours(image, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return _components(image.shape, [], np.zeros((0, 4), np.int64), np.zeros((0, 6)))
+    h_arr = hierarchy[0]
+    tops = np.flatnonzero(h_arr[:, 3] < 0)  # outer borders: one per component
+    # A border's trace starts at its component's first pixel in raster order.
+    first = np.array([contours[i][0, 0] for i in tops]).reshape(-1, 2)
+    tops = tops[np.lexsort((first[:, 0], first[:, 1]))]
+    if min_area_px > 0:
+        bound = np.array([cv2.contourArea(contours[i]) + 0.5 * len(contours[i]) + 1 for i in tops])
+        tops = tops[bound >= min_area_px]
+    if tops.size > MANY_COMPONENTS:
+        return _measure_many(image, contours, tops)
     outer: list[Chain] = []
     masks: list[NDArray[np.uint8]] = []
     boxes: list[tuple[int, int, int, int]] = []
     sums: list[tuple[float, float, float, float, float, float]] = []
-    if contours:
-        h_arr = hierarchy[0]
-        tops = np.flatnonzero(h_arr[:, 3] < 0)  # outer borders: one per component
-        # A border's trace starts at its component's first pixel in raster order.
-        first = np.array([contours[i][0, 0] for i in tops]).reshape(-1, 2)
-        for i in tops[np.lexsort((first[:, 0], first[:, 1]))]:
-            chain = contours[i]
-            if min_area_px > 0 and cv2.contourArea(chain) + 0.5 * len(chain) + 1 < min_area_px:
-                continue
-            x, y, w, h = cv2.boundingRect(chain)
-            mask = np.zeros((h, w), np.uint8)
-            cv2.drawContours(mask, [chain], -1, 1, thickness=cv2.FILLED, offset=(-x, -y))
-            holes = [contours[j] for j in _holes(h_arr, i)]
-            if holes:  # clear the holes, then put back their border pixels (object pixels)
-                cv2.drawContours(mask, holes, -1, 0, thickness=cv2.FILLED, offset=(-x, -y))
-                cv2.drawContours(mask, holes, -1, 1, thickness=1, offset=(-x, -y))
-            m = cv2.moments(mask, binaryImage=True)
-            outer.append(chain.reshape(-1, 2))
-            masks.append(mask)
-            boxes.append((y, x, h, w))
-            sums.append((m["m00"], m["m01"], m["m10"], m["mu02"], m["mu20"], m["mu11"]))
-    n = len(outer)
-    box = np.array(boxes, dtype=np.int64).reshape(n, 4)
-    st = np.array(sums, dtype=np.float64).reshape(n, 6)
-    area = st[:, 0]
+    for i in tops:
+        chain = contours[i]
+        x, y, w, h = cv2.boundingRect(chain)
+        mask = np.zeros((h, w), np.uint8)
+        cv2.drawContours(mask, [chain], -1, 1, thickness=cv2.FILLED, offset=(-x, -y))
+        holes = [contours[j] for j in _holes(h_arr, i)]
+        if holes:  # clear the holes, then put back their border pixels (object pixels)
+            cv2.drawContours(mask, holes, -1, 0, thickness=cv2.FILLED, offset=(-x, -y))
+            cv2.drawContours(mask, holes, -1, 1, thickness=1, offset=(-x, -y))
+        m = cv2.moments(mask, binaryImage=True)
+        outer.append(chain.reshape(-1, 2))
+        masks.append(mask)
+        boxes.append((y, x, h, w))
+        sums.append((m["m00"], m["m01"], m["m10"], m["mu02"], m["mu20"], m["mu11"]))
+    box = np.array(boxes, dtype=np.int64).reshape(-1, 4)
+    return _components(image.shape, outer, box, np.array(sums).reshape(-1, 6), masks=masks)
+
+
+#: Above this many components, moments are summed over the whole image in one vectorised
+#: pass instead of drawing each component into its own crop (flat cost in objects).
+MANY_COMPONENTS = 16
+
+
+def _measure_many(
+    image: NDArray[np.uint8], contours: list[Chain], tops: NDArray[np.int64]
+) -> Components:
+    """Moments of many components at once: OpenCV labels, then per-label sums of the
+    foreground pixels' coordinates (relative to each bounding box, for accuracy)."""
+    _, cc = cv2.connectedComponents(image, connectivity=8, ltype=cv2.CV_32S)
+    chains = [contours[i].reshape(-1, 2) for i in tops]
+    box = np.array([cv2.boundingRect(c) for c in chains], dtype=np.int64).reshape(-1, 4)
+    box = box[:, [1, 0, 3, 2]]  # (x, y, w, h) -> (top, left, height, width)
+    index = cc[[int(c[0, 1]) for c in chains], [int(c[0, 0]) for c in chains]].astype(np.int64)
+    n_cc = int(cc.max()) + 1
+    where = np.full(n_cc, -1, dtype=np.int64)
+    where[index] = np.arange(index.size)
+    pts = cv2.findNonZero(image).reshape(-1, 2)
+    k = where[cc[pts[:, 1], pts[:, 0]]]
+    keep = k >= 0
+    k = k[keep]
+    r = (pts[keep, 1] - box[k, 0]).astype(np.float64)
+    c = (pts[keep, 0] - box[k, 1]).astype(np.float64)
+    n = index.size
+    m00 = np.bincount(k, minlength=n).astype(np.float64)
+    safe = np.maximum(m00, 1.0)
+    mr = np.bincount(k, r, minlength=n) / safe
+    mc = np.bincount(k, c, minlength=n) / safe
+    dr, dc = r - mr[k], c - mc[k]
+    sums = np.column_stack(
+        [
+            m00,
+            mr * m00,
+            mc * m00,
+            np.bincount(k, dr * dr, minlength=n),
+            np.bincount(k, dc * dc, minlength=n),
+            np.bincount(k, dr * dc, minlength=n),
+        ]
+    )
+    return _components(image.shape, chains, box, sums, cc_labels=cc, cc_index=index)
+
+
+def _components(
+    shape: tuple[int, ...],
+    outer: list[Chain],
+    box: NDArray[np.int64],
+    sums: NDArray[np.float64],
+    **extra: object,
+) -> Components:
+    """Assemble :class:`Components` from boxes (top, left, height, width) and, per
+    component, (m00, Σ row, Σ col relative to the box, μ_rr, μ_cc, μ_rc sums)."""
+    area = sums[:, 0]
     area_safe = np.maximum(area, 1.0)
     return Components(
-        shape=(image.shape[0], image.shape[1]),
-        count=n,
+        shape=(int(shape[0]), int(shape[1])),
+        count=len(outer),
         area_px=area,
-        row=box[:, 0] + st[:, 1] / area_safe,
-        col=box[:, 1] + st[:, 2] / area_safe,
+        row=box[:, 0] + sums[:, 1] / area_safe,
+        col=box[:, 1] + sums[:, 2] / area_safe,
         top=box[:, 0],
         left=box[:, 1],
         height=box[:, 2],
         width=box[:, 3],
-        mu_rr=st[:, 3] / area_safe,
-        mu_cc=st[:, 4] / area_safe,
-        mu_rc=st[:, 5] / area_safe,
+        mu_rr=sums[:, 3] / area_safe,
+        mu_cc=sums[:, 4] / area_safe,
+        mu_rc=sums[:, 5] / area_safe,
         outer=outer,
-        masks=masks,
+        **extra,  # type: ignore[arg-type]
     )
 
 
@@ -214,6 +280,7 @@ def filter_components(components: Components, keep_mask: NDArray[np.bool_]) -> C
         )
     c = components
     idx = np.flatnonzero(keep)
+    many = c.cc_index is not None
     return Components(
         shape=c.shape,
         count=int(idx.size),
@@ -228,5 +295,7 @@ def filter_components(components: Components, keep_mask: NDArray[np.bool_]) -> C
         mu_cc=c.mu_cc[keep],
         mu_rc=c.mu_rc[keep],
         outer=[c.outer[i] for i in idx],
-        masks=[c.masks[i] for i in idx],
+        masks=[] if many else [c.masks[i] for i in idx],
+        cc_labels=c.cc_labels,
+        cc_index=c.cc_index[keep] if many else None,
     )

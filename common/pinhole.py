@@ -179,9 +179,7 @@ def _monotonic_radius2(cam: PinholeParams, r2: FloatArray) -> NDArray[np.bool_]:
     return ok
 
 
-def project(
-    x_cm: ArrayLike, y_cm: ArrayLike, z_cm: ArrayLike, cam: PinholeParams
-) -> Projection:
+def project(x_cm: ArrayLike, y_cm: ArrayLike, z_cm: ArrayLike, cam: PinholeParams) -> Projection:
     """World point (cm) → pixel (row, col), the same numbers as ``cv2.projectPoints``.
 
     Points behind the camera (``Z_c ≤ 0``) or beyond the radius where the radial
@@ -206,9 +204,7 @@ class Undistorted(NamedTuple):
     valid: NDArray[np.bool_]
 
 
-def undistort_normalised(
-    row: ArrayLike, col: ArrayLike, cam: PinholeParams
-) -> Undistorted:
+def undistort_normalised(row: ArrayLike, col: ArrayLike, cam: PinholeParams) -> Undistorted:
     """Pixel (row, col) → undistorted normalised (x', y'), the inverse of the distortion.
 
     Starts with the fixed-point iteration of ``cv2.undistortPoints``

@@ -42,6 +42,7 @@ from ovis.common.calibration import (
 from ovis.common.calibration_file import Calibration
 from ovis.common.config import (
     PINHOLE_VARIABLES,
+    ConfigError,
     ControlPoint,
     OvisConfig,
     PinholeParams,
@@ -87,10 +88,7 @@ def pinhole_with(cam: PinholeParams, values: NDArray[np.float64]) -> PinholePara
     of shape (15,), an ordinary camera (plain floats).
     """
     v = np.asarray(values, dtype=np.float64)
-    if v.ndim == 1:
-        f = [float(x) for x in v]
-    else:
-        f = [v[:, i : i + 1] for i in range(v.shape[1])]
+    f = [float(x) for x in v] if v.ndim == 1 else [v[:, i : i + 1] for i in range(v.shape[1])]
     return msgspec.structs.replace(
         cam,
         **dict(zip(("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"), f[:9], strict=True)),
@@ -110,9 +108,9 @@ class PinholeCalibrationProblem(CalibrationProblem):
         self, image: NDArray[np.uint8], points: Sequence[ControlPoint], config: OvisConfig
     ) -> None:
         if not isinstance(config.camera, PinholeParams):
-            raise ValueError('a pinhole calibration needs camera.model = "pinhole"')
+            raise ConfigError('a pinhole calibration needs camera.model = "pinhole"')
         if len(points) < MIN_POINTS:
-            raise ValueError(
+            raise ConfigError(
                 f"a pinhole calibration needs at least {MIN_POINTS} control points "
                 f"(two equations each for up to 15 parameters), got {len(points)}"
             )
@@ -202,7 +200,8 @@ def _fit(
         h = _JAC_STEP
         up = np.minimum(u + h, 1.0)
         down = np.maximum(u - h, 0.0)
-        rows = np.vstack([np.where(np.eye(k, dtype=bool), up, u), np.where(np.eye(k, dtype=bool), down, u)])
+        eye = np.eye(k, dtype=bool)
+        rows = np.vstack([np.where(eye, up, u), np.where(eye, down, u)])
         r = _residuals(problem, to_values(rows), blob_row, blob_col)
         return ((r[:k] - r[k:]) / (up - down)[:, None]).T
 
@@ -264,14 +263,17 @@ def calibrate_pinhole(
     on_generation: Callable[[GenerationStats], None] | None = None,
     source: str = "",
     dedupe: bool = True,
-    polish: bool = True,
+    polish: bool | None = None,
 ) -> tuple[Calibration, GAResult]:
     """GA + least-squares calibration of a pinhole camera on one frame.
 
-    Returns the calibration (its camera is the polished one; threshold and size filter
-    centred as configured) and the GA run (whose ``best_values``/``best_fitness`` are
-    the full 17 values and mean DIPE of the GA alone, before the polish). Raises
-    :class:`InfeasibleCalibrationError` when no string sees one object per point.
+    ``polish`` (default: ``config.ga.polish``) runs :func:`polish_pinhole` after the GA.
+    Returns the calibration (its camera the polished one when that is better; threshold
+    and size filter centred as configured; ``polished``, ``ga_dipe_*`` and
+    ``polish_dipe_*`` filled in as for the paper model) and the GA run (whose
+    ``best_values``/``best_fitness`` are the full 17 values and mean DIPE of the GA
+    alone). Raises :class:`InfeasibleCalibrationError` when no string sees one object
+    per point.
     """
     t0 = time.perf_counter()
     problem = PinholeCalibrationProblem(image, points, config)
@@ -296,16 +298,27 @@ def calibrate_pinhole(
     ga_values = problem.expand(result.best_values)
     result = result._replace(best_values=ga_values)
     best = ga_values
-    if polish:
-        best = polish_pinhole(problem, ga_values).values
+    improved = False
+    if config.ga.polish if polish is None else polish:
+        polished = polish_pinhole(problem, ga_values)
+        best, improved = polished.values, polished.improved
     elapsed = time.perf_counter() - t0
     calib = build_calibration(
         problem, result._replace(best_values=best), elapsed=elapsed, source=source
     )
-    # build_calibration records what the GA chose from the values it is given.
-    calib = msgspec.structs.replace(
+    # The GA's own camera and the polished one, both at the final image settings.
+    pitch = float(config.camera.pixel_pitch_mm)
+    final = np.array([calib.image.threshold, calib.image.size_filter_cm2])
+    ga_px = _dipe(problem, np.concatenate([final, ga_values[2:]]))
+    ga_px = ga_px if np.isfinite(ga_px) else None
+    return msgspec.structs.replace(
         calib,
+        # build_calibration records what the GA chose from the values it is given.
         ga_threshold=int(np.rint(ga_values[0])),
         ga_size_filter_cm2=float(ga_values[1]),
-    )
-    return calib, result
+        polished=improved,
+        ga_dipe_px=ga_px,
+        ga_dipe_mm=None if ga_px is None else ga_px * pitch,
+        polish_dipe_px=calib.dipe_px if improved else None,
+        polish_dipe_mm=calib.dipe_mm if improved else None,
+    ), result

@@ -39,12 +39,14 @@ from ovis.common.dipe import match_points, pixel_error_mm
 __all__ = [
     "CONTINUOUS",
     "CONTINUOUS_SLICE",
+    "PRIOR_PX",
     "FitResult",
     "PolishResult",
     "dipe_of",
     "fit_camera",
     "matched_blobs",
     "polish",
+    "refine_for_calibration",
     "residuals_px",
 ]
 
@@ -54,6 +56,9 @@ CONTINUOUS_SLICE = slice(2, 2 + len(CONTINUOUS))
 
 #: Residual (px) given to a point the camera cannot project (keeps the solver finite).
 UNPROJECTABLE_PX = 1.0e3
+#: Weak pull of the polish towards the GA's values (px per whole range, see
+#: :func:`fit_camera`): keeps the undetermined k's and λ where the GA put them.
+PRIOR_PX = 0.01
 
 
 class FitResult(NamedTuple):
@@ -171,6 +176,7 @@ def fit_camera(
     method: str = "trf",
     rematch: bool = False,
     max_nfev: int | None = None,
+    prior_px: float = 0.0,
 ) -> FitResult:
     """Least-squares fit of the continuous camera variables from ``start`` (9,).
 
@@ -180,6 +186,12 @@ def fit_camera(
     blobs (``blob_row``, ``blob_col``, one per control point) are fixed, and so is their
     matching unless ``rematch`` re-solves it at every evaluation. The Jacobian is a
     forward difference evaluated for all seven variables in one vectorised projection.
+
+    ``prior_px`` > 0 adds the residuals ``prior_px · (u − u_start)`` (u: each variable
+    on its range scaled to [0, 1]): moving a variable across its whole range then costs
+    as much as a residual of ``prior_px`` pixels. Directions the data determine
+    (hundreds of px per range) do not notice it; directions they do not determine (the
+    k's, λ against s_x and s_y) stay at the start instead of drifting to a bound.
     """
     start = np.asarray(start, dtype=np.float64)
     use = np.ones(problem.n_points, dtype=bool) if use is None else np.asarray(use, bool)
@@ -200,7 +212,8 @@ def fit_camera(
     first = np.full(1, -1) if rematch else None
 
     def fun(u: NDArray[np.float64]) -> NDArray[np.float64]:
-        return batch(u[None, :], first)[0][0]
+        r = batch(u[None, :], first)[0][0]
+        return np.concatenate([r, prior_px * (u - u0)]) if prior_px > 0 else r
 
     def jac(u: NDArray[np.float64]) -> NDArray[np.float64]:
         step = np.full(k, _JAC_STEP)
@@ -209,7 +222,8 @@ def fit_camera(
         rows = np.vstack([u[None, :], u[None, :] + np.diag(step)])
         r, order = batch(rows[:1], first)
         rp, _ = batch(rows[1:], order)  # same matching as the base point
-        return ((rp - r[0][None, :]) / step[:, None]).T
+        J = ((rp - r[0][None, :]) / step[:, None]).T
+        return np.vstack([J, prior_px * np.eye(k)]) if prior_px > 0 else J
 
     if bounded:
         res = least_squares(
@@ -218,7 +232,7 @@ def fit_camera(
         )  # fmt: skip
     else:
         res = least_squares(fun, u0, jac=jac, method="lm", max_nfev=max_nfev)
-    r = res.fun.reshape(2, -1)
+    r = res.fun[: 2 * int(use.sum())].reshape(2, -1)
     rms = float(np.sqrt(np.mean(r[0] ** 2 + r[1] ** 2)))
     values = to_values(res.x[None, :])[0]
     return FitResult(values, rms, int(res.nfev), bool(res.success), str(res.message))
@@ -236,8 +250,33 @@ def polish(problem: CalibrationProblem, values: NDArray[np.float64]) -> PolishRe
     if not np.isfinite(start_px):
         return PolishResult(values.copy(), start_px, start_px, False, 0)
     blob_row, blob_col = matched_blobs(problem, values)
-    fit = fit_camera(problem, values, blob_row, blob_col)
+    fit = fit_camera(problem, values, blob_row, blob_col, prior_px=PRIOR_PX)
     end_px, _ = dipe_of(problem, fit.values)
     if not end_px < start_px:
         return PolishResult(values.copy(), start_px, start_px, False, fit.nfev)
     return PolishResult(fit.values, start_px, end_px, True, fit.nfev)
+
+
+def refine_for_calibration(
+    problem: CalibrationProblem, values: NDArray[np.float64], *, apply: bool
+) -> tuple[NDArray[np.float64], dict[str, float | bool]]:
+    """Polish the GA's (centred) ``values`` and say how both fare, for the calibration file.
+
+    Returns the values to keep (the polished ones if ``apply`` and the polish improved
+    the DIPE, else ``values``) and the :class:`~ovis.common.calibration_file.Calibration`
+    fields ``polished``, ``ga_dipe_px``/``mm`` and ``polish_dipe_px``/``mm``: both numbers
+    are always reported, whichever camera is kept.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    ga_px, ga_mm = dipe_of(problem, values)
+    result = polish(problem, values)
+    pol_px, pol_mm = dipe_of(problem, result.values)
+    keep = result.values if (apply and result.improved) else values
+    fields: dict[str, float | bool] = {
+        "polished": bool(apply and result.improved),
+        "ga_dipe_px": ga_px,
+        "ga_dipe_mm": ga_mm,
+        "polish_dipe_px": pol_px,
+        "polish_dipe_mm": pol_mm,
+    }
+    return keep, fields

@@ -149,6 +149,8 @@ class DatasetInfo(msgspec.Struct, kw_only=True, frozen=True):
     frames: list[Path]
     truth: Path
     points: Path
+    #: check points: the last frame's objects (None with a single frame)
+    checks: Path | None = None
 
 
 class _TruthRecord(msgspec.Struct, kw_only=True):
@@ -719,7 +721,10 @@ def write_dataset(out_dir: Path, config: OvisConfig, frames: int, seed: int) -> 
     * ``points.toml`` — the control points of the first frame (``R`` for the robot,
       ``O1``, ``O2``, … for the obstacles, top-face centres in cm) and a ``[config]``
       table with the full configuration, readable by
-      :func:`ovis.common.config.load_points`.
+      :func:`ovis.common.config.load_points`;
+    * ``checks.toml`` (with two frames or more) — the last frame's objects as check
+      points and ``image`` = that frame's file, for ``ovis calibrate --check``
+      (:func:`ovis.common.accuracy.load_checks`).
     """
     if int(frames) < 1:
         raise ValueError(f"frames must be at least 1, got {frames}")
@@ -754,4 +759,17 @@ def write_dataset(out_dir: Path, config: OvisConfig, frames: int, seed: int) -> 
     text = header + dump_toml({"points": points, "config": msgspec.to_builtins(config)})
     points_path = out_dir / "points.toml"
     write_atomic(points_path, text.encode("utf-8"))
-    return DatasetInfo(out_dir=out_dir, frames=paths, truth=truth_path, points=points_path)
+    checks_path = None
+    if len(records) > 1:  # held-out check points for `ovis calibrate --check`
+        last = records[-1]
+        checks = [msgspec.to_builtins(p) for p in control_points(last)]
+        header = (
+            f"# ovis simulated data set (seed {int(seed)}): check points = top-face centres "
+            f"of the objects in {last.file} (not used for calibration), world cm\n"
+        )
+        checks_path = out_dir / "checks.toml"
+        text = header + dump_toml({"image": last.file, "points": checks})
+        write_atomic(checks_path, text.encode("utf-8"))
+    return DatasetInfo(
+        out_dir=out_dir, frames=paths, truth=truth_path, points=points_path, checks=checks_path
+    )

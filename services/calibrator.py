@@ -19,7 +19,7 @@ import zenoh
 
 from ovis.common.calibration import InfeasibleCalibrationError, calibrate
 from ovis.common.calibration_store import CalibrationStore
-from ovis.common.config import CALIBRATED_VARIABLES, ControlPoint, load_points
+from ovis.common.config import ControlPoint, load_points
 from ovis.common.messages import (
     ENCODING,
     CalibrateReply,
@@ -31,6 +31,7 @@ from ovis.common.messages import (
     encode,
 )
 from ovis.common.preprocess import ImageError
+from ovis.common.projection import camera_parameters
 from ovis.common.simulator import control_points
 from ovis.services.runtime import Inbox, Service
 
@@ -151,7 +152,7 @@ def main(service: Service) -> None:
             calib.dipe_mm,
             calib.elapsed_s,
         )
-        params = {n: float(getattr(calib.camera, n)) for n in CALIBRATED_VARIABLES[2:]}
+        params = camera_parameters(calib.camera)
         params["threshold"] = float(calib.image.threshold)
         params["size_filter_cm2"] = calib.image.size_filter_cm2
         return CalibrateReply(

@@ -87,6 +87,11 @@ def open_session(zc: ZenohConfig, *, wait: bool = True) -> Iterator[zenoh.Sessio
         raise ZenohUnreachableError(
             f"cannot reach Zenoh at {', '.join(zc.connect or zc.listen)}: {exc}. Is a router "
             "running there (`ovis router`, `ovis up`)? Use --connect to name another"
+            + (
+                f"; or did it refuse the TLS certificate or user/password of {zc.config_file}?"
+                if zc.config_file
+                else ""
+            )
         ) from None
     try:
         yield session

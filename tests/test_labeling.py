@@ -247,3 +247,26 @@ def test_min_area_skips_specks_but_never_a_big_enough_component() -> None:
     big = label_components(binary, min_area_px=100)
     assert big.count == int((all_.area_px >= 100).sum()) >= 1
     np.testing.assert_array_equal(big.area_px, all_.area_px[all_.area_px >= 100])
+
+
+def test_many_components_path_matches_the_per_object_path(monkeypatch) -> None:
+    import ovis.common.labeling as labeling
+
+    rng = np.random.default_rng(5)
+    binary = (rng.random((90, 120)) > 0.7).astype(np.uint8)  # hundreds of components
+    binary[30:60, 40:80] = 1
+    binary[40:50, 50:70] = 0  # one with a hole
+    binary[44:46, 58:61] = 1  # and an island in it
+    many = label_components(binary)
+    assert many.count > labeling.MANY_COMPONENTS and many.cc_index is not None
+    monkeypatch.setattr(labeling, "MANY_COMPONENTS", 10**9)
+    few = label_components(binary)
+    assert few.cc_index is None and few.count == many.count
+    for name in FIELDS:
+        np.testing.assert_allclose(getattr(many, name), getattr(few, name), rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(many.labels, few.labels)
+    assert_matches_brute_force(many)
+    keep = many.area_px >= 3
+    kept = filter_components(many, keep)
+    assert kept.count == int(keep.sum())
+    assert_matches_brute_force(kept)

@@ -108,11 +108,11 @@ def pipeline(tmp_path_factory: pytest.TempPathFactory):
         )
     with client(endpoint) as session:
         try:
-            wait_for(lambda: alive(session) >= set(STAGES), 30, "all five services alive")
+            wait_for(lambda: alive(session) >= set(STAGES), 60, "all five services alive")
             rec = Recorder(session)
             wait_for(
                 lambda: any(m.calibration_version >= 1 for m in rec.since(0)),
-                30,
+                60,
                 "obstacle messages made with the initial calibration",
             )
             yield {
@@ -252,9 +252,19 @@ def test_garbage_on_every_input_topic_is_counted_and_survived(pipeline) -> None:
         )
 
     after = wait_for(counted, 10, "errors counted by every service")
-    assert after["preprocess"].errors.get("bad_frame", 0) >= len(garbage) + len(wrong_schema)
-    assert after["label"].errors.get("bad_binary", 0) >= len(garbage)
-    assert after["pose"].errors.get("bad_blobs", 0) >= len(garbage) + 1
+
+    def refused_or_dropped(service: str, kind: str) -> int:
+        # Under load a bad message can be overtaken in the newest-wins slot by the next
+        # one before it is decoded: then it is counted as dropped instead of refused.
+        a, b = after[service], before[service]
+        return a.errors.get(kind, 0) - b.errors.get(kind, 0) + a.dropped - b.dropped
+
+    assert after["preprocess"].errors.get("bad_frame", 0) > before["preprocess"].errors.get(
+        "bad_frame", 0
+    )
+    assert refused_or_dropped("preprocess", "bad_frame") >= len(garbage) + len(wrong_schema)
+    assert refused_or_dropped("label", "bad_binary") >= len(garbage)
+    assert refused_or_dropped("pose", "bad_blobs") >= len(garbage) + 1
     assert after["calibrator"].errors.get("bad_calibrate_request", 0) >= 1
     assert all(
         after[s].errors.get("bad_calibration", 0) >= len(garbage)

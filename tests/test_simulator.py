@@ -281,13 +281,15 @@ def test_write_dataset_round_trip(tmp_path: Path, preset: str, changes: dict[str
     info = write_dataset(tmp_path / "ds", config, frames=3, seed=4)
     names = sorted(p.name for p in info.out_dir.iterdir())
     assert names == [
+        "checks.toml",  # the last frame's objects, for `ovis calibrate --check`
         "frame_0000.png",
         "frame_0001.png",
         "frame_0002.png",
         "points.toml",
         "truth.json",
     ]
-    assert [p.name for p in info.frames] == names[:3]
+    assert [p.name for p in info.frames] == names[1:4]
+    assert info.checks == info.out_dir / "checks.toml"
 
     expected = list(Arena(config, 4).frames(3))
     for path, (img, _) in zip(info.frames, expected, strict=True):
@@ -296,7 +298,7 @@ def test_write_dataset_round_trip(tmp_path: Path, preset: str, changes: dict[str
     data = msgspec.json.decode(info.truth.read_bytes())
     assert (data["seed"], data["preset"]) == (4, preset)
     assert data["camera"] == msgspec.to_builtins(config.camera)
-    assert [f["file"] for f in data["frames"]] == names[:3]
+    assert [f["file"] for f in data["frames"]] == names[1:4]
     for record, (_, truth) in zip(data["frames"], expected, strict=True):
         assert record["index"] == truth.index
         assert msgspec.convert(record["objects"], list[SimObject]) == truth.objects

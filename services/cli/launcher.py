@@ -313,6 +313,11 @@ def recalibrate(
         raise UserError(
             f"no calibrator is alive on {topics.calibrate} (connect: "
             f"{', '.join(cfg.zenoh.connect)}); start one with `ovis run calibrator`"
+            + (
+                ", or use credentials the router's access control lets query it"
+                if cfg.zenoh.config_file
+                else ""
+            )
         )
     reply = replies[0]
     if reply.ok is None:

@@ -77,7 +77,9 @@ ConfigOpt = Annotated[
 ]
 PresetOpt = Annotated[
     str | None,
-    typer.Option(help="Built-in preset when no --config is given: 'default' or 'paper'."),
+    typer.Option(
+        help="Built-in preset when no --config is given: 'default', 'paper' or 'pinhole'."
+    ),
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")]
 
@@ -110,9 +112,12 @@ def simulate(
         f"({cfg.camera.cols}x{cfg.camera.rows}, seed {seed}) to {out}"
     )
     con.print(f"  ground truth: {out / 'truth.json'}\n  control points: {out / 'points.toml'}")
+    if info.checks is not None:
+        con.print(f"  check points (last frame): {info.checks}")
     con.print(
         f"next: ovis calibrate {out / 'frame_0000.png'} --points {out / 'points.toml'} "
         f"--out {out / 'calib.json'}"
+        + (f" --check {info.checks}" if info.checks is not None else "")
     )
 
 
@@ -133,6 +138,41 @@ def calibrate(
     plot: Annotated[Path | None, typer.Option(help="Write a convergence plot (PNG).")] = None,
     json: JsonOpt = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    polish: Annotated[
+        bool | None,
+        typer.Option(
+            "--polish/--no-polish",
+            help="Least-squares polish after the GA (default: config [ga] polish).",
+        ),
+    ] = None,
+    check: Annotated[
+        Path | None,
+        typer.Option(
+            help="Check points TOML ([[points]] as in --points; optional image = FRAME "
+            "relative to it): their error is reported as held-out error.",
+            dir_okay=False,
+        ),
+    ] = None,
+    restarts: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            max=100,
+            help="GA restarts with other seeds, to show which parameters "
+            "the data determine (0: only the Jacobian).",
+        ),
+    ] = 4,
+    residuals: Annotated[
+        Path | None, typer.Option(help="Write the residual vectors drawn on the frame (PNG).")
+    ] = None,
+    error_map: Annotated[
+        Path | None,
+        typer.Option(
+            "--error-map",
+            help="Write the floor-error map against the configuration's camera (PNG): "
+            "the true camera for `ovis simulate` data (its points.toml [config]).",
+        ),
+    ] = None,
 ) -> None:
     """Calibrate the camera with the genetic algorithm (paper §4).
 
@@ -140,6 +180,10 @@ def calibrate(
     minimise the DIPE (eq. 14) of the control points, under the constraint that exactly
     one object per control point is seen. The configuration comes from --config, else
     from the points file's [config] table, else the default preset.
+
+    Every calibration also reports its held-out error (leave-one-out over the control
+    points, and --check points) and which parameters the data determine (GA restarts,
+    Jacobian), and the GA's DIPE beside the least-squares polish's.
     """
     from ovis.common.calibration_file import save_calibration
     from ovis.common.config import load_points
@@ -149,7 +193,12 @@ def calibrate(
     overrides = {
         k: v
         for k, v in dict(
-            seed=seed, population=population, generations=generations, pc=pc, pm=pm
+            seed=seed,
+            population=population,
+            generations=generations,
+            pc=pc,
+            pm=pm,
+            polish=polish,
         ).items()
         if v is not None
     }
@@ -159,15 +208,27 @@ def calibrate(
     calib = calibrate_with_progress(
         frame, pts.points, cfg, source=str(image), show=not quiet and not json
     )
+    from ovis.services.cli.analysis import add_accuracy, write_calibration_plots
+
+    calib = add_accuracy(
+        frame, pts.points, cfg, calib, check=check, restarts=restarts, show=not quiet and not json
+    )
     save_calibration(out, calib)
     if plot is not None:
         from ovis.common.plots import plot_convergence
 
         plot_convergence(calib, plot)
+    simulated = pts.config is not None and config is None  # `ovis simulate` data
+    arena = (cfg.simulator.arena_x_cm, cfg.simulator.arena_y_cm) if simulated else None
+    wrote = write_calibration_plots(
+        frame, calib, cfg, residuals=residuals, error_map=error_map, arena=arena
+    )
     if json:
         _emit_json(calib)
         return
     _print_calibration(calib, out, plot)
+    for line in wrote:
+        _console().print(line)
 
 
 def calibrate_with_progress(frame, points, cfg, *, source: str, show: bool = True, con=None):
@@ -207,13 +268,27 @@ def _print_calibration(calib, out: Path, plot: Path | None) -> None:
     band = calib.feasible_thresholds
     centred = f" (GA {calib.ga_threshold}; {band[0]}-{band[1]} see the right count)" if band else ""
     ga_af = calib.ga_size_filter_cm2
-    rows = [
+    rows: list[tuple[str, str]] = [
         ("threshold", f"{calib.image.threshold}{centred}"),
         (
             "size filter A^f",
             f"{calib.image.size_filter_cm2:.2f} cm²"
             + (f" (GA {ga_af:.2f})" if ga_af is not None and band else ""),
         ),
+    ]
+    if cam.model == "pinhole":
+        rows += _pinhole_rows(cam)
+    else:
+        rows += _paper_rows(cam)
+    for name, value in rows:
+        t.add_row(name, value)
+    con.print(t)
+    _print_residuals(calib, out, plot)
+
+
+def _paper_rows(cam) -> list[tuple[str, str]]:
+    """Parameter rows of a paper-model camera."""
+    return [
         ("Z0", f"{cam.Z0_cm:.3f} cm"),
         ("λ", f"{cam.lam_mm:.4f} mm"),
         ("k1", f"{cam.k1:.3e}"),
@@ -222,9 +297,12 @@ def _print_calibration(calib, out: Path, plot: Path | None) -> None:
         ("s_x", f"{cam.s_x:.5f}"),
         ("s_y", f"{cam.s_y:.5f}"),
     ]
-    for name, value in rows:
-        t.add_row(name, value)
-    con.print(t)
+
+
+def _print_residuals(calib, out: Path, plot: Path | None) -> None:
+    from rich.table import Table
+
+    con = _console()
     p = Table(title="DIPE per control point (eq. 14)", title_justify="left")
     for col in ("point", "X,Y,Z cm", "detected row,col", "predicted row,col", "px", "mm"):
         p.add_column(col, justify="right")
@@ -243,6 +321,9 @@ def _print_calibration(calib, out: Path, plot: Path | None) -> None:
         f" px = {calib.dipe_max_mm:.4f} mm (paper: 0.735214 mm); {calib.evaluations} "
         f"evaluations in {calib.elapsed_s:.2f} s"
     )
+    from ovis.services.cli.analysis import print_accuracy
+
+    print_accuracy(calib, con)
     con.print(f"wrote {out}" + (f" and {plot}" if plot else ""))
 
 
@@ -399,9 +480,9 @@ config_app = typer.Typer(help="Show configurations.", no_args_is_help=True, rich
 
 @config_app.command("show")
 def config_show(
-    preset: Annotated[str, typer.Option(help="Built-in preset: 'default' or 'paper'.")] = (
-        "default"
-    ),
+    preset: Annotated[
+        str, typer.Option(help="Built-in preset: 'default', 'paper' or 'pinhole'.")
+    ] = "default",
     config: ConfigOpt = None,
 ) -> None:
     """Print a complete, editable TOML configuration.
@@ -417,12 +498,28 @@ def config_show(
         sys.stdout.write(preset_text(preset))
 
 
+def _pinhole_rows(cam) -> list[tuple[str, str]]:
+    """Parameter rows of a pinhole camera (OpenCV: x = column, y = row)."""
+    return [
+        ("fx (columns)", f"{cam.fx:.3f} px"),
+        ("fy (rows)", f"{cam.fy:.3f} px"),
+        ("cx (column)", f"{cam.cx:.3f} px"),
+        ("cy (row)", f"{cam.cy:.3f} px"),
+        *((n, f"{getattr(cam, n):.5g}") for n in ("k1", "k2", "p1", "p2", "k3")),
+        ("rvec", ", ".join(f"{v:.5f}" for v in cam.rvec) + " rad"),
+        ("tvec", ", ".join(f"{v:.3f}" for v in cam.tvec_cm) + " cm"),
+    ]
+
+
 def register(app: typer.Typer) -> None:
     """Add the offline commands to the `ovis` app."""
     app.command()(simulate)
     app.command()(calibrate)
     app.command()(detect)
     app.command()(plan)
+    from ovis.services.cli.export import export
+
+    app.command()(export)
     app.add_typer(config_app, name="config")
     from ovis.services.cli.demo import demo
 

@@ -1,0 +1,255 @@
+"""Frame pipeline and scaling (issue 4, rows a and b).
+
+The ovis per-frame path is ``Detector(camera, image, pose).detect(frame)``: paper
+median step, binarization, 8-connected labeling, size filter, Koplowitz–Bruckstein
+perimeter and pose. The floor is what a hand-written OpenCV script does on the same
+frame: ``cv2.medianBlur(g, 3)`` + ``cv2.threshold`` + ``cv2.connectedComponentsWithStats``
+(8-connected). Each repetition times the floor and then ovis on the same frame, and the
+cases (sizes, object counts) take turns, so that any change of load on the machine hits
+floor and ovis, and every case, alike.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import msgspec
+import numpy as np
+from numpy.typing import NDArray
+
+from benchmarks.core import SIZES, Row, Stats, ratio, scaled_config, size_label, stats
+from ovis.common.config import OvisConfig
+from ovis.common.detection import Detector
+from ovis.common.simulator import Arena
+
+__all__ = ["PipelineResult", "measure_pipeline", "pipeline_rows", "scaling_rows"]
+
+#: Distinct simulated frames cycled through at each size.
+N_FRAMES = 8
+WARMUP = 5
+#: Repetitions of each case (full run, --quick).
+REPS = (500, 60)
+#: Object counts of the scaling benchmark, and its size filter (see scene_with_disks).
+OBJECT_COUNTS = (1, 10, 50, 100, 200)
+SCALING_SIZE_FILTER_CM2 = 2.0
+SCALING_REPS = (400, 60)
+
+
+def floor_script(gray: NDArray[np.uint8], threshold: int) -> int:
+    """The hand-written OpenCV script: 3×3 median, threshold (pixel ≥ t), 8-connected
+    components with their statistics. Returns the number of components."""
+    g = cv2.medianBlur(gray, 3)
+    _, binary = cv2.threshold(g, threshold - 1, 255, cv2.THRESH_BINARY)
+    n, _labels, _stats, _centroids = cv2.connectedComponentsWithStats(binary, connectivity=8)
+    return n - 1
+
+
+class _Case:
+    """Frames and a detector of one measured configuration, and its timings."""
+
+    def __init__(self, frames: list[NDArray[np.uint8]], config: OvisConfig) -> None:
+        self.frames = frames
+        self.threshold = config.image.threshold
+        self.detector = Detector(config.camera, config.image, config.pose)
+        self.ours: list[float] = []
+        self.floor: list[float] = []
+        self.found = 0
+
+    def once(self, i: int, record: bool = True) -> None:
+        f = self.frames[i % len(self.frames)]
+        t0 = time.perf_counter()
+        floor_script(f, self.threshold)
+        t1 = time.perf_counter()
+        det = self.detector.detect(f)
+        t2 = time.perf_counter()
+        if record:
+            self.floor.append((t1 - t0) * 1e3)
+            self.ours.append((t2 - t1) * 1e3)
+            self.found = len(det.objects)
+
+
+def _round_robin(cases: list[_Case], reps: int) -> None:
+    """Time every case ``reps`` times, one repetition of each in turn (floor, then ovis,
+    on the same frame), so that a change of load on the machine hits all cases alike."""
+    for i in range(WARMUP):
+        for case in cases:
+            case.once(i, record=False)
+    for i in range(reps):
+        for case in cases:
+            case.once(i)
+
+
+@dataclass
+class PipelineResult:
+    rows: int
+    cols: int
+    ours: Stats
+    floor: Stats
+    objects: int
+
+    @property
+    def mpix(self) -> float:
+        return self.rows * self.cols / 1e6
+
+
+def measure_pipeline(quick: bool, log=print) -> list[PipelineResult]:
+    """The full ovis path against the floor at every size in :data:`SIZES`."""
+    cases = []
+    for rows, cols in SIZES:
+        config = scaled_config(rows, cols)
+        arena = Arena(config, seed=0)
+        cases.append(_Case([image for image, _truth in arena.frames(N_FRAMES)], config))
+    reps = REPS[1 if quick else 0]
+    _round_robin(cases, reps)
+    results = []
+    for (rows, cols), case in zip(SIZES, cases, strict=True):
+        ours, floor = stats(case.ours), stats(case.floor)
+        log(
+            f"  pipeline {size_label(rows, cols)}: ovis p50 {ours.p50:.2f} ms p99 {ours.p99:.2f}"
+            f" | floor p50 {floor.p50:.2f} ms p99 {floor.p99:.2f} ({reps} reps, "
+            f"{case.found} objects)"
+        )
+        results.append(PipelineResult(rows, cols, ours, floor, case.found))
+    return results
+
+
+def pipeline_rows(results: list[PipelineResult]) -> list[Row]:
+    out = []
+    for r in results:
+        label = size_label(r.rows, r.cols)
+        for which, ours, floor in (
+            ("median", r.ours.p50, r.floor.p50),
+            ("p99", r.ours.p99, r.floor.p99),
+        ):
+            q = ratio(ours, floor)
+            out.append(
+                Row(
+                    name=f"Frame pipeline {label} {which} per frame (floor: OpenCV script)",
+                    unit="ms",
+                    value=ours,
+                    floor=floor,
+                    ratio=q,
+                    target="ratio ≤ 1.0",
+                    met=None if q is None else q <= 1.0,
+                )
+            )
+    return out
+
+
+# --------------------------------------------------------------------- scaling
+
+
+def disk_centres(n_max: int, rows: int, cols: int, seed: int = 0) -> list[tuple[int, int, int]]:
+    """``n_max`` non-overlapping disks (row, col, radius 8–12 px) on a jittered grid of
+    32-px cells (a disk and its 4-px margin always fit in its cell)."""
+    rng = np.random.default_rng(seed)
+    cell = 32
+    cells = [(r, c) for r in range(rows // cell) for c in range(cols // cell)]
+    if n_max > len(cells):
+        raise ValueError(f"{n_max} disks do not fit in {cols}x{rows}")
+    chosen = rng.choice(len(cells), size=n_max, replace=False)
+    disks = []
+    for k in chosen:
+        r0, c0 = cells[k]
+        radius = int(rng.integers(8, 13))
+        slack = cell - 2 * (radius + 2)
+        dr, dc = rng.integers(0, slack + 1, size=2)
+        disks.append((r0 * cell + 2 + radius + dr, c0 * cell + 2 + radius + dc, radius))
+    return disks
+
+
+def scene_with_disks(
+    config: OvisConfig, disks: list[tuple[int, int, int]], seed: int = 0
+) -> NDArray[np.uint8]:
+    """A simulated floor frame (the arena's lighting, floor level, blur and sensor noise,
+    no robot, obstacles or clutter) with bright disks drawn by ``cv2.circle``."""
+    sim = config.simulator
+    light = Arena(config, seed).lighting
+    level = np.full(light.shape, sim.floor_level, dtype=np.float32)
+    for r, c, radius in disks:
+        cv2.circle(level, (c, r), radius, float(sim.object_level), -1, lineType=cv2.LINE_AA)
+    img = level * light
+    if sim.blur_sigma_px > 0:
+        img = cv2.GaussianBlur(img, (0, 0), sigmaX=sim.blur_sigma_px)
+    rng = np.random.default_rng(seed)
+    img += rng.standard_normal(img.shape, dtype=np.float32) * np.float32(sim.noise_sigma)
+    return np.rint(np.clip(img, 0, 255)).astype(np.uint8)
+
+
+def scaling_rows(pipeline: list[PipelineResult], quick: bool, log=print) -> list[Row]:
+    rows_out: list[Row] = []
+    rows, cols = SIZES[0]
+    base = scaled_config(rows, cols)
+    # Disks of radius 8-12 px cover 4-17 cm² of floor here: below the 25 cm² size filter,
+    # so the scaling scene uses a 2 cm² filter and every disk reaches perimeter and pose.
+    config = msgspec.structs.replace(
+        base,
+        image=msgspec.structs.replace(base.image, size_filter_cm2=SCALING_SIZE_FILTER_CM2),
+    )
+    disks = disk_centres(max(OBJECT_COUNTS), rows, cols)
+    reps = SCALING_REPS[1 if quick else 0]
+    cases = [_Case([scene_with_disks(config, disks[:n])], config) for n in OBJECT_COUNTS]
+    _round_robin(cases, reps)
+    per_n: dict[int, tuple[Stats, Stats]] = {}
+    for n, case in zip(OBJECT_COUNTS, cases, strict=True):
+        ours, floor, found = stats(case.ours), stats(case.floor), case.found
+        per_n[n] = (ours, floor)
+        log(
+            f"  scaling {n:3d} objects: ovis p50 {ours.p50:.2f} ms | floor {floor.p50:.2f} ms "
+            f"(found {found})"
+        )
+        note = "" if found == n else f", ovis found {found}"
+        rows_out.append(
+            Row(
+                name=f"Scaling {size_label(rows, cols)} with {n} object{'s' * (n != 1)}, "
+                "median per frame"
+                f" (2 cm² size filter{note})",
+                unit="ms",
+                value=ours.p50,
+                floor=floor.p50,
+                ratio=ratio(ours.p50, floor.p50),
+            )
+        )
+    lo, hi = min(OBJECT_COUNTS), max(OBJECT_COUNTS)
+    growth = per_n[hi][0].p50 / per_n[lo][0].p50
+    floor_growth = per_n[hi][1].p50 / per_n[lo][1].p50
+    rows_out.append(
+        Row(
+            name=f"Scaling in objects: cost({hi}) / cost({lo}) (floor: same for the OpenCV script)",
+            unit="×",
+            value=growth,
+            floor=floor_growth,
+            ratio=ratio(growth, floor_growth),
+            target="≤ 2.0",
+            met=growth <= 2.0,
+        )
+    )
+    for r in pipeline:
+        rows_out.append(
+            Row(
+                name=f"Scaling in pixels: {size_label(r.rows, r.cols)} median per megapixel",
+                unit="ms/MPix",
+                value=r.ours.p50 / r.mpix,
+                floor=r.floor.p50 / r.mpix,
+                ratio=ratio(r.ours.p50, r.floor.p50),
+            )
+        )
+    small = min(pipeline, key=lambda r: r.mpix)
+    big = max(pipeline, key=lambda r: r.mpix)
+    per_pix = (big.ours.p50 / big.mpix) / (small.ours.p50 / small.mpix)
+    floor_per_pix = (big.floor.p50 / big.mpix) / (small.floor.p50 / small.mpix)
+    rows_out.append(
+        Row(
+            name=f"Scaling in pixels: ms/MPix at {size_label(big.rows, big.cols)} / at "
+            f"{size_label(small.rows, small.cols)} (floor: same for the OpenCV script)",
+            unit="×",
+            value=per_pix,
+            floor=floor_per_pix,
+            ratio=ratio(per_pix, floor_per_pix),
+            target="≤ 1.5",
+            met=per_pix <= 1.5,
+        )
+    )
+    return rows_out

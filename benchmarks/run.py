@@ -1,0 +1,216 @@
+"""Run the benchmarks: ``python -m benchmarks.run [--quick] [--only NAME...] [--long]``
+from the repository root.
+
+Writes ``benchmarks/results.json`` (a JSON list of rows: ``name``, ``unit``, ``value``,
+``floor``, ``ratio``, ``target``, ``met``), ``benchmarks/machine.json`` (CPU, cores,
+versions, date) and the table between ``<!-- benchmarks:start -->`` and
+``<!-- benchmarks:end -->`` in ``README.md``. With ``--only``, the rows of the other
+benchmarks are kept from the previous results; otherwise all rows are replaced.
+``--render`` measures nothing and rewrites the README table from the two JSON files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from benchmarks.core import CpuMeter, Row, machine_info
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "benchmarks" / "results.json"
+MACHINE = ROOT / "benchmarks" / "machine.json"
+README = ROOT / "README.md"
+START, END = "<!-- benchmarks:start -->", "<!-- benchmarks:end -->"
+
+#: Benchmark names, in report order, and the prefix of their rows' names.
+GROUPS = {
+    "pipeline": "Frame pipeline",
+    "scaling": "Scaling",
+    "calibration": "GA calibration",
+    "e2e": "End to end",
+    "memory": "Memory",
+}
+DEFAULT = ("pipeline", "scaling", "calibration", "e2e")
+
+
+def log(message: str) -> None:
+    print(message, flush=True)
+
+
+def run_groups(names: list[str], quick: bool, memory_s: float) -> list[Row]:
+    rows: list[Row] = []
+    pipeline = None
+    for name in names:
+        t0 = time.perf_counter()
+        log(f"[{name}]")
+        if name in ("pipeline", "scaling") and pipeline is None:
+            from benchmarks.pipeline import measure_pipeline
+
+            pipeline = measure_pipeline(quick, log)
+        if name == "pipeline":
+            from benchmarks.pipeline import pipeline_rows
+
+            rows += pipeline_rows(pipeline)
+        elif name == "scaling":
+            from benchmarks.pipeline import scaling_rows
+
+            rows += scaling_rows(pipeline, quick, log)
+        elif name == "calibration":
+            from benchmarks.calibration import calibration_rows
+
+            rows += calibration_rows(quick, log)
+        elif name == "e2e":
+            from benchmarks.bus import e2e_rows
+
+            rows += e2e_rows(quick, log)
+        elif name == "memory":
+            from benchmarks.bus import memory_rows
+
+            rows += memory_rows(memory_s, log=log)
+        log(f"[{name}] {time.perf_counter() - t0:.0f} s")
+    return rows
+
+
+def group_of(row_name: str) -> str | None:
+    for name, prefix in GROUPS.items():
+        if row_name.startswith(prefix):
+            return name
+    return None
+
+
+def merge(new: list[dict[str, Any]], ran: list[str]) -> list[dict[str, Any]]:
+    """The new rows, plus the previous results' rows of the benchmarks not run now."""
+    old: list[dict[str, Any]] = []
+    if RESULTS.is_file():
+        try:
+            previous = json.loads(RESULTS.read_text("utf-8"))
+            old = [r for r in previous if group_of(r["name"]) not in ran]
+        except (ValueError, KeyError, TypeError):
+            old = []
+    order = list(GROUPS)
+    rows = old + new
+    rows.sort(key=lambda r: order.index(group_of(r["name"]) or "memory"))
+    return rows
+
+
+def _num(v: float | None, unit: str = "") -> str:
+    if v is None:
+        return "—"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    a = abs(v)
+    digits = 0 if a >= 100 or a == 0 else 1 if a >= 10 else 2 if a >= 0.1 else 3
+    text = f"{v:.{digits}f}"
+    if unit == "×":
+        return f"{text}×"
+    return f"{text} {unit}".strip()
+
+
+def table(rows: list[dict[str, Any]], machine: dict[str, Any]) -> str:
+    lines = [
+        "| benchmark | value | floor | ratio | target | met |",
+        "| --- | ---: | ---: | ---: | --- | :---: |",
+    ]
+    for r in rows:
+        met = {True: "yes", False: "**no**", None: ""}[r["met"]]
+        ratio = "" if r["ratio"] is None else f"{r['ratio']:.2f}×"
+        floor = "" if r["floor"] is None else _num(r["floor"], r["unit"])
+        lines.append(
+            f"| {r['name']} | {_num(r['value'], r['unit'])} | {floor} | {ratio} | "
+            f"{r['target'] or ''} | {met} |"
+        )
+    load = ""
+    for when in ("start", "end"):
+        la = machine.get(f"load_average_{when}")
+        if la:
+            load += f"; load average (1/5/15 min) at {when} {' / '.join(f'{x:.1f}' for x in la)}"
+    other = machine.get("other_programs_cores")
+    if other is not None:
+        load += f"; other programs used {other:.1f} of the cores on average meanwhile"
+    quick = " (quick run)" if machine.get("quick") else ""
+    lines += [
+        "",
+        f"Measured {machine['date']}{quick} on {machine['cpu']} ({machine['cores']} cores), "
+        f"{machine['os']}, Python {machine['python']}, numpy {machine['numpy']}, "
+        f"OpenCV {machine['opencv']}, eclipse-zenoh {machine['zenoh']}{load}. "
+        "Floors are measured in the same run; ratio = value / floor.",
+    ]
+    return "\n".join(lines)
+
+
+def update_readme(rows: list[dict[str, Any]], machine: dict[str, Any]) -> bool:
+    text = README.read_text("utf-8")
+    if START not in text or END not in text:
+        log(f"README.md has no {START} … {END} markers; table not written")
+        return False
+    head, rest = text.split(START, 1)
+    _, tail = rest.split(END, 1)
+    README.write_text(f"{head}{START}\n{table(rows, machine)}\n{END}{tail}", encoding="utf-8")
+    return True
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.run",
+        description="Measure ovis against floors measured in the same run; write "
+        "benchmarks/results.json, benchmarks/machine.json and the README table.",
+    )
+    parser.add_argument("--quick", action="store_true", help="fewer repetitions, 8 s bus runs")
+    parser.add_argument(
+        "--only",
+        nargs="+",
+        choices=list(GROUPS),
+        metavar="NAME",
+        help=f"run only these ({', '.join(GROUPS)}); other rows are kept from the last run",
+    )
+    parser.add_argument("--long", action="store_true", help="also the 5-minute bounded-memory run")
+    parser.add_argument(
+        "--memory-seconds",
+        type=float,
+        default=300.0,
+        help="length of the memory run (default 300)",
+    )
+    parser.add_argument("--no-readme", action="store_true", help="do not rewrite README.md")
+    parser.add_argument(
+        "--render",
+        action="store_true",
+        help="measure nothing: rewrite the README table from results.json and machine.json",
+    )
+    args = parser.parse_args(argv)
+    if os.getcwd() != str(ROOT):
+        os.chdir(ROOT)
+    if args.render:
+        rows = json.loads(RESULTS.read_text("utf-8"))
+        machine = json.loads(MACHINE.read_text("utf-8"))
+        update_readme(rows, machine)
+        log(table(rows, machine))
+        return 0
+    names = list(args.only) if args.only else [*DEFAULT, *(["memory"] if args.long else [])]
+    names = [n for n in GROUPS if n in names]
+    machine = machine_info()
+    machine["quick"] = args.quick
+    machine["benchmarks"] = names
+    t0 = time.perf_counter()
+    meter = CpuMeter()
+    new = [r.as_dict() for r in run_groups(names, args.quick, args.memory_seconds)]
+    machine["load_average_end"] = list(os.getloadavg())
+    other = meter.other_cores()
+    machine["other_programs_cores"] = None if other is None else round(other, 2)
+    machine["elapsed_s"] = round(time.perf_counter() - t0, 1)
+    rows = merge(new, names) if args.only else new
+    RESULTS.write_text(json.dumps(rows, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+    MACHINE.write_text(json.dumps(machine, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+    if not args.no_readme:
+        update_readme(rows, machine)
+    log(table(rows, machine))
+    log(f"wrote {RESULTS.name}, {MACHINE.name} in {machine['elapsed_s']:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
