@@ -388,7 +388,7 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     auto_calibrate: bool = True  # calibrate on the first frame when nothing is saved
     status_period_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 1.0
     frame_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 2.0
-    queue_depth: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 1
+    queue_depth: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 2
 
 
 class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

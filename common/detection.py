@@ -10,6 +10,7 @@ shapes comes from second moments carried onto the floor.
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal, NamedTuple
 
 import msgspec
@@ -236,8 +237,7 @@ class Detector:
         robot = pick_robot(blobs.compactness, comp.area_px * both.area_cm2[0], pose)
         is_robot = np.arange(n) == robot
         z = np.where(is_robot, pose.robot_height_cm, pose.obstacle_height_cm)
-        plane = np.where(is_robot, 0, 1)
-        j = PixelJacobian(*(np.take_along_axis(f, plane[None, :], 0)[0] for f in both))
+        j = PixelJacobian(*(np.where(is_robot, f[0], f[1]) for f in both))
         area_cm2, heading, elongation = world_shape(blobs, j)
         radius = np.sqrt(area_cm2 / np.pi)
         ok = j.valid
@@ -288,7 +288,9 @@ class Detector:
         if not robots or not obstacles or (goal_xy is None and goal_angle_deg is None):
             return []
         r = robots[0]
-        at_goal = goal_xy is not None and np.allclose(goal_xy, (r.x_cm, r.y_cm))
+        at_goal = (
+            goal_xy is not None and math.hypot(goal_xy[0] - r.x_cm, goal_xy[1] - r.y_cm) < 1e-9
+        )
         if goal_angle_deg is None and at_goal:
             return []
         inputs = planner_inputs(

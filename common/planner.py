@@ -68,7 +68,7 @@ def planner_inputs(
         g = np.asarray(goal_xy, dtype=np.float64).reshape(2)
         if not np.isfinite(g).all():
             raise ValueError("goal coordinates must be finite numbers")
-        if np.allclose(g, r):
+        if np.hypot(*(g - r)) < 1e-9:
             raise ValueError("the robot is on the goal: the goal direction is undefined")
         goal_dir = np.arctan2(g[1] - r[1], g[0] - r[0])
     else:

@@ -36,41 +36,38 @@ def pick_robot(
 
 
 @dataclass
-class _Track:
-    xy: NDArray[np.float64]
-    velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros(2))
-
-
-@dataclass
 class Tracker:
-    """Frame-to-frame identities of obstacles on the floor (world cm)."""
+    """Frame-to-frame identities of obstacles on the floor (world cm).
+
+    Tracks are arrays (ids, positions, velocities), so an update is one cost matrix and
+    one optimal assignment whatever the number of obstacles.
+    """
 
     gate_cm: float = 20.0
-    _tracks: dict[int, _Track] = field(default_factory=dict)
+    _ids: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    _xy: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
+    _velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
     _next_id: int = ROBOT_ID + 1
 
     def update(self, xy: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-        """Assign ids to this frame's obstacle centres (N, 2); return (ids, velocities).
+        """Assign ids to this frame's obstacle centres (N, 2); return (ids, displacements).
 
-        Velocities are in cm per frame (0 for a new obstacle). Tracks not seen this frame
-        are dropped.
+        Displacements are in cm per frame (0 for a new obstacle). Tracks not seen this
+        frame are dropped.
         """
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         ids = np.full(xy.shape[0], -1, dtype=np.int64)
-        velocity = np.zeros_like(xy)
-        old_ids = np.array(list(self._tracks), dtype=np.int64)
-        if old_ids.size and xy.size:
-            predicted = np.array([t.xy + t.velocity for t in self._tracks.values()])
+        step = np.zeros_like(xy)
+        if self._ids.size and xy.size:
+            predicted = self._xy + self._velocity
             cost = np.linalg.norm(predicted[:, None, :] - xy[None, :, :], axis=2)
             rows, cols = linear_sum_assignment(np.where(cost <= self.gate_cm, cost, 1e9))
             ok = cost[rows, cols] <= self.gate_cm
-            for r, c in zip(rows[ok], cols[ok], strict=True):
-                ids[c] = old_ids[r]
-                velocity[c] = xy[c] - self._tracks[int(old_ids[r])].xy
+            rows, cols = rows[ok], cols[ok]
+            ids[cols] = self._ids[rows]
+            step[cols] = xy[cols] - self._xy[rows]
         new = ids < 0
         ids[new] = np.arange(self._next_id, self._next_id + int(new.sum()))
         self._next_id += int(new.sum())
-        self._tracks = {
-            int(i): _Track(p.copy(), v.copy()) for i, p, v in zip(ids, xy, velocity, strict=True)
-        }
-        return ids, velocity
+        self._ids, self._xy, self._velocity = ids.copy(), xy.copy(), step.copy()
+        return ids, step
