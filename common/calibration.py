@@ -209,6 +209,38 @@ class CalibrationProblem:
         return int(counts.min()), int(counts.max()), nearest
 
 
+def run_constrained_ga(
+    problem: CalibrationProblem,
+    fitness: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+    bounds: NDArray[np.float64],
+    *,
+    on_generation: Callable[[GenerationStats], None] | None = None,
+    dedupe: bool = True,
+) -> GAResult:
+    """Run the GA on ``fitness`` over ``bounds`` under the exact-count constraint (eq. 15);
+    raise :class:`InfeasibleCalibrationError`, saying what was seen, if nothing is feasible."""
+    config = problem.config
+    result = run_ga(
+        fitness,
+        bounds,
+        config.ga,
+        on_generation=on_generation,
+        dedupe=dedupe,
+        feasible_below=INFEASIBLE,
+    )
+    if result.best_fitness >= INFEASIBLE:
+        lo, hi, nearest = problem.count_range()
+        raise InfeasibleCalibrationError(
+            f"no threshold/size filter in the configured ranges sees exactly "
+            f"{problem.n_points} objects (one per control point): over thresholds "
+            f"{config.calibration.threshold[0]:g}-{config.calibration.threshold[1]:g} the "
+            f"frame shows {lo} to {hi} objects (nearest at threshold {nearest}). Check that "
+            "every control point's object is in view and no other large object is, the "
+            "image polarity (image.polarity), and the calibration ranges"
+        )
+    return result
+
+
 def calibrate(
     image: NDArray[np.uint8],
     points: Sequence[ControlPoint],
@@ -231,24 +263,9 @@ def calibrate(
         )
     t0 = time.perf_counter()
     problem = CalibrationProblem(image, points, config)
-    result = run_ga(
-        problem.fitness,
-        problem.bounds,
-        config.ga,
-        on_generation=on_generation,
-        dedupe=dedupe,
-        feasible_below=INFEASIBLE,
+    result = run_constrained_ga(
+        problem, problem.fitness, problem.bounds, on_generation=on_generation, dedupe=dedupe
     )
-    if result.best_fitness >= INFEASIBLE:
-        lo, hi, nearest = problem.count_range()
-        raise InfeasibleCalibrationError(
-            f"no threshold/size filter in the configured ranges sees exactly "
-            f"{problem.n_points} objects (one per control point): over thresholds "
-            f"{config.calibration.threshold[0]:g}-{config.calibration.threshold[1]:g} the "
-            f"frame shows {lo} to {hi} objects (nearest at threshold {nearest}). Check that "
-            "every control point's object is in view and no other large object is, the "
-            "image polarity (image.polarity), and the calibration ranges"
-        )
     elapsed = time.perf_counter() - t0
     return build_calibration(problem, result, elapsed=elapsed, source=source), result
 

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.calibration_file import Calibration
-from ovis.common.detection import DetectedObject, PlannerEntry
+from ovis.common.detection import Blobs, DetectedObject, PlannerEntry
 from ovis.common.simulator import SimObject
 
 __all__ = [
@@ -169,6 +169,22 @@ class BlobList(_Msg, tag="blobs", kw_only=True):
     cols: Side
     calibration_version: Annotated[int, msgspec.Meta(ge=0)]
     blobs: Annotated[list[BlobMeasure], msgspec.Meta(max_length=100000)]
+
+    @staticmethod
+    def measures(blobs: Blobs) -> list[BlobMeasure]:
+        """One :class:`BlobMeasure` per blob of a :class:`~ovis.common.detection.Blobs`."""
+        names = Blobs._fields
+        columns = [getattr(blobs, f).tolist() for f in names]
+        return [BlobMeasure(**dict(zip(names, v, strict=True))) for v in zip(*columns, strict=True)]
+
+    def to_blobs(self) -> Blobs:
+        """The blobs as (n,) arrays, what :meth:`Detector.from_blobs` takes."""
+        return Blobs(
+            *(
+                np.array([getattr(b, f) for b in self.blobs], dtype=np.float64)
+                for f in Blobs._fields
+            )
+        )
 
 
 class ObstacleFrame(_Msg, tag="obstacles", kw_only=True):

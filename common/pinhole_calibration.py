@@ -34,10 +34,9 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from ovis.common.calibration import (
-    INFEASIBLE,
     CalibrationProblem,
-    InfeasibleCalibrationError,
     build_calibration,
+    run_constrained_ga,
 )
 from ovis.common.calibration_file import Calibration
 from ovis.common.config import (
@@ -49,7 +48,7 @@ from ovis.common.config import (
     PinholeRanges,
 )
 from ovis.common.dipe import match_points
-from ovis.common.ga import GAResult, GenerationStats, run_ga
+from ovis.common.ga import GAResult, GenerationStats
 from ovis.common.pinhole import project
 
 __all__ = [
@@ -277,24 +276,13 @@ def calibrate_pinhole(
     """
     t0 = time.perf_counter()
     problem = PinholeCalibrationProblem(image, points, config)
-    result = run_ga(
+    result = run_constrained_ga(
+        problem,
         problem.free_fitness,
         problem.bounds[problem.free],
-        config.ga,
         on_generation=on_generation,
         dedupe=dedupe,
-        feasible_below=INFEASIBLE,
     )
-    if result.best_fitness >= INFEASIBLE:
-        lo, hi, nearest = problem.count_range()
-        raise InfeasibleCalibrationError(
-            f"no threshold/size filter in the configured ranges sees exactly "
-            f"{problem.n_points} objects (one per control point): over thresholds "
-            f"{config.calibration.threshold[0]:g}-{config.calibration.threshold[1]:g} the "
-            f"frame shows {lo} to {hi} objects (nearest at threshold {nearest}). Check that "
-            "every control point's object is in view and no other large object is, the "
-            "image polarity (image.polarity), and the calibration ranges"
-        )
     ga_values = problem.expand(result.best_values)
     result = result._replace(best_values=ga_values)
     best = ga_values

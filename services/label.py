@@ -5,7 +5,7 @@ publishes the blobs on ``ovis/<arena>/blobs``."""
 from __future__ import annotations
 
 from ovis.common.detection import measure_blobs, size_filter_px
-from ovis.common.messages import BinaryFrame, BlobList, BlobMeasure
+from ovis.common.messages import BinaryFrame, BlobList
 from ovis.services.runtime import Service
 
 
@@ -49,19 +49,7 @@ def main(service: Service) -> None:
                 rows=frame.rows,
                 cols=frame.cols,
                 calibration_version=calib.version,
-                blobs=[
-                    BlobMeasure(
-                        row=float(blobs.row[i]),
-                        col=float(blobs.col[i]),
-                        area_px=float(blobs.area_px[i]),
-                        perimeter_px=float(blobs.perimeter_px[i]),
-                        compactness=float(blobs.compactness[i]),
-                        mu_rr=float(blobs.mu_rr[i]),
-                        mu_cc=float(blobs.mu_cc[i]),
-                        mu_rc=float(blobs.mu_rc[i]),
-                    )
-                    for i in range(blobs.row.size)
-                ],
+                blobs=BlobList.measures(blobs),
             )
         )
         service.sent()

@@ -7,13 +7,9 @@ from __future__ import annotations
 import threading
 import time
 
-import numpy as np
-
-from ovis.common.detection import Blobs, Detector
+from ovis.common.detection import Detector
 from ovis.common.messages import BlobList, ObstacleFrame, StreamHealth
 from ovis.services.runtime import Service
-
-FIELDS = Blobs._fields
 
 
 def main(service: Service) -> None:
@@ -28,10 +24,7 @@ def main(service: Service) -> None:
         if msg is None:
             return
         service.saw_frame(msg.seq, msg.stamp_ns)
-        columns = {
-            f: np.array([getattr(b, f) for b in msg.blobs], dtype=np.float64) for f in FIELDS
-        }
-        det = detector.from_blobs(Blobs(**columns), stamp_s=msg.stamp_ns / 1e9)
+        det = detector.from_blobs(msg.to_blobs(), stamp_s=msg.stamp_ns / 1e9)
         now = time.time_ns()
         robot = next((o for o in det.objects if o.kind == "robot"), None)
         publish(
