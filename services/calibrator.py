@@ -38,6 +38,36 @@ from ovis.services.runtime import Inbox, Service
 KEEP_FRAMES = 64
 
 
+INITIAL_RETRY_S = 2.0
+
+
+def initial_calibration(
+    service: Service,
+    frames: collections.OrderedDict[int, bytes],
+    truths: collections.OrderedDict[int, TruthFrame],
+    lock: threading.Lock,
+    first_frame: threading.Event,
+    run_calibration,
+    *,
+    needs_truth: bool,
+) -> None:
+    """Calibrate on the newest usable frame once frames flow, retrying every
+    ``INITIAL_RETRY_S`` until it works (a frame may come before its ground truth, or a
+    scene may be infeasible for a while); queries are served meanwhile only after."""
+    service.log.info("no saved calibration: calibrating on the first usable frame")
+    while not service.stop.is_set():
+        if not first_frame.wait(0.2):
+            continue
+        with lock:
+            usable = [s for s in frames if not needs_truth or s in truths]
+        if usable:
+            reply = run_calibration(CalibrateRequest(frame_seq=usable[-1]))
+            if reply.ok:
+                return
+            service.log.warning("initial calibration failed: %s; retrying", reply.error)
+        service.stop.wait(INITIAL_RETRY_S)
+
+
 def main(service: Service) -> None:
     cfg = service.config
     store = CalibrationStore(cfg.service.state_dir)
@@ -76,8 +106,9 @@ def main(service: Service) -> None:
         if truth is not None:
             keep(truths, truth.seq, truth)
 
-    service.session.declare_subscriber(service.topics.frames, on_frame)
+    # Truth first: a frame whose truth was published before we listened is never usable.
     service.session.declare_subscriber(service.topics.truth, on_truth)
+    service.session.declare_subscriber(service.topics.frames, on_frame)
     publish = service.publisher(service.topics.calibration, drop=False)
 
     def on_current(query: zenoh.Query) -> None:
@@ -181,16 +212,15 @@ def main(service: Service) -> None:
 
     service.state = "ok" if service.calibration.version > 0 else "no calibration"
     if saved is None and cfg.service.auto_calibrate:
-        service.log.info("no saved calibration: calibrating on the first frame")
-        while not service.stop.is_set() and not first_frame.wait(0.2):
-            pass
-        if not service.stop.is_set():
-            service.stop.wait(0.2)  # the simulated truth may trail its frame by a moment
-            with lock:
-                first = CalibrateRequest(frame_seq=next(iter(frames)))
-            reply = run_calibration(first)
-            if not reply.ok:
-                service.log.warning("initial calibration failed: %s", reply.error)
+        initial_calibration(
+            service,
+            frames,
+            truths,
+            lock,
+            first_frame,
+            run_calibration,
+            needs_truth=file_points is None,
+        )
     while not service.stop.is_set():
         query = queries.get(timeout=0.2)
         if query is None:
