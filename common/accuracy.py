@@ -551,16 +551,16 @@ def assess(
     ``points`` with ``config``); ``n_restarts`` GA restarts with seeds after the
     calibration's. ``checks`` are evaluated in ``check_image`` (default ``image``).
     ``on_step(stage, done, total)`` reports progress."""
+    check = None
+    if checks is not None:
+        check = check_errors(
+            image if check_image is None else check_image,
+            checks.points,
+            calibration,
+            median=config.image.median,
+            source=checks.source,
+        )
     if calibration.camera.model != "paper":  # LOO and identifiability: paper model only
-        check = None
-        if checks is not None:
-            check = check_errors(
-                image if check_image is None else check_image,
-                checks.points,
-                calibration,
-                median=config.image.median,
-                source=checks.source,
-            )
         return AccuracyReport(
             check=check,
             notes=[
@@ -589,15 +589,6 @@ def assess(
     loo = leave_one_out(problem, values)
     step("leave-one-out", 1, 1)
     det = determination(problem, values, restart_values=[r.values for r in runs])
-    check = None
-    if checks is not None:
-        check = check_errors(
-            image if check_image is None else check_image,
-            checks.points,
-            calibration,
-            median=config.image.median,
-            source=checks.source,
-        )
     return AccuracyReport(
         leave_one_out=loo,
         check=check,

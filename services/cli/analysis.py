@@ -15,6 +15,17 @@ from ovis.services.cli.errors import UserError
 __all__ = ["add_accuracy", "print_accuracy", "register", "write_calibration_plots"]
 
 
+def _emit_json(summary: object, paths: dict[str, Path]) -> None:
+    """The summary and the files written, as indented JSON on stdout."""
+    import sys
+
+    payload = {
+        "summary": msgspec.to_builtins(summary),
+        "files": {k: str(v) for k, v in paths.items()},
+    }
+    sys.stdout.write(msgspec.json.format(msgspec.json.encode(payload), indent=2).decode() + "\n")
+
+
 def _console():
     from rich.console import Console
 
@@ -111,15 +122,7 @@ def study(
     paths = write_study(out, runs, d_mm=float(cfg.camera.d_x_mm), note=note)
     summary = summarise(runs)
     if json:
-        import sys
-
-        payload = {
-            "summary": msgspec.to_builtins(summary),
-            "files": {k: str(v) for k, v in paths.items()},
-        }
-        sys.stdout.write(
-            msgspec.json.format(msgspec.json.encode(payload), indent=2).decode() + "\n"
-        )
+        _emit_json(summary, paths)
         return
     _print_study(con, summary)
     con.print(note)
@@ -189,15 +192,7 @@ def compare(
     paths = write_compare(out, runs, d_mm=float(cfg.camera.d_x_mm), note=note)
     summary = summarise_compare(runs)
     if json:
-        import sys
-
-        payload = {
-            "summary": msgspec.to_builtins(summary),
-            "files": {k: str(v) for k, v in paths.items()},
-        }
-        sys.stdout.write(
-            msgspec.json.format(msgspec.json.encode(payload), indent=2).decode() + "\n"
-        )
+        _emit_json(summary, paths)
         return
     from rich.table import Table
 
