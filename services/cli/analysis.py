@@ -33,6 +33,8 @@ def _console():
 
 
 def _progress(con, what: str):
+    """A progress bar on stderr (stdout stays clean for --json and redirection)."""
+    from rich.console import Console
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -50,7 +52,7 @@ def _progress(con, what: str):
         TimeElapsedColumn(),
         TextColumn("eta"),
         TimeRemainingColumn(),
-        console=con,
+        console=Console(stderr=True, highlight=False),
     )
 
 
