@@ -112,11 +112,35 @@ def _held_out_stats(points: list[HeldOutPoint]) -> dict[str, float | None]:
     }
 
 
-def _floor_error(row: float, col: float, cam: CameraModel, point: ControlPoint) -> float | None:
-    b = back_project(row, col, cam, point.z_cm)
-    if not bool(b.valid):
-        return None
-    return float(np.hypot(float(b.x_cm) - point.x_cm, float(b.y_cm) - point.y_cm))
+def _held_out_point(
+    point: ControlPoint,
+    detected: tuple[float, float],
+    predicted: tuple[float, float],
+    cam: CameraModel,
+    in_sample_px: float | None = None,
+) -> HeldOutPoint:
+    """How far ``cam`` misses ``point``: in the image (detected vs predicted row/col) and
+    on the floor (the back-projected detection vs the point; None if not on the plane)."""
+    (d_row, d_col), (p_row, p_col) = detected, predicted
+    b = back_project(d_row, d_col, cam, point.z_cm)
+    error_cm = (
+        float(np.hypot(float(b.x_cm) - point.x_cm, float(b.y_cm) - point.y_cm))
+        if bool(b.valid)
+        else None
+    )
+    return HeldOutPoint(
+        name=point.name,
+        x_cm=point.x_cm,
+        y_cm=point.y_cm,
+        z_cm=point.z_cm,
+        detected_row=d_row,
+        detected_col=d_col,
+        predicted_row=p_row,
+        predicted_col=p_col,
+        error_px=float(np.hypot(d_row - p_row, d_col - p_col)),
+        error_cm=error_cm,
+        in_sample_px=in_sample_px,
+    )
 
 
 def leave_one_out(problem: CalibrationProblem, values: NDArray[np.float64]) -> HeldOut | None:
@@ -143,20 +167,12 @@ def leave_one_out(problem: CalibrationProblem, values: NDArray[np.float64]) -> H
         pred = project(p.x_cm, p.y_cm, p.z_cm, cam)
         if not bool(pred.valid):
             continue
-        d_row = float(blob_row[i] - pred.row)
-        d_col = float(blob_col[i] - pred.col)
         out.append(
-            HeldOutPoint(
-                name=p.name,
-                x_cm=p.x_cm,
-                y_cm=p.y_cm,
-                z_cm=p.z_cm,
-                detected_row=float(blob_row[i]),
-                detected_col=float(blob_col[i]),
-                predicted_row=float(pred.row),
-                predicted_col=float(pred.col),
-                error_px=float(np.hypot(d_row, d_col)),
-                error_cm=_floor_error(float(blob_row[i]), float(blob_col[i]), cam, p),
+            _held_out_point(
+                p,
+                (float(blob_row[i]), float(blob_col[i])),
+                (float(pred.row), float(pred.col)),
+                cam,
                 in_sample_px=float(in_sample[i]),
             )
         )
@@ -250,17 +266,11 @@ def check_errors(
             missing.append(p.name)
             continue
         out.append(
-            HeldOutPoint(
-                name=p.name,
-                x_cm=p.x_cm,
-                y_cm=p.y_cm,
-                z_cm=p.z_cm,
-                detected_row=float(b_row[j]),
-                detected_col=float(b_col[j]),
-                predicted_row=float(pred.row[i]),
-                predicted_col=float(pred.col[i]),
-                error_px=float(np.hypot(b_row[j] - pred.row[i], b_col[j] - pred.col[i])),
-                error_cm=_floor_error(float(b_row[j]), float(b_col[j]), cam, p),
+            _held_out_point(
+                p,
+                (float(b_row[j]), float(b_col[j])),
+                (float(pred.row[i]), float(pred.col[i])),
+                cam,
             )
         )
     return HeldOut(

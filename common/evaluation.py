@@ -8,13 +8,13 @@ an unmatched true object is *missed*, an unmatched detection is *spurious*.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
-__all__ = ["FrameAccuracy", "match_to_truth"]
+__all__ = ["FrameAccuracy", "match_objects", "match_to_truth"]
 
 
 class FrameAccuracy(NamedTuple):
@@ -58,4 +58,26 @@ def match_to_truth(
         detection_index=di.astype(np.int64),
         missed=int(tru.shape[0] - ti.size),
         spurious=int(det.shape[0] - di.size),
+    )
+
+
+class FloorObject(Protocol):
+    """What both a detection and a ground-truth object have."""
+
+    kind: str
+    x_cm: float
+    y_cm: float
+    radius_cm: float
+
+
+def match_objects(
+    detected: Sequence[FloorObject], truth: Sequence[FloorObject], *, gate_cm: float = 5.0
+) -> FrameAccuracy:
+    """:func:`match_to_truth` on objects (detections, simulator truth) directly."""
+    return match_to_truth(
+        [(o.x_cm, o.y_cm, o.radius_cm) for o in detected],
+        [o.kind for o in detected],
+        [(o.x_cm, o.y_cm, o.radius_cm) for o in truth],
+        [o.kind for o in truth],
+        gate_cm=gate_cm,
     )

@@ -27,12 +27,7 @@ def main(service: Service) -> None:
             return
         calib = service.calibration
         cam = calib.camera
-        if (frame.rows, frame.cols) != (cam.rows, cam.cols):
-            service.error(
-                "bad_binary",
-                f"binary frame {frame.seq} is {frame.cols}x{frame.rows}, the camera is "
-                f"{cam.cols}x{cam.rows}",
-            )
+        if not service.fits_camera(frame, "binary"):
             return
         service.saw_frame(frame.seq, frame.stamp_ns)
         blobs = measure_blobs(

@@ -34,13 +34,7 @@ def main(service: Service) -> None:
             )
             return
         calib = service.calibration
-        cam = calib.camera
-        if (frame.rows, frame.cols) != (cam.rows, cam.cols):
-            service.error(
-                "bad_frame",
-                f"frame {frame.seq} is {frame.cols}x{frame.rows}, the camera is "
-                f"configured for {cam.cols}x{cam.rows}",
-            )
+        if not service.fits_camera(frame, "frame"):
             return
         try:
             gray = as_gray(frame.image())

@@ -210,6 +210,19 @@ class Service:
         if n <= 5 or n % 100 == 0:
             self.log.warning("%s (%s #%d)", message, kind, n)
 
+    def fits_camera(self, frame: Any, kind: str) -> bool:
+        """True if ``frame`` (rows, cols, seq) has the calibrated camera's size; else count
+        and log a ``bad_<kind>`` error."""
+        cam = self.calibration.camera
+        if (frame.rows, frame.cols) == (cam.rows, cam.cols):
+            return True
+        self.error(
+            f"bad_{kind}",
+            f"{kind} {frame.seq} is {frame.cols}x{frame.rows}, the camera is configured for "
+            f"{cam.cols}x{cam.rows}",
+        )
+        return False
+
     def saw_frame(self, seq: int, stamp_ns: int) -> None:
         """Count an input frame; a gap in sequence numbers counts as dropped upstream."""
         with self._lock:

@@ -14,7 +14,7 @@ from ovis.common.calibration import (
 )
 from ovis.common.config import CALIBRATED_VARIABLES, load_config
 from ovis.common.detection import Detector
-from ovis.common.evaluation import match_to_truth
+from ovis.common.evaluation import match_objects
 from ovis.common.simulator import Arena, control_points
 
 PAPER_DIPE_MM = 0.735214
@@ -36,12 +36,7 @@ def _score(arena: Arena, calib, frames: int):
         arena.step()
         frame, truth = arena.render()
         det = detector.detect(frame)
-        acc = match_to_truth(
-            [(o.x_cm, o.y_cm, o.radius_cm) for o in det.objects],
-            [o.kind for o in det.objects],
-            [(o.x_cm, o.y_cm, o.radius_cm) for o in truth.objects],
-            [o.kind for o in truth.objects],
-        )
+        acc = match_objects(det.objects, truth.objects)
         errors.extend(acc.position_error_cm)
         missed += acc.missed
         spurious += acc.spurious

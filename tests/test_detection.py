@@ -8,7 +8,7 @@ import pytest
 
 from ovis.common.config import load_config
 from ovis.common.detection import Detector, find_blobs
-from ovis.common.evaluation import match_to_truth
+from ovis.common.evaluation import match_objects
 from ovis.common.planner import planner_inputs
 from ovis.common.preprocess import ImageError
 from ovis.common.simulator import Arena
@@ -30,12 +30,7 @@ def test_true_camera_finds_every_object_to_a_few_millimetres(cfg) -> None:
     for _ in range(5):
         frame, truth = arena.render()
         found = det.detect(frame)
-        acc = match_to_truth(
-            [(o.x_cm, o.y_cm, o.radius_cm) for o in found.objects],
-            [o.kind for o in found.objects],
-            [(o.x_cm, o.y_cm, o.radius_cm) for o in truth.objects],
-            [o.kind for o in truth.objects],
-        )
+        acc = match_objects(found.objects, truth.objects)
         assert acc.missed == 0 and acc.spurious == 0 and acc.kind_correct.all()
         assert acc.position_error_cm.max() < 0.3
         assert np.abs(acc.radius_error_cm).max() < 0.3

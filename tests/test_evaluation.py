@@ -26,3 +26,14 @@ def test_empty() -> None:
     assert acc.missed == 1 and acc.spurious == 0 and acc.position_error_cm.size == 0
     with pytest.raises(ValueError):
         match_to_truth([(0, 0)], ["robot"], [(0, 0, 1)], ["robot"])
+
+
+def test_match_objects_takes_detections_and_truth_directly() -> None:
+    from ovis.common.config import load_config
+    from ovis.common.evaluation import match_objects
+    from ovis.common.simulator import Arena
+
+    _, truth = Arena(load_config(), 0).render(clean=True)
+    acc = match_objects(truth.objects, truth.objects)
+    assert acc.missed == acc.spurious == 0 and acc.kind_correct.all()
+    assert acc.position_error_cm.max() == 0.0 and acc.truth_index.size == len(truth.objects)

@@ -21,7 +21,7 @@ import pytest
 import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_services import STAGES, Recorder, _errors_of
+from pipeline_helpers import STAGES, Recorder, errors_of, running_pipeline, start_up, up_log_dir
 from zenoh_helpers import alive, client, free_port, ovis_cmd, pids_with, spawn, stop, wait_for
 
 from ovis.common.calibration_file import Calibration, load_calibration
@@ -136,44 +136,14 @@ def test_corrupt_or_hand_edited_calibration_is_refused_and_the_previous_kept(
 @pytest.fixture(scope="module")
 def pipeline(tmp_path_factory: pytest.TempPathFactory):
     tmp = tmp_path_factory.mktemp("reliability")
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    cfg = tmp / "config.toml"
-    cfg.write_text(
-        'preset = "default"\n[service]\nfps = 12.0\nframe_timeout_s = 1.5\n'
-        f'status_period_s = 0.5\nstate_dir = "{tmp / "state"}"\n'
-        f'[zenoh]\nconnect = ["{endpoint}"]\n'
-    )
-    procs = {"router": spawn(ovis_cmd("router", "--listen", endpoint), tmp / "router.log")}
-    for stage in STAGES:
-        procs[stage] = spawn(ovis_cmd("run", stage, "--config", str(cfg)), tmp / f"{stage}.log")
-    with client(endpoint) as session:
-        try:
-            wait_for(lambda: alive(session) >= set(STAGES), 40, "all services alive")
-            rec = Recorder(session)
-            wait_for(
-                lambda: any(m.calibration_version >= 1 for m in rec.since(0)),
-                40,
-                "calibrated obstacle messages",
-            )
-            yield {
-                "endpoint": endpoint,
-                "session": session,
-                "rec": rec,
-                "procs": procs,
-                "tmp": tmp,
-                "config": cfg,
-            }
-        finally:
-            stop([p for n, p in procs.items() if n != "router"])
-            stop([procs["router"]])
-    for stage in STAGES:
-        assert "Traceback" not in (tmp / f"{stage}.log").read_text(), stage
+    with running_pipeline(tmp, "fps = 12.0\nframe_timeout_s = 1.5\nstatus_period_s = 0.5") as p:
+        yield p
 
 
 def _still_correct(rec: Recorder, frames: int = 8, timeout: float = 30) -> None:
     n = rec.count()
     wait_for(lambda: rec.count() - n >= frames, timeout, f"{frames} more obstacle messages")
-    errors, missed, spurious = _errors_of(rec.since(n), rec.truth)
+    errors, missed, spurious = errors_of(rec.since(n), rec.truth)
     assert errors and (missed, spurious) == (0, 0) and max(errors) < 1.0
 
 
@@ -221,7 +191,7 @@ payloads = (
 
 
 def test_fuzzed_payloads_on_every_input_are_refused_and_counted(pipeline) -> None:
-    session: zenoh.Session = pipeline["session"]
+    session: zenoh.Session = pipeline.session
     enc = zenoh.Encoding(ENCODING)
     before = _statuses(session)
     sent = {"n": 0}
@@ -261,11 +231,11 @@ def test_fuzzed_payloads_on_every_input_are_refused_and_counted(pipeline) -> Non
     )
     assert refused > 0
     assert alive(session) >= set(STAGES)
-    _still_correct(pipeline["rec"])
+    _still_correct(pipeline.rec)
 
 
 def test_a_flood_of_frames_is_dropped_not_queued(pipeline) -> None:
-    session: zenoh.Session = pipeline["session"]
+    session: zenoh.Session = pipeline.session
     st0 = _statuses(session)["preprocess"]
     frame = encode(
         Frame.from_image(np.full((480, 640), 60, np.uint8), seq=0, stamp_ns=time.time_ns())
@@ -280,12 +250,12 @@ def test_a_flood_of_frames_is_dropped_not_queued(pipeline) -> None:
     assert st1.dropped > st0.dropped  # newest-wins: the backlog was dropped and counted
     assert st1.rss_mb < st0.rss_mb + 60  # memory did not follow the flood
     assert flood_s < 30
-    _still_correct(pipeline["rec"])
+    _still_correct(pipeline.rec)
 
 
 def test_stages_survive_a_router_restart(pipeline) -> None:
-    procs, tmp, endpoint = pipeline["procs"], pipeline["tmp"], pipeline["endpoint"]
-    rec: Recorder = pipeline["rec"]
+    procs, tmp, endpoint = pipeline.procs, pipeline.tmp, pipeline.endpoint
+    rec: Recorder = pipeline.rec
     procs["router"].send_signal(signal.SIGKILL)
     procs["router"].wait()
     time.sleep(1.0)
@@ -297,19 +267,19 @@ def test_stages_survive_a_router_restart(pipeline) -> None:
 
 
 def test_frames_that_stop_are_reported_as_no_data(pipeline) -> None:
-    session: zenoh.Session = pipeline["session"]
+    session: zenoh.Session = pipeline.session
     health: list[StreamHealth] = []
     session.declare_subscriber(
         TOPICS.health, lambda s: health.append(decode(s.payload.to_bytes(), StreamHealth))
     )
     wait_for(lambda: any(h.state == "ok" for h in health), 10, "health 'ok' while frames flow")
     watch = subprocess.Popen(
-        ovis_cmd("watch", "--connect", pipeline["endpoint"], "--duration", "12"),
+        ovis_cmd("watch", "--connect", pipeline.endpoint, "--duration", "12"),
         stdout=subprocess.PIPE,
         text=True,
     )
     time.sleep(3)
-    capture = pipeline["procs"]["capture"]
+    capture = pipeline.procs["capture"]
     capture.send_signal(signal.SIGKILL)  # the camera is gone: no more frames
     capture.wait()
     t0 = time.monotonic()
@@ -327,28 +297,12 @@ def test_frames_that_stop_are_reported_as_no_data(pipeline) -> None:
 
 # --- supervision by `ovis up` ---------------------------------------------------------
 def test_up_restarts_a_stage_that_dies(tmp_path: Path) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    err = tmp_path / "up.err"
-    with open(err, "wb") as fh:
-        up = subprocess.Popen(
-            ovis_cmd(
-                "up",
-                "--listen",
-                endpoint,
-                "--state-dir",
-                str(tmp_path / "state"),
-                "--fps",
-                "10",
-                "--json",
-            ),
-            stdout=subprocess.PIPE,
-            stderr=fh,
-        )
+    up, endpoint, err = start_up(tmp_path, "--fps", "10")
     try:
         with client(endpoint) as session:
             rec = Recorder(session)
             wait_for(lambda: rec.count() >= 5, 60, "obstacles from ovis up")
-            log_dir = err.read_text().split("logs in ")[1].split()[0]
+            log_dir = up_log_dir(err)
             (victim,) = pids_with(f"run label --config {log_dir}")
             os.kill(victim, signal.SIGKILL)
             t_kill = time.monotonic()

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
-import threading
 import time
 from pathlib import Path
 
@@ -15,18 +14,17 @@ import msgspec
 import numpy as np
 import pytest
 import zenoh
+from pipeline_helpers import STAGES, Recorder, errors_of, running_pipeline
 from zenoh_helpers import alive, client, free_port, ovis_cmd, spawn, stop, wait_for
 
 from ovis.common.calibration_file import load_calibration
 from ovis.common.config import load_config
-from ovis.common.evaluation import match_to_truth
 from ovis.common.messages import (
     ENCODING,
     BlobList,
     BlobMeasure,
     CalibrateReply,
     Frame,
-    ObstacleFrame,
     ServiceStatus,
     Topics,
     TruthFrame,
@@ -35,111 +33,25 @@ from ovis.common.messages import (
 )
 from ovis.services.cli.watching import collect_status
 
-STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
 PAPER_DIPE_MM = 0.735214
-
-
-class Recorder:
-    """Collects obstacle and truth messages from a client session."""
-
-    def __init__(self, session: zenoh.Session, arena: str = "default") -> None:
-        self.obstacles: list[ObstacleFrame] = []
-        self.truth: dict[int, TruthFrame] = {}
-        self.receipt: list[float] = []
-        self.lock = threading.Lock()
-        session.declare_subscriber(f"ovis/{arena}/obstacles", self._obs)
-        session.declare_subscriber(f"ovis/{arena}/truth", self._truth)
-
-    def _obs(self, sample: zenoh.Sample) -> None:
-        msg = decode(sample.payload.to_bytes(), ObstacleFrame)
-        with self.lock:
-            self.obstacles.append(msg)
-            self.receipt.append(time.monotonic())
-
-    def _truth(self, sample: zenoh.Sample) -> None:
-        msg = decode(sample.payload.to_bytes(), TruthFrame)
-        with self.lock:
-            self.truth[msg.seq] = msg
-
-    def since(self, n: int) -> list[ObstacleFrame]:
-        with self.lock:
-            return list(self.obstacles[n:])
-
-    def count(self) -> int:
-        with self.lock:
-            return len(self.obstacles)
-
-
-def _errors_of(msgs: list[ObstacleFrame], truth: dict[int, TruthFrame]) -> tuple[list, int, int]:
-    errors, missed, spurious = [], 0, 0
-    for m in msgs:
-        t = truth.get(m.seq)
-        if t is None:
-            continue
-        objs = ([m.robot] if m.robot else []) + m.obstacles
-        acc = match_to_truth(
-            [(o.x_cm, o.y_cm, o.radius_cm) for o in objs],
-            [o.kind for o in objs],
-            [(o.x_cm, o.y_cm, o.radius_cm) for o in t.objects],
-            [o.kind for o in t.objects],
-        )
-        errors.extend(acc.position_error_cm)
-        missed += acc.missed
-        spurious += acc.spurious + int((~acc.kind_correct).sum())
-    return errors, missed, spurious
 
 
 @pytest.fixture(scope="module")
 def pipeline(tmp_path_factory: pytest.TempPathFactory):
     """`ovis router` plus each stage as its own `ovis run` process."""
-    tmp = tmp_path_factory.mktemp("pipeline")
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    overrides = tmp / "override.toml"
-    overrides.write_text(
-        'preset = "default"\n[service]\nfps = 15.0\n'
-        f'state_dir = "{tmp / "state"}"\n[zenoh]\nconnect = ["{endpoint}"]\n'
-    )
-    procs: dict[str, subprocess.Popen[bytes]] = {}
-    procs["router"] = spawn(ovis_cmd("router", "--listen", endpoint), tmp / "router.log")
-    time.sleep(0.5)
-    for stage in STAGES:
-        procs[stage] = spawn(
-            ovis_cmd("run", stage, "--config", str(overrides)), tmp / f"{stage}.log"
-        )
-    with client(endpoint) as session:
-        try:
-            wait_for(lambda: alive(session) >= set(STAGES), 60, "all five services alive")
-            rec = Recorder(session)
-            wait_for(
-                lambda: any(m.calibration_version >= 1 for m in rec.since(0)),
-                60,
-                "obstacle messages made with the initial calibration",
-            )
-            yield {
-                "endpoint": endpoint,
-                "session": session,
-                "recorder": rec,
-                "procs": procs,
-                "tmp": tmp,
-                "overrides": overrides,
-            }
-        finally:
-            stop([p for n, p in procs.items() if n != "router"])
-            stop([procs["router"]])
-            for stage in STAGES:
-                log = (tmp / f"{stage}.log").read_text()
-                assert "Traceback" not in log, f"{stage} log:\n{log}"
+    with running_pipeline(tmp_path_factory.mktemp("pipeline"), "fps = 15.0") as p:
+        yield p
 
 
 def test_obstacles_arrive_for_consecutive_frames_within_1_cm(pipeline) -> None:
-    rec: Recorder = pipeline["recorder"]
+    rec: Recorder = pipeline.rec
     start = rec.count()
     wait_for(lambda: rec.count() - start >= 30, 30, "30 obstacle messages")
     msgs = [m for m in rec.since(start) if m.calibration_version >= 1]
     seqs = [m.seq for m in msgs]
     assert seqs == sorted(seqs)
     assert max(np.diff(seqs)) <= 2  # consecutive frames (at most a rare newest-wins skip)
-    errors, missed, spurious = _errors_of(msgs, rec.truth)
+    errors, missed, spurious = errors_of(msgs, rec.truth)
     assert len(errors) >= 4 * 25
     assert (missed, spurious) == (0, 0)
     assert max(errors) < 1.0, f"worst position error {max(errors):.3f} cm"
@@ -149,7 +61,7 @@ def test_obstacles_arrive_for_consecutive_frames_within_1_cm(pipeline) -> None:
 
 
 def test_planner_inputs_match_ovis_plan(pipeline) -> None:
-    rec: Recorder = pipeline["recorder"]
+    rec: Recorder = pipeline.rec
     msg = rec.since(rec.count() - 1)[-1]
     goal = load_config().pose.goal_cm
     args = [
@@ -173,12 +85,12 @@ def test_planner_inputs_match_ovis_plan(pipeline) -> None:
 
 
 def test_recalibrate_while_frames_flow(pipeline) -> None:
-    rec: Recorder = pipeline["recorder"]
+    rec: Recorder = pipeline.rec
     before = rec.count()
     version_before = rec.since(before - 1)[-1].calibration_version
     t0 = time.monotonic()
     out = subprocess.run(
-        ovis_cmd("recalibrate", "--connect", pipeline["endpoint"], "--json", "--seed", "1"),
+        ovis_cmd("recalibrate", "--connect", pipeline.endpoint, "--json", "--seed", "1"),
         capture_output=True,
         text=True,
         timeout=120,
@@ -203,12 +115,12 @@ def test_recalibrate_while_frames_flow(pipeline) -> None:
     assert len(stamps) > 10
     assert max(np.diff(stamps)) < 1.0  # no stall of frame processing during the GA
     msgs = [m for m in rec.since(before) if m.calibration_version == reply["version"]]
-    errors, missed, spurious = _errors_of(msgs, rec.truth)
+    errors, missed, spurious = errors_of(msgs, rec.truth)
     assert (missed, spurious) == (0, 0) and max(errors) < 1.0
 
 
 def test_garbage_on_every_input_topic_is_counted_and_survived(pipeline) -> None:
-    session: zenoh.Session = pipeline["session"]
+    session: zenoh.Session = pipeline.session
     topics = Topics("default")
     enc = zenoh.Encoding(ENCODING)
     before = {r.service: r.status for r in collect_status(session, topics) if r.status}
@@ -272,17 +184,17 @@ def test_garbage_on_every_input_topic_is_counted_and_survived(pipeline) -> None:
     )
     # Every service is alive and the output is still right.
     assert alive(session) >= set(STAGES)
-    rec: Recorder = pipeline["recorder"]
+    rec: Recorder = pipeline.rec
     n = rec.count()
     wait_for(lambda: rec.count() - n >= 10, 15, "obstacle messages after the garbage")
-    errors, missed, spurious = _errors_of(rec.since(n), rec.truth)
+    errors, missed, spurious = errors_of(rec.since(n), rec.truth)
     assert errors and (missed, spurious) == (0, 0) and max(errors) < 1.0
 
 
 def test_killed_stage_is_seen_in_status_within_2_s(pipeline) -> None:
-    session: zenoh.Session = pipeline["session"]
+    session: zenoh.Session = pipeline.session
     topics = Topics("default")
-    victim = pipeline["procs"]["label"]
+    victim = pipeline.procs["label"]
     victim.send_signal(signal.SIGKILL)
     t0 = time.monotonic()
     wait_for(lambda: "label" not in alive(session), 2.0, "label to disappear from liveliness")
@@ -290,7 +202,7 @@ def test_killed_stage_is_seen_in_status_within_2_s(pipeline) -> None:
     report = {r.service: r for r in collect_status(session, topics)}
     assert not report["label"].alive and report["pose"].alive
     out = subprocess.run(
-        ovis_cmd("status", "--connect", pipeline["endpoint"], "--json"),
+        ovis_cmd("status", "--connect", pipeline.endpoint, "--json"),
         capture_output=True,
         text=True,
         timeout=60,

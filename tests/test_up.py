@@ -4,47 +4,21 @@ and a clean shutdown with no orphans."""
 from __future__ import annotations
 
 import json
-import re
 import signal
-import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from test_services import Recorder, _errors_of
-from zenoh_helpers import client, free_port, ovis_cmd, pids_with, wait_for
+from pipeline_helpers import Recorder, errors_of, start_up, up_log_dir
+from zenoh_helpers import client, pids_with, wait_for
 
 from ovis.common.config import load_config
 from ovis.common.planner import planner_inputs
 
 
-def _log_dir(stderr_text: str) -> str:
-    m = re.search(r"logs in (\S+)", stderr_text)
-    assert m, stderr_text
-    return m.group(1)
-
-
 def test_up_runs_the_pipeline_and_summarises(tmp_path: Path) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    err = tmp_path / "up.err"
-    with open(err, "wb") as fh:
-        proc = subprocess.Popen(
-            ovis_cmd(
-                "up",
-                "--duration",
-                "14",
-                "--listen",
-                endpoint,
-                "--state-dir",
-                str(tmp_path / "state"),
-                "--fps",
-                "15",
-                "--json",
-            ),
-            stdout=subprocess.PIPE,
-            stderr=fh,
-        )
+    proc, endpoint, err = start_up(tmp_path, "--duration", "14", "--fps", "15")
     try:
         with client(endpoint) as session:
             rec = Recorder(session)
@@ -57,7 +31,7 @@ def test_up_runs_the_pipeline_and_summarises(tmp_path: Path) -> None:
     assert proc.returncode == 0, err.read_text()
     seqs = [m.seq for m in msgs]
     assert len(msgs) >= 20 and max(np.diff(seqs)) <= 2
-    errors, missed, spurious = _errors_of(msgs, rec.truth)
+    errors, missed, spurious = errors_of(msgs, rec.truth)
     assert (missed, spurious) == (0, 0) and len(errors) >= 60 and max(errors) < 1.0
     # The planner inputs are those of `ovis plan` on the published positions.
     m = msgs[-1]
@@ -80,33 +54,17 @@ def test_up_runs_the_pipeline_and_summarises(tmp_path: Path) -> None:
         "pose",
         "calibrator",
     }
-    log_dir = _log_dir(err.read_text())
+    log_dir = up_log_dir(err)
     assert pids_with(log_dir) == []  # no orphans
 
 
 def test_up_stops_cleanly_on_sigterm(tmp_path: Path) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    err = tmp_path / "up.err"
-    with open(err, "wb") as fh:
-        proc = subprocess.Popen(
-            ovis_cmd(
-                "up",
-                "--listen",
-                endpoint,
-                "--state-dir",
-                str(tmp_path / "state"),
-                "--fps",
-                "10",
-                "--json",
-            ),
-            stdout=subprocess.PIPE,
-            stderr=fh,
-        )
+    proc, endpoint, err = start_up(tmp_path, "--fps", "10")
     try:
         with client(endpoint) as session:
             rec = Recorder(session)
             wait_for(lambda: rec.count() >= 5, 40, "obstacle messages")
-        log_dir = _log_dir(err.read_text())
+        log_dir = up_log_dir(err)
         assert len(pids_with(log_dir)) == 5  # the five stages (the router has no config)
         t0 = time.monotonic()
         proc.send_signal(signal.SIGTERM)

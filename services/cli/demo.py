@@ -37,7 +37,7 @@ def demo(
 
     from ovis.common.calibration_file import save_calibration
     from ovis.common.detection import Detector
-    from ovis.common.evaluation import match_to_truth
+    from ovis.common.evaluation import match_objects
     from ovis.common.plots import draw_detections, plot_convergence, save_png
     from ovis.common.simulator import Arena, control_points
     from ovis.services.cli.offline import calibrate_with_progress, resolve_config
@@ -74,12 +74,7 @@ def demo(
         t0 = time.perf_counter()
         det = detector.detect(frame)
         times.append(time.perf_counter() - t0)
-        acc = match_to_truth(
-            [(o.x_cm, o.y_cm, o.radius_cm) for o in det.objects],
-            [o.kind for o in det.objects],
-            [(o.x_cm, o.y_cm, o.radius_cm) for o in truth.objects],
-            [o.kind for o in truth.objects],
-        )
+        acc = match_objects(det.objects, truth.objects)
         pos_err.extend(acc.position_error_cm)
         rad_err.extend(acc.radius_error_cm)
         missed += acc.missed
@@ -103,7 +98,7 @@ def demo(
                 )
             )
     pe, re = np.asarray(pos_err), np.asarray(rad_err)
-    n_true = sum(1 for _ in range(frames)) * len(points)
+    n_true = frames * len(points)
     t = Table(title="accuracy against ground truth", title_justify="left")
     t.add_column("measure")
     t.add_column("value", justify="right")

@@ -13,7 +13,7 @@ import msgspec
 import numpy as np
 import zenoh
 
-from ovis.common.evaluation import match_to_truth
+from ovis.common.evaluation import match_objects
 from ovis.common.messages import (
     MessageError,
     ObstacleFrame,
@@ -205,12 +205,7 @@ class LiveView:
             msg = self.pending.pop(seq)
             truth = self.truth[seq]
             objs = ([msg.robot] if msg.robot else []) + msg.obstacles
-            acc = match_to_truth(
-                [(o.x_cm, o.y_cm, o.radius_cm) for o in objs],
-                [o.kind for o in objs],
-                [(o.x_cm, o.y_cm, o.radius_cm) for o in truth.objects],
-                [o.kind for o in truth.objects],
-            )
+            acc = match_objects(objs, truth.objects)
             self.pos_err.extend(acc.position_error_cm.tolist())
             self.matched += acc.truth_index.size
             self.missed += acc.missed
