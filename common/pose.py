@@ -7,6 +7,12 @@
   this frame's obstacles to the last frame's (positions predicted with their velocity),
   within a gate of ``track_gate_cm``; an unmatched obstacle gets a new id. The robot
   always has id 0.
+* :func:`gated_assignment`: that assignment. When every track's nearest detection within
+  the gate is a different one (the usual case: obstacles move little between frames),
+  matching each track to it is optimal — each pair is at its least possible distance and
+  every track that can be matched is — so one k-d tree query settles it. Otherwise the
+  optimal assignment is solved on the sparse graph of in-gate pairs: a pair that is each
+  other's only candidate is matched outright, the rest by ``linear_sum_assignment``.
 """
 
 from __future__ import annotations
@@ -16,10 +22,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
 
 from ovis.common.config import PoseConfig
 
-__all__ = ["ROBOT_ID", "Tracker", "pick_robot"]
+__all__ = ["ROBOT_ID", "Tracker", "gated_assignment", "pick_robot"]
 
 ROBOT_ID = 0
 
@@ -35,12 +42,57 @@ def pick_robot(
     return int(np.argmin(np.where(candidate, compactness, np.inf)))
 
 
+#: Cost of a pair outside the gate in the dense assignment: any number of in-gate pairs
+#: costs less than one such pair, so the most pairs are matched first.
+_OUT_OF_GATE = 1e9
+
+
+def gated_assignment(
+    a: NDArray[np.float64], b: NDArray[np.float64], gate: float
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Match points ``a`` (n, 2) to points ``b`` (m, 2) one-to-one, only pairs at most
+    ``gate`` apart: as many pairs as possible, then the least total distance.
+
+    Returns
+    -------
+    rows, cols : int64 arrays
+        ``a[rows[k]]`` is matched to ``b[cols[k]]``.
+    """
+    none = np.zeros(0, dtype=np.int64)
+    if not (a.size and b.size):
+        return none, none
+    tree = cKDTree(b)
+    _, nearest = tree.query(a, distance_upper_bound=gate)
+    rows = np.flatnonzero(nearest < len(b))  # tracks with a candidate (else: len(b))
+    cols = nearest[rows]
+    if not cols.size or np.bincount(cols).max() == 1:
+        return rows, cols.astype(np.int64)
+    pairs = cKDTree(a).sparse_distance_matrix(tree, gate, output_type="ndarray")
+    i, j, dist = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64), pairs["v"]
+    if not i.size:
+        return none, none
+    # A pair whose two points have no other candidate is matched in every optimum.
+    alone = (np.bincount(i)[i] == 1) & (np.bincount(j)[j] == 1)
+    rows, cols = i[alone], j[alone]
+    rest = ~alone
+    if rest.any():
+        ri, ai = np.unique(i[rest], return_inverse=True)
+        rj, bj = np.unique(j[rest], return_inverse=True)
+        cost = np.full((ri.size, rj.size), _OUT_OF_GATE)
+        cost[ai, bj] = dist[rest]
+        r, c = linear_sum_assignment(cost)
+        ok = cost[r, c] < _OUT_OF_GATE
+        rows = np.concatenate([rows, ri[r[ok]]])
+        cols = np.concatenate([cols, rj[c[ok]]])
+    return rows, cols
+
+
 @dataclass
 class Tracker:
     """Frame-to-frame identities of obstacles on the floor (world cm).
 
-    Tracks are arrays (ids, positions, velocities), so an update is one cost matrix and
-    one optimal assignment whatever the number of obstacles.
+    Tracks are arrays (ids, positions, velocities); an update is one
+    :func:`gated_assignment`, whatever the number of obstacles.
     """
 
     gate_cm: float = 20.0
@@ -59,11 +111,7 @@ class Tracker:
         ids = np.full(xy.shape[0], -1, dtype=np.int64)
         step = np.zeros_like(xy)
         if self._ids.size and xy.size:
-            predicted = self._xy + self._velocity
-            cost = np.linalg.norm(predicted[:, None, :] - xy[None, :, :], axis=2)
-            rows, cols = linear_sum_assignment(np.where(cost <= self.gate_cm, cost, 1e9))
-            ok = cost[rows, cols] <= self.gate_cm
-            rows, cols = rows[ok], cols[ok]
+            rows, cols = gated_assignment(self._xy + self._velocity, xy, self.gate_cm)
             ids[cols] = self._ids[rows]
             step[cols] = xy[cols] - self._xy[rows]
         new = ids < 0

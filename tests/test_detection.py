@@ -97,3 +97,15 @@ def test_bad_frames_are_refused(cfg) -> None:
     # An empty arena is not an error: no objects, no planner inputs.
     empty = det.detect(np.full((480, 640), 60, np.uint8))
     assert empty.objects == [] and empty.planner == []
+
+
+def test_detect_equals_blobs_then_pose_as_the_services_split_it(cfg) -> None:
+    # The label service publishes blobs and pose computes their floor map itself;
+    # detect() reuses the one the size filter computed. Same objects, field for field.
+    arena = Arena(cfg, 2)
+    whole, split = _detector(cfg), _detector(cfg)
+    for k in range(3):
+        frame, _ = arena.render()
+        blobs = find_blobs(frame, split.image, cfg.camera, cfg.pose.obstacle_height_cm)
+        assert whole.detect(frame, stamp_s=0.1 * k) == split.from_blobs(blobs, stamp_s=0.1 * k)
+        arena.step()

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import linear_sum_assignment
 
 from ovis.common.config import PoseConfig
-from ovis.common.pose import ROBOT_ID, Tracker, pick_robot
+from ovis.common.pose import ROBOT_ID, Tracker, gated_assignment, pick_robot
 
 
 def test_robot_is_least_compact_candidate_in_area_range() -> None:
@@ -40,3 +44,52 @@ def test_tracker_gives_new_ids_beyond_the_gate_and_never_reuses() -> None:
     assert ids.size == 0
     ids, _ = t.update(np.array([[0.5, 0.0]]))
     assert ids.tolist() == [3]  # the track was lost: a new id, never an old one
+
+
+def _dense_optimum(a: np.ndarray, b: np.ndarray, gate: float) -> tuple[int, float]:
+    """Pairs and total distance of the one dense assignment the tracker used to solve."""
+    if not (len(a) and len(b)):
+        return 0, 0.0
+    cost = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
+    rows, cols = linear_sum_assignment(np.where(cost <= gate, cost, 1e9))
+    ok = cost[rows, cols] <= gate
+    return int(ok.sum()), float(cost[rows, cols][ok].sum())
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.integers(0, 14),
+    st.integers(0, 14),
+    st.floats(0.3, 6.0),
+    st.floats(0.0, 1.0),
+    st.integers(0, 2**32 - 1),
+)
+def test_gated_assignment_is_the_dense_optimum(
+    n: int, m: int, gate: float, jitter: float, seed: int
+) -> None:
+    # Crowded points (many candidates within the gate, conflicts) and points that moved
+    # little (the one-query fast path): always as many pairs, and as short in total, as
+    # the dense assignment; one-to-one and within the gate.
+    rng = np.random.default_rng(seed)
+    a = rng.random((n, 2)) * 10
+    b = rng.random((m, 2)) * 10
+    k = min(n, m)
+    b[:k] = a[:k] + rng.normal(0.0, jitter, (k, 2))
+    rows, cols = gated_assignment(a, b, gate)
+    assert len(set(rows.tolist())) == rows.size and len(set(cols.tolist())) == cols.size
+    dist = np.linalg.norm(a[rows] - b[cols], axis=1)
+    assert (dist <= gate).all()
+    pairs, total = _dense_optimum(a, b, gate)
+    assert rows.size == pairs
+    assert dist.sum() == pytest.approx(total, abs=1e-9)
+
+
+def test_gated_assignment_coincident_points_and_two_hundred_obstacles() -> None:
+    rng = np.random.default_rng(0)
+    a = rng.random((200, 2)) * [300.0, 220.0]
+    rows, cols = gated_assignment(a, a.copy(), 20.0)  # distance 0 is a pair too
+    np.testing.assert_array_equal(np.sort(rows), np.arange(200))
+    np.testing.assert_array_equal(cols[np.argsort(rows)], np.arange(200))
+    shuffled = rng.permutation(200)
+    rows, cols = gated_assignment(a, a[shuffled] + 0.5, 20.0)
+    np.testing.assert_array_equal(shuffled[cols], rows)
