@@ -147,8 +147,9 @@ class BinaryFrame(_Msg, tag="binary", kw_only=True):
         return flat.reshape(self.rows, self.cols)
 
 
-class BlobMeasure(msgspec.Struct, kw_only=True):
-    """One size-filtered blob: image measurements (pixels) and shape."""
+class BlobMeasure(msgspec.Struct):
+    """One size-filtered blob: image measurements (pixels) and shape (the fields of
+    :class:`~ovis.common.detection.Blobs`)."""
 
     row: Finite
     col: Finite
@@ -173,18 +174,16 @@ class BlobList(_Msg, tag="blobs", kw_only=True):
     @staticmethod
     def measures(blobs: Blobs) -> list[BlobMeasure]:
         """One :class:`BlobMeasure` per blob of a :class:`~ovis.common.detection.Blobs`."""
-        names = Blobs._fields
-        columns = [getattr(blobs, f).tolist() for f in names]
-        return [BlobMeasure(**dict(zip(names, v, strict=True))) for v in zip(*columns, strict=True)]
+        names = BlobMeasure.__struct_fields__  # positional, in field order: fast for many
+        return list(map(BlobMeasure, *(getattr(blobs, f).tolist() for f in names)))
 
     def to_blobs(self) -> Blobs:
         """The blobs as (n,) arrays, what :meth:`Detector.from_blobs` takes."""
-        return Blobs(
-            *(
-                np.array([getattr(b, f) for b in self.blobs], dtype=np.float64)
-                for f in Blobs._fields
-            )
-        )
+        names = BlobMeasure.__struct_fields__
+        table = np.array(
+            [msgspec.structs.astuple(b) for b in self.blobs], dtype=np.float64
+        ).reshape(-1, len(names))
+        return Blobs(**{f: table[:, k].copy() for k, f in enumerate(names)})
 
 
 class ObstacleFrame(_Msg, tag="obstacles", kw_only=True):

@@ -7,7 +7,8 @@
   this frame's obstacles to the last frame's (positions predicted with their velocity),
   within a gate of ``track_gate_cm``; an unmatched obstacle gets a new id. The robot
   always has id 0.
-* :func:`gated_assignment`: that assignment. When every track's nearest detection within
+* :func:`gated_assignment`: that assignment. For a few obstacles, one dense
+  ``linear_sum_assignment``. For many: when every track's nearest detection within
   the gate is a different one (the usual case: obstacles move little between frames),
   matching each track to it is optimal — each pair is at its least possible distance and
   every track that can be matched is — so one k-d tree query settles it. Otherwise the
@@ -42,6 +43,10 @@ def pick_robot(
     return int(np.argmin(np.where(candidate, compactness, np.inf)))
 
 
+#: Up to this many track × detection pairs, :func:`gated_assignment` solves the dense
+#: problem (k-d trees cost more than they save for a handful of obstacles).
+DENSE_PAIRS = 400
+
 #: Cost of a pair outside the gate in the dense assignment: any number of in-gate pairs
 #: costs less than one such pair, so the most pairs are matched first.
 _OUT_OF_GATE = 1e9
@@ -61,6 +66,12 @@ def gated_assignment(
     none = np.zeros(0, dtype=np.int64)
     if not (a.size and b.size):
         return none, none
+    if len(a) * len(b) <= DENSE_PAIRS:  # a few obstacles: the whole cost matrix is cheaper
+        cost = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
+        near = cost <= gate
+        r, c = linear_sum_assignment(np.where(near, cost, _OUT_OF_GATE))
+        ok = near[r, c]
+        return r[ok].astype(np.int64), c[ok].astype(np.int64)
     tree = cKDTree(b)
     _, nearest = tree.query(a, distance_upper_bound=gate)
     rows = np.flatnonzero(nearest < len(b))  # tracks with a candidate (else: len(b))
