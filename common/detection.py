@@ -32,6 +32,7 @@ __all__ = [
     "Detection",
     "Detector",
     "PlannerEntry",
+    "binarize_frame",
     "find_blobs",
     "measure_blobs",
     "size_filter_px",
@@ -110,25 +111,21 @@ def find_blobs(
     min_area_px: float = 0.0,
 ) -> Blobs:
     """Paper §3 on one frame: smooth, binarize, label, size-filter (cm² on ``plane_cm``)."""
-    return _find(image, params, camera, plane_cm, min_area_px)[0]
+    binary = binarize_frame(image, params, camera)
+    return measure_blobs(binary, params, camera, plane_cm, min_area_px=min_area_px)
 
 
-def _find(
-    image: NDArray[np.uint8],
-    params: ImageParams,
-    camera: CameraModel,
-    plane_cm: float,
-    min_area_px: float,
-) -> tuple[Blobs, PixelJacobian]:
-    """:func:`find_blobs`, and the floor map at the blobs on ``plane_cm``."""
+def binarize_frame(
+    image: NDArray[np.uint8], params: ImageParams, camera: CameraModel
+) -> NDArray[np.uint8]:
+    """The paper's median step and binarization of a frame of the calibration's size."""
     gray = as_gray(image)
     if gray.shape != (camera.rows, camera.cols):
         raise ValueError(
             f"frame is {gray.shape[1]}x{gray.shape[0]} (cols x rows) but the calibration "
             f"is for {camera.cols}x{camera.rows}"
         )
-    binary = binarize(smooth(gray, params.median), params.threshold, params.polarity)
-    return _measure(binary, params, camera, plane_cm, min_area_px)
+    return binarize(smooth(gray, params.median), params.threshold, params.polarity)
 
 
 def size_filter_px(params: ImageParams, camera: CameraModel, plane_cm: float) -> float:
@@ -235,9 +232,9 @@ class Detector:
         ``stamp_s`` is the frame's capture time (s); without it frames are taken to be
         the paper's Δt = 1 s apart. Obstacle velocities are in cm/s.
         """
-        blobs, floor = _find(
-            frame, self.image, self.camera, self.pose.obstacle_height_cm, self.min_area_px
-        )
+        binary = binarize_frame(frame, self.image, self.camera)
+        plane = self.pose.obstacle_height_cm
+        blobs, floor = _measure(binary, self.image, self.camera, plane, self.min_area_px)
         return self.from_blobs(
             blobs,
             floor=floor,
