@@ -309,8 +309,9 @@ def _border_sums(b: Borders) -> FloatArray:
     With ``e``, ``s`` ∈ {0, 1} for "ends a run", "starts a run", ``a = e − s`` and
     ``c = e + s``, the visit adds ``e + a·x`` (f = 1), ``x·(a·x + c)/2`` (f = col) and
     ``x·(a·(2x² + 1) + 3c·x)/6`` (f = col²), times ``row`` or ``row²`` for the others.
-    Every term is an integer below 2⁵³ for images up to tens of thousands of pixels a
-    side, so the sums are exact in float64.
+    Every term and every sum is an integer below 2⁵³ (Σcol² over a whole W×H image is
+    about H·W³/3) for images up to about 10 000 pixels a side, so the sums are exact in
+    float64.
     """
     arrive = np.empty_like(b.code)
     arrive[1:] = b.code[:-1]
