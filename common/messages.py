@@ -91,8 +91,17 @@ class Frame(_Msg, tag="frame", kw_only=True):
 
     @classmethod
     def from_image(
-        cls, image: NDArray[np.uint8], *, seq: int, stamp_ns: int, source: str = ""
+        cls,
+        image: NDArray[np.uint8],
+        *,
+        seq: int,
+        stamp_ns: int,
+        source: str = "",
+        copy: bool = True,
     ) -> Frame:
+        """A frame of ``image``. ``copy=False`` keeps a read-only view of a C-contiguous
+        image instead of a copy of its bytes, for a frame that is encoded at once (capture
+        publishes each frame straight away): the image must not change until then."""
         if (
             image.dtype != np.uint8
             or image.ndim not in (2, 3)
@@ -103,13 +112,15 @@ class Frame(_Msg, tag="frame", kw_only=True):
                 f"{image.shape}"
             )
         channels = 1 if image.ndim == 2 else image.shape[2]
+        pixels = np.ascontiguousarray(image)
+        data = pixels.tobytes() if copy else memoryview(pixels).toreadonly().cast("B")
         return cls(
             seq=seq,
             stamp_ns=stamp_ns,
             rows=image.shape[0],
             cols=image.shape[1],
             channels=channels,
-            data=np.ascontiguousarray(image).tobytes(),
+            data=data,  # type: ignore[arg-type]  (a memoryview encodes as bytes do)
             source=source,
         )
 

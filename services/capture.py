@@ -43,7 +43,9 @@ def main(service: Service) -> None:
                 service.stop.wait(RETRY_S)
                 continue
             stamp = time.time_ns()
-            frame = Frame.from_image(image, seq=seq, stamp_ns=stamp, source=source.description)
+            frame = Frame.from_image(
+                image, seq=seq, stamp_ns=stamp, source=source.description, copy=False
+            )
             if truth is not None:
                 publish_truth(TruthFrame(seq=seq, objects=truth.objects))
             publish_frame(frame)

@@ -373,6 +373,20 @@ def test_frame_image_is_zero_copy_read_only_with_the_right_shape(
         out[0, 0] = 1
 
 
+def test_frame_without_copy_shares_the_image_read_only_and_encodes_the_same() -> None:
+    image = np.ascontiguousarray(_bgr())
+    copied = Frame.from_image(image, seq=3, stamp_ns=4)
+    shared = Frame.from_image(image, seq=3, stamp_ns=4, copy=False)
+    assert _address(shared.data) == image.__array_interface__["data"][0]
+    assert _address(copied.data) != image.__array_interface__["data"][0]
+    assert encode(shared) == encode(copied)
+    assert not shared.image().flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        shared.image()[0, 0, 0] = 1
+    decoded = decode(encode(shared), Frame)
+    assert np.array_equal(decoded.image(), image)
+
+
 def test_frame_from_image_copies_a_non_contiguous_view_in_row_major_order() -> None:
     view = _bgr()  # strided, reversed channels
     assert not view.flags.c_contiguous
