@@ -260,19 +260,24 @@ class Detector:
         cam, pose = self.camera, self.pose
         comp = blobs
         n = comp.area_px.size
-        if floor is None:
-            floor = pixel_jacobian(comp.row, comp.col, cam, pose.obstacle_height_cm)
         # The robot's top is at its own height: blobs shaped like it are measured there.
         shaped = np.flatnonzero(blobs.compactness <= pose.robot_max_compactness)
-        robot_area = np.zeros(n)
-        if shaped.size:
+        on_top: PixelJacobian | None = None
+        if floor is None:  # both planes in one back-projection (what the pose service does)
+            heights = np.array([[pose.obstacle_height_cm], [pose.robot_height_cm]])
+            both = pixel_jacobian(comp.row[None, :], comp.col[None, :], cam, heights)
+            floor = PixelJacobian(*(f[0] for f in both))
+            on_top = PixelJacobian(*(f[1][shaped] for f in both))
+        elif shaped.size:
             on_top = pixel_jacobian(comp.row[shaped], comp.col[shaped], cam, pose.robot_height_cm)
+        robot_area = np.zeros(n)
+        if on_top is not None:
             robot_area[shaped] = comp.area_px[shaped] * on_top.area_cm2
         robot = pick_robot(blobs.compactness, robot_area, pose)
         is_robot = np.arange(n) == robot
         z = np.where(is_robot, pose.robot_height_cm, pose.obstacle_height_cm)
         j = floor
-        if robot >= 0:
+        if robot >= 0 and on_top is not None:
             at = int(np.searchsorted(shaped, robot))
             pairs = zip(floor, on_top, strict=True)
             j = PixelJacobian(*(np.where(is_robot, t[at], f) for f, t in pairs))
