@@ -35,6 +35,7 @@ __all__ = [
     "binarize_frame",
     "find_blobs",
     "measure_blobs",
+    "measure_blobs_and_maps",
     "size_filter_px",
     "world_shape",
 ]
@@ -150,20 +151,24 @@ def measure_blobs(
     ``min_area_px`` (see :func:`size_filter_px`) skips specks early; it must not exceed
     what the size filter would keep.
     """
-    return _measure(binary, params, camera, plane_cm, min_area_px)[0]
+    return measure_blobs_and_maps(binary, params, camera, (plane_cm,), min_area_px=min_area_px)[0]
 
 
-def _measure(
+def measure_blobs_and_maps(
     binary: NDArray[np.uint8],
     params: ImageParams,
     camera: CameraModel,
-    plane_cm: float,
-    min_area_px: float,
-) -> tuple[Blobs, PixelJacobian]:
-    """:func:`measure_blobs`, and the floor map the size filter computed at the blobs."""
+    planes_cm: tuple[float, ...],
+    *,
+    min_area_px: float = 0.0,
+) -> tuple[Blobs, list[PixelJacobian]]:
+    """:func:`measure_blobs` (size filter on ``planes_cm[0]``), and the pixel → plane map
+    at every kept blob on each of ``planes_cm``, all from one back-projection (the size
+    filter needs the first anyway; the pose wants the obstacle and the robot plane)."""
     comp = label_components(binary, min_area_px=min_area_px)
-    floor = pixel_jacobian(comp.row, comp.col, camera, plane_cm)
-    footprint = floor.area_cm2
+    heights = np.asarray(planes_cm, dtype=np.float64)[:, None]
+    maps = pixel_jacobian(comp.row[None, :], comp.col[None, :], camera, heights)
+    footprint = PixelJacobian(*(f[0] for f in maps)).area_cm2
     keep = (footprint > 0) & (comp.area_px * footprint >= params.size_filter_cm2)
     comp = filter_components(comp, keep)
     perim = perimeter(comp, params.perimeter)
@@ -177,7 +182,7 @@ def _measure(
         comp.mu_cc,
         comp.mu_rc,
     )
-    return blobs, PixelJacobian(*(f[keep] for f in floor))
+    return blobs, [PixelJacobian(*(f[k][keep] for f in maps)) for k in range(len(planes_cm))]
 
 
 def world_shape(
@@ -233,11 +238,14 @@ class Detector:
         the paper's Δt = 1 s apart. Obstacle velocities are in cm/s.
         """
         binary = binarize_frame(frame, self.image, self.camera)
-        plane = self.pose.obstacle_height_cm
-        blobs, floor = _measure(binary, self.image, self.camera, plane, self.min_area_px)
+        planes = (self.pose.obstacle_height_cm, self.pose.robot_height_cm)
+        blobs, (floor, top) = measure_blobs_and_maps(
+            binary, self.image, self.camera, planes, min_area_px=self.min_area_px
+        )
         return self.from_blobs(
             blobs,
             floor=floor,
+            top=top,
             goal_xy=goal_xy,
             goal_angle_deg=goal_angle_deg,
             stamp_s=stamp_s,
@@ -248,39 +256,32 @@ class Detector:
         blobs: Blobs,
         *,
         floor: PixelJacobian | None = None,
+        top: PixelJacobian | None = None,
         goal_xy: tuple[float, float] | None = None,
         goal_angle_deg: float | None = None,
         stamp_s: float | None = None,
     ) -> Detection:
         """The pose half of :meth:`detect`, from already measured blobs.
 
-        ``floor`` is the pixel → floor map at the blobs' centroids on the obstacle plane
-        when already known (:meth:`detect` passes what the size filter computed).
+        ``floor`` and ``top`` are the pixel → plane maps at the blobs' centroids on the
+        obstacle plane and on the robot's top plane when already known
+        (:func:`measure_blobs_and_maps`); else they are back-projected here.
         """
         cam, pose = self.camera, self.pose
         comp = blobs
         n = comp.area_px.size
-        # The robot's top is at its own height: blobs shaped like it are measured there.
-        shaped = np.flatnonzero(blobs.compactness <= pose.robot_max_compactness)
-        on_top: PixelJacobian | None = None
-        if floor is None:  # both planes in one back-projection (what the pose service does)
+        if floor is None or top is None:  # both planes in one back-projection
             heights = np.array([[pose.obstacle_height_cm], [pose.robot_height_cm]])
             both = pixel_jacobian(comp.row[None, :], comp.col[None, :], cam, heights)
             floor = PixelJacobian(*(f[0] for f in both))
-            on_top = PixelJacobian(*(f[1][shaped] for f in both))
-        elif shaped.size:
-            on_top = pixel_jacobian(comp.row[shaped], comp.col[shaped], cam, pose.robot_height_cm)
-        robot_area = np.zeros(n)
-        if on_top is not None:
-            robot_area[shaped] = comp.area_px[shaped] * on_top.area_cm2
-        robot = pick_robot(blobs.compactness, robot_area, pose)
+            top = PixelJacobian(*(f[1] for f in both))
+        robot = pick_robot(blobs.compactness, comp.area_px * top.area_cm2, pose)
         is_robot = np.arange(n) == robot
         z = np.where(is_robot, pose.robot_height_cm, pose.obstacle_height_cm)
         j = floor
-        if robot >= 0 and on_top is not None:
-            at = int(np.searchsorted(shaped, robot))
-            pairs = zip(floor, on_top, strict=True)
-            j = PixelJacobian(*(np.where(is_robot, t[at], f) for f, t in pairs))
+        if robot >= 0:  # the robot on its top plane, everything else on the obstacles'
+            pairs = zip(floor, top, strict=True)
+            j = PixelJacobian(*(np.where(is_robot, t, f) for f, t in pairs))
         area_cm2, heading, elongation = world_shape(blobs, j)
         radius = np.sqrt(area_cm2 / np.pi)
         ok = j.valid

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from ovis.common.calibration_file import Calibration
 from ovis.common.detection import Blobs, DetectedObject, PlannerEntry
+from ovis.common.projection import PixelJacobian
 from ovis.common.simulator import SimObject
 
 __all__ = [
@@ -30,11 +31,13 @@ __all__ = [
     "CalibrateReply",
     "CalibrateRequest",
     "CalibrationUpdate",
+    "FloorMaps",
     "Frame",
     "FrameHeader",
     "Message",
     "MessageError",
     "ObstacleFrame",
+    "PlaneMap",
     "ServiceStatus",
     "StreamHealth",
     "Topics",
@@ -172,8 +175,47 @@ class BlobMeasure(msgspec.Struct):
     mu_rc: Finite
 
 
+Column = Annotated[list[Finite], msgspec.Meta(max_length=100000)]
+
+
+class PlaneMap(msgspec.Struct):
+    """The pixel → plane map at each blob's centroid, column by column (the fields of
+    :class:`~ovis.common.projection.PixelJacobian`: the point in cm, cm per pixel step,
+    and whether the pixel sees the plane)."""
+
+    x_cm: Column
+    y_cm: Column
+    dx_drow: Column
+    dy_drow: Column
+    dx_dcol: Column
+    dy_dcol: Column
+    valid: Annotated[list[bool], msgspec.Meta(max_length=100000)]
+
+    @classmethod
+    def of(cls, j: PixelJacobian) -> PlaneMap:
+        return cls(*(np.asarray(f).tolist() for f in j))
+
+    def jacobian(self) -> PixelJacobian:
+        cols = [np.array(getattr(self, f), dtype=np.float64) for f in PixelJacobian._fields[:-1]]
+        return PixelJacobian(*cols, np.array(self.valid, dtype=bool))
+
+    def entries(self) -> int | None:
+        """How many blobs the columns describe (None if they differ in length)."""
+        sizes = {len(getattr(self, f)) for f in self.__struct_fields__}
+        return sizes.pop() if len(sizes) == 1 else None
+
+
+class FloorMaps(msgspec.Struct, kw_only=True):
+    """Where the label service's back-projection put each blob: on the obstacles' top
+    plane (the size filter's) and on the robot's, for the BlobList's calibration."""
+
+    obstacle: PlaneMap
+    robot: PlaneMap
+
+
 class BlobList(_Msg, tag="blobs", kw_only=True):
-    """The blobs of one frame after labeling and size filtering."""
+    """The blobs of one frame after labeling and size filtering; ``maps`` (optional)
+    saves the pose service a back-projection when its calibration is the same."""
 
     seq: Seq
     stamp_ns: Stamp
@@ -181,6 +223,17 @@ class BlobList(_Msg, tag="blobs", kw_only=True):
     cols: Side
     calibration_version: Annotated[int, msgspec.Meta(ge=0)]
     blobs: Annotated[list[BlobMeasure], msgspec.Meta(max_length=100000)]
+    maps: FloorMaps | None = None
+
+    def __post_init__(self) -> None:
+        if self.maps is None:
+            return
+        for name in ("obstacle", "robot"):
+            if getattr(self.maps, name).entries() != len(self.blobs):
+                raise ValueError(
+                    f"maps.{name} must have one entry per blob in every column "
+                    f"({len(self.blobs)} blobs)"
+                )
 
     @staticmethod
     def measures(blobs: Blobs) -> list[BlobMeasure]:

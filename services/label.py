@@ -1,11 +1,12 @@
 """Labeling service: 8-connected labeling, size filter (A^f in cm² on the floor),
 Koplowitz–Bruckstein perimeter and compactness (paper §3) of each binary frame;
-publishes the blobs on ``ovis/<arena>/blobs``."""
+publishes the blobs on ``ovis/<arena>/blobs``, with where its back-projection put them on
+the obstacles' and the robot's top planes (the pose service then needs none)."""
 
 from __future__ import annotations
 
-from ovis.common.detection import measure_blobs, size_filter_px
-from ovis.common.messages import BinaryFrame, BlobList
+from ovis.common.detection import measure_blobs_and_maps, size_filter_px
+from ovis.common.messages import BinaryFrame, BlobList, FloorMaps, PlaneMap
 from ovis.services.runtime import Service
 
 
@@ -30,12 +31,9 @@ def main(service: Service) -> None:
         if not service.fits_camera(frame, "binary"):
             return
         service.saw_frame(frame.seq, frame.stamp_ns)
-        blobs = measure_blobs(
-            frame.mask(),
-            calib.image,
-            cam,
-            calib.pose.obstacle_height_cm,
-            min_area_px=min_area(calib),
+        planes = (calib.pose.obstacle_height_cm, calib.pose.robot_height_cm)
+        blobs, (floor, top) = measure_blobs_and_maps(
+            frame.mask(), calib.image, cam, planes, min_area_px=min_area(calib)
         )
         publish(
             BlobList(
@@ -45,6 +43,7 @@ def main(service: Service) -> None:
                 cols=frame.cols,
                 calibration_version=calib.version,
                 blobs=BlobList.measures(blobs),
+                maps=FloorMaps(obstacle=PlaneMap.of(floor), robot=PlaneMap.of(top)),
             )
         )
         service.sent()

@@ -24,7 +24,10 @@ def main(service: Service) -> None:
         if msg is None:
             return
         service.saw_frame(msg.seq, msg.stamp_ns)
-        det = detector.from_blobs(msg.to_blobs(), stamp_s=msg.stamp_ns / 1e9)
+        floor = top = None
+        if msg.maps is not None and msg.calibration_version == service.calibration.version:
+            floor, top = msg.maps.obstacle.jacobian(), msg.maps.robot.jacobian()
+        det = detector.from_blobs(msg.to_blobs(), floor=floor, top=top, stamp_s=msg.stamp_ns / 1e9)
         now = time.time_ns()
         robot = next((o for o in det.objects if o.kind == "robot"), None)
         publish(

@@ -36,9 +36,11 @@ from ovis.common.messages import (
     CalibrateReply,
     CalibrateRequest,
     CalibrationUpdate,
+    FloorMaps,
     Frame,
     MessageError,
     ObstacleFrame,
+    PlaneMap,
     ServiceStatus,
     StreamHealth,
     Topics,
@@ -949,3 +951,48 @@ def test_obstacle_frame_refuses_non_finite_numbers(path, value, needle) -> None:
     with pytest.raises(MessageError) as err:
         decode(msgspec.msgpack.encode(data), ObstacleFrame)
     assert needle in str(err.value)
+
+
+def test_blob_list_carries_the_label_services_floor_maps_and_refuses_ragged_ones() -> None:
+    from ovis.common.config import load_config
+    from ovis.common.detection import Detector, find_blobs, measure_blobs_and_maps
+    from ovis.common.preprocess import binarize, smooth
+    from ovis.common.simulator import Arena
+
+    cfg = load_config()
+    frame, _ = Arena(cfg, 4).render()
+    binary = binarize(smooth(frame, cfg.image.median), cfg.image.threshold, cfg.image.polarity)
+    planes = (cfg.pose.obstacle_height_cm, cfg.pose.robot_height_cm)
+    blobs, (floor, top) = measure_blobs_and_maps(binary, cfg.image, cfg.camera, planes)
+    assert blobs.area_px.size >= 2
+    maps = FloorMaps(obstacle=PlaneMap.of(floor), robot=PlaneMap.of(top))
+    msg = BlobList(
+        seq=1,
+        stamp_ns=2,
+        rows=480,
+        cols=640,
+        calibration_version=1,
+        blobs=BlobList.measures(blobs),
+        maps=maps,
+    )
+    back = decode(encode(msg), BlobList)
+    for sent, got in ((floor, back.maps.obstacle.jacobian()), (top, back.maps.robot.jacobian())):
+        for a, b in zip(sent, got, strict=True):
+            np.testing.assert_array_equal(a, b)
+    # The pose from the shipped maps is the pose from its own back-projection.
+    with_maps = Detector(cfg.camera, cfg.image, cfg.pose).from_blobs(
+        back.to_blobs(), floor=back.maps.obstacle.jacobian(), top=back.maps.robot.jacobian()
+    )
+    alone = Detector(cfg.camera, cfg.image, cfg.pose).from_blobs(
+        find_blobs(frame, cfg.image, cfg.camera, cfg.pose.obstacle_height_cm)
+    )
+    assert with_maps == alone
+    # A map column one short, or a NaN in it, is refused like any malformed message.
+    ragged = msgspec.to_builtins(msg)
+    ragged["maps"]["robot"]["x_cm"] = ragged["maps"]["robot"]["x_cm"][:-1]
+    with pytest.raises(MessageError, match="one entry per blob"):
+        decode(msgspec.msgpack.encode(ragged), BlobList)
+    bad = msgspec.to_builtins(msg)
+    bad["maps"]["obstacle"]["y_cm"][0] = float("nan")
+    with pytest.raises(MessageError, match=r"\$\.maps\.obstacle\.y_cm"):
+        decode(msgspec.msgpack.encode(bad), BlobList)
