@@ -30,9 +30,8 @@ import zenoh
 
 from benchmarks.core import Row, Stats, ratio, scaled_config, size_label, stats
 from ovis.common.config import OvisConfig, ZenohConfig, dump_toml
-from ovis.common.detection import Detector, measure_blobs
+from ovis.common.detection import Detector
 from ovis.common.messages import ObstacleFrame, ServiceStatus, Topics, decode
-from ovis.common.preprocess import as_gray, binarize, smooth
 from ovis.common.sources import SimSource
 from ovis.services.runtime import zenoh_config
 
@@ -285,17 +284,14 @@ class Bench:
 
 def in_process(config: OvisConfig, n_frames: int, reps: int) -> Stats:
     """The four stages' work called in one process on the same pre-rendered frames:
-    frame → grey → median step → binarize → label/size filter/perimeter → pose."""
+    ``Detector.detect`` (grey, median step, binarize, label/size filter/perimeter with the
+    floor maps, pose), as the stages split it."""
     source = SimSource(config, config.service.seed, prerender=n_frames)
     frames = [source.read()[0] for _ in range(n_frames)]
-    cam, img, pose = config.camera, config.image, config.pose
-    detector = Detector(cam, img, pose)
+    detector = Detector(config.camera, config.image, config.pose)
 
     def one(frame, stamp_s: float) -> None:
-        gray = as_gray(frame)
-        binary = binarize(smooth(gray, img.median), img.threshold, img.polarity)
-        blobs = measure_blobs(binary, img, cam, pose.obstacle_height_cm)
-        detector.from_blobs(blobs, stamp_s=stamp_s)
+        detector.detect(frame, stamp_s=stamp_s)
 
     for i in range(5):
         one(frames[i % n_frames], i / 30.0)

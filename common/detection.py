@@ -36,6 +36,7 @@ __all__ = [
     "find_blobs",
     "measure_blobs",
     "measure_blobs_and_maps",
+    "plane_maps",
     "size_filter_px",
     "world_shape",
 ]
@@ -166,9 +167,8 @@ def measure_blobs_and_maps(
     at every kept blob on each of ``planes_cm``, all from one back-projection (the size
     filter needs the first anyway; the pose wants the obstacle and the robot plane)."""
     comp = label_components(binary, min_area_px=min_area_px)
-    heights = np.asarray(planes_cm, dtype=np.float64)[:, None]
-    maps = pixel_jacobian(comp.row[None, :], comp.col[None, :], camera, heights)
-    footprint = PixelJacobian(*(f[0] for f in maps)).area_cm2
+    maps = plane_maps(comp.row, comp.col, camera, planes_cm)
+    footprint = maps[0].area_cm2
     keep = (footprint > 0) & (comp.area_px * footprint >= params.size_filter_cm2)
     comp = filter_components(comp, keep)
     perim = perimeter(comp, params.perimeter)
@@ -182,7 +182,20 @@ def measure_blobs_and_maps(
         comp.mu_cc,
         comp.mu_rc,
     )
-    return blobs, [PixelJacobian(*(f[k][keep] for f in maps)) for k in range(len(planes_cm))]
+    return blobs, [PixelJacobian(*(f[keep] for f in m)) for m in maps]
+
+
+def plane_maps(
+    row: NDArray[np.float64],
+    col: NDArray[np.float64],
+    camera: CameraModel,
+    planes_cm: tuple[float, ...],
+) -> list[PixelJacobian]:
+    """The pixel → plane map at each (row, col) on each of ``planes_cm``, from one
+    back-projection of all of them."""
+    heights = np.asarray(planes_cm, dtype=np.float64)[:, None]
+    maps = pixel_jacobian(row[None, :], col[None, :], camera, heights)
+    return [PixelJacobian(*(f[k] for f in maps)) for k in range(len(planes_cm))]
 
 
 def world_shape(
@@ -270,11 +283,9 @@ class Detector:
         cam, pose = self.camera, self.pose
         comp = blobs
         n = comp.area_px.size
-        if floor is None or top is None:  # both planes in one back-projection
-            heights = np.array([[pose.obstacle_height_cm], [pose.robot_height_cm]])
-            both = pixel_jacobian(comp.row[None, :], comp.col[None, :], cam, heights)
-            floor = PixelJacobian(*(f[0] for f in both))
-            top = PixelJacobian(*(f[1] for f in both))
+        if floor is None or top is None:
+            planes = (pose.obstacle_height_cm, pose.robot_height_cm)
+            floor, top = plane_maps(comp.row, comp.col, cam, planes)
         robot = pick_robot(blobs.compactness, comp.area_px * top.area_cm2, pose)
         is_robot = np.arange(n) == robot
         z = np.where(is_robot, pose.robot_height_cm, pose.obstacle_height_cm)

@@ -220,23 +220,15 @@ def _trace_borders(contours: tuple[Chain, ...], hierarchy: NDArray[np.int32]) ->
 
 
 def _empty(shape: tuple[int, ...]) -> Components:
+    """The components of an image without any object pixel."""
     none_f, none_i = np.zeros(0), np.zeros(0, dtype=np.int64)
-    borders = Borders(np.zeros((0, 2), np.int32), none_i, none_i, none_i, none_i)
     return Components(
-        (int(shape[0]), int(shape[1])),
-        0,
-        none_f,
-        none_f,
-        none_f,
-        none_i,
-        none_i,
-        none_i,
-        none_i,
-        none_f,
-        none_f,
-        none_f,
-        borders,
-        none_i,
+        shape=(int(shape[0]), int(shape[1])),
+        count=0,
+        borders=Borders(np.zeros((0, 2), np.int32), none_i, none_i, none_i, none_i),
+        border=none_i,
+        **dict.fromkeys(("area_px", "row", "col", "mu_rr", "mu_cc", "mu_rc"), none_f),
+        **dict.fromkeys(("top", "left", "height", "width"), none_i),
     )
 
 

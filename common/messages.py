@@ -196,8 +196,7 @@ class PlaneMap(msgspec.Struct):
         return cls(*(np.asarray(f).tolist() for f in j))
 
     def jacobian(self) -> PixelJacobian:
-        cols = [np.array(getattr(self, f), dtype=np.float64) for f in PixelJacobian._fields[:-1]]
-        return PixelJacobian(*cols, np.array(self.valid, dtype=bool))
+        return PixelJacobian(*(np.array(getattr(self, f)) for f in PixelJacobian._fields))
 
     def entries(self) -> int | None:
         """How many blobs the columns describe (None if they differ in length)."""

@@ -68,10 +68,7 @@ def gated_assignment(
         return none, none
     if len(a) * len(b) <= DENSE_PAIRS:  # a few obstacles: the whole cost matrix is cheaper
         cost = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
-        near = cost <= gate
-        r, c = linear_sum_assignment(np.where(near, cost, _OUT_OF_GATE))
-        ok = near[r, c]
-        return r[ok].astype(np.int64), c[ok].astype(np.int64)
+        return _optimal(np.where(cost <= gate, cost, _OUT_OF_GATE))
     tree = cKDTree(b)
     _, nearest = tree.query(a, distance_upper_bound=gate)
     rows = np.flatnonzero(nearest < len(b))  # tracks with a candidate (else: len(b))
@@ -91,11 +88,18 @@ def gated_assignment(
         rj, bj = np.unique(j[rest], return_inverse=True)
         cost = np.full((ri.size, rj.size), _OUT_OF_GATE)
         cost[ai, bj] = dist[rest]
-        r, c = linear_sum_assignment(cost)
-        ok = cost[r, c] < _OUT_OF_GATE
-        rows = np.concatenate([rows, ri[r[ok]]])
-        cols = np.concatenate([cols, rj[c[ok]]])
+        r, c = _optimal(cost)
+        rows = np.concatenate([rows, ri[r]])
+        cols = np.concatenate([cols, rj[c]])
     return rows, cols
+
+
+def _optimal(cost: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The optimal assignment of a cost matrix whose out-of-gate entries are
+    ``_OUT_OF_GATE``, without those pairs."""
+    r, c = linear_sum_assignment(cost)
+    ok = cost[r, c] < _OUT_OF_GATE
+    return r[ok].astype(np.int64), c[ok].astype(np.int64)
 
 
 @dataclass
