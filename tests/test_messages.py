@@ -955,13 +955,17 @@ def test_obstacle_frame_refuses_non_finite_numbers(path, value, needle) -> None:
 
 def test_blob_list_carries_the_label_services_floor_maps_and_refuses_ragged_ones() -> None:
     from ovis.common.config import load_config
-    from ovis.common.detection import Detector, find_blobs, measure_blobs_and_maps
-    from ovis.common.preprocess import binarize, smooth
+    from ovis.common.detection import (
+        Detector,
+        binarize_frame,
+        find_blobs,
+        measure_blobs_and_maps,
+    )
     from ovis.common.simulator import Arena
 
     cfg = load_config()
     frame, _ = Arena(cfg, 4).render()
-    binary = binarize(smooth(frame, cfg.image.median), cfg.image.threshold, cfg.image.polarity)
+    binary = binarize_frame(frame, cfg.image, cfg.camera)
     planes = (cfg.pose.obstacle_height_cm, cfg.pose.robot_height_cm)
     blobs, (floor, top) = measure_blobs_and_maps(binary, cfg.image, cfg.camera, planes)
     assert blobs.area_px.size >= 2
