@@ -190,6 +190,27 @@ class PixelJacobian(NamedTuple):
         return np.where(self.valid, np.abs(det), 0.0)
 
 
+#: The five points of the central differences, ±½ px around (row, col): the point, then
+#: row + ½, row − ½, col + ½, col − ½.
+_ROW_STEP = np.array([0.0, 0.5, -0.5, 0.0, 0.0])
+_COL_STEP = np.array([0.0, 0.0, 0.0, 0.5, -0.5])
+
+
+def five_points(row: ArrayLike, col: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """(row, col) and its four ±½ px neighbours, stacked on a new leading axis of 5 (the
+    points :func:`pixel_jacobian` back-projects; built by broadcasting, not by stacking)."""
+    r, c = _f(row), _f(col)
+    lead = (5,) + (1,) * max(r.ndim, c.ndim)
+    return r + _ROW_STEP.reshape(lead), c + _COL_STEP.reshape(lead)
+
+
+def jacobian_of(x: FloatArray, y: FloatArray, valid: NDArray[np.bool_]) -> PixelJacobian:
+    """The :class:`PixelJacobian` from the back-projections of :func:`five_points`."""
+    return PixelJacobian(
+        x[0], y[0], x[1] - x[2], y[1] - y[2], x[3] - x[4], y[3] - y[4], valid.all(axis=0)
+    )
+
+
 def pixel_jacobian(
     row: ArrayLike, col: ArrayLike, cam: CameraParams, z_cm: ArrayLike = 0.0
 ) -> PixelJacobian:
@@ -199,15 +220,9 @@ def pixel_jacobian(
     It maps small image offsets (and second moments) to the floor: blob areas in cm²
     (size filter A^f, radius) and world orientations of elongated blobs.
     """
-    r, c, z = np.broadcast_arrays(_f(row), _f(col), _f(z_cm))
-    h = 0.5
-    rows = np.stack([r, r + h, r - h, r, r])
-    cols = np.stack([c, c, c, c + h, c - h])
-    b = back_project(rows, cols, cam, np.stack([z] * 5))
-    x, y = b.x_cm, b.y_cm
-    return PixelJacobian(
-        x[0], y[0], x[1] - x[2], y[1] - y[2], x[3] - x[4], y[3] - y[4], b.valid.all(axis=0)
-    )
+    rows, cols = five_points(row, col)
+    b = back_project(rows, cols, cam, z_cm)
+    return jacobian_of(b.x_cm, b.y_cm, b.valid)
 
 
 def pixel_footprint_cm2(

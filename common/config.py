@@ -389,6 +389,13 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     status_period_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 1.0
     frame_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 2.0
     queue_depth: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 2
+    #: CPU cores this service's process may run on (Linux); empty: any. Stages that pass
+    #: frames to each other run fastest on one shared core at camera rates: each wakes
+    #: on the core the previous one just left, with the libraries' code still in cache
+    #: (``ovis up`` does this by default, see ``--pin``).
+    cpus: Annotated[
+        list[Annotated[int, msgspec.Meta(ge=0, le=4095)]], msgspec.Meta(max_length=4096)
+    ] = []
 
 
 class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -287,28 +287,34 @@ class Detector:
             planes = (pose.obstacle_height_cm, pose.robot_height_cm)
             floor, top = plane_maps(comp.row, comp.col, cam, planes)
         robot = pick_robot(blobs.compactness, comp.area_px * top.area_cm2, pose)
-        is_robot = np.arange(n) == robot
-        z = np.where(is_robot, pose.robot_height_cm, pose.obstacle_height_cm)
+        is_robot = np.zeros(n, dtype=bool)
+        z = np.full(n, pose.obstacle_height_cm)
         j = floor
         if robot >= 0:  # the robot on its top plane, everything else on the obstacles'
-            pairs = zip(floor, top, strict=True)
-            j = PixelJacobian(*(np.where(is_robot, t, f) for f, t in pairs))
+            is_robot[robot] = True
+            z[robot] = pose.robot_height_cm
+            j = PixelJacobian(
+                *(
+                    np.concatenate([f[:robot], t[robot : robot + 1], f[robot + 1 :]])
+                    for f, t in zip(floor, top, strict=True)
+                )
+            )
         area_cm2, heading, elongation = world_shape(blobs, j)
         radius = np.sqrt(area_cm2 / np.pi)
         ok = j.valid
         obstacle = ok & ~is_robot
-        ids = np.full(n, -1, dtype=np.int64)
+        ids = np.full(n, ROBOT_ID, dtype=np.int64)
         vel = np.zeros((n, 2))
-        ids[is_robot] = ROBOT_ID
-        obs_xy = np.column_stack([j.x_cm, j.y_cm])[obstacle]
-        ids[obstacle], step = self.tracker.update(obs_xy)
+        xy = np.empty((n, 2))
+        xy[:, 0], xy[:, 1] = j.x_cm, j.y_cm
+        ids[obstacle], step = self.tracker.update(xy[obstacle])
         now = stamp_s if stamp_s is not None else (self._last_stamp or 0.0) + 1.0
         dt = now - self._last_stamp if self._last_stamp is not None else 1.0
         self._last_stamp = now
         vel[obstacle] = step / dt if dt > 0 else 0.0
         # Objects in id order (the robot first), built column by column.
-        out = np.flatnonzero(ok)
-        out = out[np.argsort(ids[out], kind="stable")]
+        out = np.arange(n)[ok]
+        out = out[ids[out].argsort(kind="stable")]
         shown = heading.astype(object)
         shown[elongation < ROUND_ELONGATION] = None
         columns = {

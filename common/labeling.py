@@ -28,6 +28,7 @@ The size filter of paper §3 is :func:`filter_components` with a mask built from
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -180,7 +181,7 @@ def step_code(d_col: IntArray, d_row: IntArray) -> IntArray:
     return (d_row + 1) * 3 + (d_col + 1)
 
 
-def _run_end_table() -> NDArray[np.uint8]:
+def _run_end_table() -> IntArray:
     """Bit 1 / bit 2: whether a chain visit that arrives by step ``a`` and leaves by step
     ``b`` sweeps the pixel's right / left neighbour; indexed by ``9·a + b``.
 
@@ -190,7 +191,7 @@ def _run_end_table() -> NDArray[np.uint8]:
     turns back to where it came from. A one-point chain (``a = b = 4``) sweeps both.
     """
     position = {(dr + 1) * 3 + dc + 1: k for k, (dc, dr) in enumerate(_TURN)}
-    table = np.zeros(81, dtype=np.uint8)
+    table = np.zeros(81, dtype=np.int64)
     for a in position:
         back = position[8 - a]  # the previous point, seen from here
         for b, leave in position.items():
@@ -205,17 +206,22 @@ _RUN_END = _run_end_table()
 
 
 def _trace_borders(contours: tuple[Chain, ...], hierarchy: NDArray[np.int32]) -> Borders:
-    """Concatenate the chains of ``cv2.findContours`` and code each point's step."""
-    n = len(contours)
-    length = np.fromiter(map(len, contours), dtype=np.int64, count=n)
-    points = np.concatenate(contours).reshape(-1, 2)
-    start = np.zeros(n, dtype=np.int64)
-    np.cumsum(length[:-1], out=start[1:])
-    last = start + length - 1
-    d = np.empty_like(points)
-    np.subtract(points[1:], points[:-1], out=d[:-1])
-    d[last] = points[start] - points[last]  # closing step of every chain
-    code = step_code(d[:, 0], d[:, 1])
+    """Concatenate the chains of ``cv2.findContours`` and code each point's step.
+
+    Written for few, cheap numpy calls (the per-frame path runs it after the stage has
+    slept, when every distinct numpy function costs tens of µs): chain bounds in plain
+    Python, then one gather for the step from each point to the next of its chain.
+    """
+    length_list = [len(c) for c in contours]
+    start_list = [0, *itertools.accumulate(length_list)]
+    total = start_list.pop()
+    points = np.concatenate(contours).reshape(total, 2)
+    start = np.array(start_list, dtype=np.int64)
+    length = np.array(length_list, dtype=np.int64)
+    after = np.arange(1, total + 1)
+    after[start + length - 1] = start  # each chain is closed
+    d = points[after] - points
+    code = step_code(d[:, 0], d[:, 1]).astype(np.int64)
     return Borders(points, start, length, hierarchy[:, 3].astype(np.int64), code)
 
 
@@ -305,43 +311,32 @@ def _border_sums(b: Borders) -> FloatArray:
     about H·W³/3) for images up to about 10 000 pixels a side, so the sums are exact in
     float64.
     """
-    arrive = np.empty_like(b.code)
-    arrive[1:] = b.code[:-1]
-    arrive[b.start] = b.code[b.start + b.length - 1]  # arriving step of each chain's start
-    arrive *= 9
-    arrive += b.code
-    kind = np.take(_RUN_END, arrive)
-    e = (kind & 1).astype(np.float64)
-    s = (kind >> 1).astype(np.float64)
+    before = np.arange(-1, b.code.size - 1)
+    before[b.start] = b.start + b.length - 1  # the arriving step of each chain's start
+    kind = _RUN_END[b.code[before] * 9 + b.code]
+    e = kind & 1
+    a = e - (kind >> 1)  # e − s
+    c = e + (kind >> 1)  # e + s
     x = b.points[:, 0].astype(np.float64)
     y = b.points[:, 1].astype(np.float64)
-    a, c = e - s, e + s
-    g0 = a * x
-    g1 = g0 + c
-    g1 *= x
-    g1 *= 0.5
-    g2 = x * x
-    g2 *= 2.0
-    g2 += 1.0
-    g2 *= a
-    c *= 3.0
-    c *= x
-    g2 += c
-    g2 *= x
-    g2 /= 6.0
-    g0 += e
-    yg0 = y * g0
-    terms = (g0, g1, yg0, g2, y * yg0, y * g1)
-    return np.stack([np.add.reduceat(t, b.start) for t in terms])
+    terms = np.empty((x.size, 6))
+    g0 = a * x + e
+    g1 = (a * x + c) * x * 0.5
+    g2 = (a * (2.0 * x * x + 1.0) + 3.0 * c * x) * x / 6.0
+    terms[:, 0] = g0
+    terms[:, 1] = g1
+    terms[:, 2] = y * g0
+    terms[:, 3] = g2
+    terms[:, 4] = y * y * g0
+    terms[:, 5] = y * g1
+    return np.add.reduceat(terms, b.start, axis=0).T
 
 
 def _boxes(b: Borders, which: IntArray) -> tuple[IntArray, IntArray, IntArray, IntArray]:
     """Bounding box (top, left, bottom, right) of the chains ``which`` (outer borders)."""
-    cols, rows = b.points[:, 0], b.points[:, 1]
-    return tuple(  # type: ignore[return-value]
-        f.reduceat(v, b.start)[which].astype(np.int64)
-        for f, v in ((np.minimum, rows), (np.minimum, cols), (np.maximum, rows), (np.maximum, cols))
-    )
+    low = np.minimum.reduceat(b.points, b.start)[which].astype(np.int64)
+    high = np.maximum.reduceat(b.points, b.start)[which].astype(np.int64)
+    return low[:, 1], low[:, 0], high[:, 1], high[:, 0]
 
 
 def _about(raw: FloatArray, row0: FloatArray, col0: FloatArray) -> tuple[FloatArray, ...]:

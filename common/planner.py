@@ -13,6 +13,7 @@ For each obstacle O (centre, radius r_O) and the robot centre R:
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -30,9 +31,9 @@ class PlannerInputs(NamedTuple):
 
 def signed_angle_deg(from_rad: ArrayLike, to_rad: ArrayLike) -> NDArray[np.float64]:
     """Signed angle from one direction to another, degrees in (−180, 180], CCW positive."""
-    d = np.degrees(np.asarray(to_rad, dtype=np.float64) - np.asarray(from_rad, dtype=np.float64))
-    wrapped = -((-d + 180.0) % 360.0 - 180.0)  # maps to (−180, 180]
-    return np.where(wrapped == -180.0, 180.0, wrapped)
+    d = np.degrees(np.subtract(to_rad, from_rad, dtype=np.float64))
+    wrapped = 180.0 - (180.0 - d) % 360.0  # maps to (−180, 180]
+    return wrapped + np.where(wrapped == -180.0, 360.0, 0.0)  # (−180 only by rounding)
 
 
 def planner_inputs(
@@ -56,24 +57,24 @@ def planner_inputs(
         Direction of the goal reference line (degrees from +X); takes precedence over
         ``goal_xy``. One of the two is required.
     """
-    r = np.asarray(robot_xy, dtype=np.float64).reshape(2)
+    rx, ry = (float(v) for v in np.asarray(robot_xy, dtype=np.float64).reshape(2))
     obs = np.asarray(obstacles_xyr, dtype=np.float64).reshape(-1, 3)
-    if not (np.isfinite(r).all() and np.isfinite(obs).all()):
+    if not (math.isfinite(rx) and math.isfinite(ry) and (np.abs(obs) < np.inf).all()):
         raise ValueError("robot and obstacle coordinates must be finite numbers")
     if goal_angle_deg is not None:
-        if not np.isfinite(goal_angle_deg):
+        if not math.isfinite(goal_angle_deg):
             raise ValueError("goal_angle_deg must be a finite number")
-        goal_dir = np.deg2rad(goal_angle_deg)
+        goal_dir = math.radians(goal_angle_deg)
     elif goal_xy is not None:
-        g = np.asarray(goal_xy, dtype=np.float64).reshape(2)
-        if not np.isfinite(g).all():
+        gx, gy = (float(v) for v in np.asarray(goal_xy, dtype=np.float64).reshape(2))
+        if not (math.isfinite(gx) and math.isfinite(gy)):
             raise ValueError("goal coordinates must be finite numbers")
-        if np.hypot(*(g - r)) < 1e-9:
+        if math.hypot(gx - rx, gy - ry) < 1e-9:
             raise ValueError("the robot is on the goal: the goal direction is undefined")
-        goal_dir = np.arctan2(g[1] - r[1], g[0] - r[0])
+        goal_dir = math.atan2(gy - ry, gx - rx)
     else:
         raise ValueError("give a goal point or a goal reference-line angle")
-    delta = obs[:, :2] - r
-    distance = np.hypot(delta[:, 0], delta[:, 1]) - obs[:, 2]
-    angle = signed_angle_deg(goal_dir, np.arctan2(delta[:, 1], delta[:, 0]))
+    dx, dy = obs[:, 0] - rx, obs[:, 1] - ry
+    distance = np.hypot(dx, dy) - obs[:, 2]
+    angle = signed_angle_deg(goal_dir, np.arctan2(dy, dx))
     return PlannerInputs(distance, angle)

@@ -37,10 +37,11 @@ def pick_robot(
 ) -> int:
     """Index of the robot's blob, or −1 when no blob passes the robot rule."""
     lo, hi = pose.robot_area_cm2
-    candidate = (compactness <= pose.robot_max_compactness) & (area_cm2 >= lo) & (area_cm2 <= hi)
-    if not candidate.any():
+    if not compactness.size:
         return -1
-    return int(np.argmin(np.where(candidate, compactness, np.inf)))
+    score = np.where((area_cm2 >= lo) & (area_cm2 <= hi), compactness, np.inf)
+    best = int(score.argmin())
+    return best if score[best] <= pose.robot_max_compactness else -1
 
 
 #: Up to this many track × detection pairs, :func:`gated_assignment` solves the dense
@@ -68,7 +69,8 @@ def gated_assignment(
         return none, none
     if len(a) * len(b) <= DENSE_PAIRS:  # a few obstacles: the whole cost matrix is cheaper
         cost = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
-        return _optimal(np.where(cost <= gate, cost, _OUT_OF_GATE))
+        cost[~(cost <= gate)] = _OUT_OF_GATE  # (NaN too)
+        return _optimal(cost)
     tree = cKDTree(b)
     _, nearest = tree.query(a, distance_upper_bound=gate)
     rows = np.flatnonzero(nearest < len(b))  # tracks with a candidate (else: len(b))
@@ -122,15 +124,17 @@ class Tracker:
         Displacements are in cm per frame (0 for a new obstacle). Tracks not seen this
         frame are dropped.
         """
-        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        xy = np.array(xy, dtype=np.float64).reshape(-1, 2)  # a copy: kept as the tracks
         ids = np.full(xy.shape[0], -1, dtype=np.int64)
-        step = np.zeros_like(xy)
+        step = np.zeros(xy.shape)
         if self._ids.size and xy.size:
             rows, cols = gated_assignment(self._xy + self._velocity, xy, self.gate_cm)
             ids[cols] = self._ids[rows]
             step[cols] = xy[cols] - self._xy[rows]
         new = ids < 0
-        ids[new] = np.arange(self._next_id, self._next_id + int(new.sum()))
-        self._next_id += int(new.sum())
-        self._ids, self._xy, self._velocity = ids.copy(), xy.copy(), step.copy()
-        return ids, step
+        fresh = int(new.sum())
+        if fresh:
+            ids[new] = range(self._next_id, self._next_id + fresh)
+            self._next_id += fresh
+        self._ids, self._xy, self._velocity = ids, xy, step
+        return ids.copy(), step.copy()

@@ -74,15 +74,9 @@ def pixel_jacobian(
     if not isinstance(cam, PinholeParams):
         _check(cam)
         return paper.pixel_jacobian(row, col, cam, z_cm)
-    r, c, z = np.broadcast_arrays(np.asarray(row, float), np.asarray(col, float), z_cm)
-    h = 0.5
-    rows = np.stack([r, r + h, r - h, r, r])
-    cols = np.stack([c, c, c, c + h, c - h])
-    b = pinhole.back_project(rows, cols, cam, np.stack([np.asarray(z, float)] * 5))
-    x, y = b.x_cm, b.y_cm
-    return PixelJacobian(
-        x[0], y[0], x[1] - x[2], y[1] - y[2], x[3] - x[4], y[3] - y[4], b.valid.all(axis=0)
-    )
+    rows, cols = paper.five_points(row, col)
+    b = pinhole.back_project(rows, cols, cam, z_cm)
+    return paper.jacobian_of(b.x_cm, b.y_cm, b.valid)
 
 
 def pixel_footprint_cm2(

@@ -53,15 +53,12 @@ def compactness(area_px: ArrayLike, perimeter_px: ArrayLike) -> FloatArray:
     ValueError
         If any area or perimeter is negative or not finite.
     """
-    a, p = np.broadcast_arrays(
-        np.asarray(area_px, dtype=np.float64), np.asarray(perimeter_px, dtype=np.float64)
-    )
+    a = np.asarray(area_px, dtype=np.float64)
+    p = np.asarray(perimeter_px, dtype=np.float64)
     for name, v in (("area_px", a), ("perimeter_px", p)):
-        if not np.all(np.isfinite(v)) or np.any(v < 0):
+        if not ((v >= 0) & (v < np.inf)).all():  # NaN fails both
             raise ValueError(f"{name}: expected finite values >= 0, got {v!r}")
-    out = np.zeros(a.shape, dtype=np.float64)
-    np.divide(4.0 * np.pi * a, p * p, out=out, where=p > 0)
-    return out
+    return 4.0 * np.pi * a / np.where(p > 0, p * p, np.inf)  # a / ∞ = 0 where p = 0
 
 
 def orientation(
@@ -84,20 +81,17 @@ def orientation(
         ``√(λ₊/λ₋)`` ≥ 1: 1 for a disk or a single pixel (all moments 0), capped at
         :data:`MAX_ELONGATION` for a degenerate line (λ₋ = 0).
     """
-    rr, cc, rc = np.broadcast_arrays(
-        np.asarray(mu_rr, dtype=np.float64),
-        np.asarray(mu_cc, dtype=np.float64),
-        np.asarray(mu_rc, dtype=np.float64),
-    )
-    angle = 0.5 * np.arctan2(2.0 * rc, rr - cc)
+    rr = np.asarray(mu_rr, dtype=np.float64)
+    cc = np.asarray(mu_cc, dtype=np.float64)
+    rc = np.asarray(mu_rc, dtype=np.float64)
+    half_diff = 0.5 * (rr - cc)
+    angle = 0.5 * np.arctan2(rc, half_diff)
     # atan2 gives -π for mu_rc = -0.0 (or a tiny negative) with mu_rr < mu_cc: fold -π/2
     # onto π/2 so the range is (−π/2, π/2].
-    angle = np.where(angle <= -0.5 * np.pi, angle + np.pi, angle)
+    angle += np.where(angle <= -0.5 * np.pi, np.pi, 0.0)
     mean = 0.5 * (rr + cc)
-    radius = np.hypot(0.5 * (rr - cc), rc)
+    radius = np.hypot(half_diff, rc)
     lam_max = mean + radius
-    lam_min = np.maximum(mean - radius, 0.0)
-    ratio = np.ones(lam_max.shape, dtype=np.float64)
-    np.divide(lam_max, lam_min, out=ratio, where=lam_min > 0)
-    ratio[(lam_min <= 0) & (lam_max > 0)] = np.inf
-    return angle, np.clip(np.sqrt(ratio), 1.0, MAX_ELONGATION)
+    # λ₋ ≤ 0 < λ₊ (a line) → past the cap; λ₊ = 0 (a point, all moments 0) → 0 / tiny → 1.
+    lam_min = np.maximum(np.maximum(mean - radius, lam_max / (2.0 * MAX_ELONGATION) ** 2), 1e-300)
+    return angle, np.clip(np.sqrt(lam_max / lam_min), 1.0, MAX_ELONGATION)

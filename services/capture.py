@@ -46,9 +46,9 @@ def main(service: Service) -> None:
             frame = Frame.from_image(
                 image, seq=seq, stamp_ns=stamp, source=source.description, copy=False
             )
+            publish_frame(frame)  # first: the truth is for checking, not on the frame's path
             if truth is not None:
                 publish_truth(TruthFrame(seq=seq, objects=truth.objects))
-            publish_frame(frame)
             service.saw_frame(seq, stamp)
             service.sent()
             seq += 1

@@ -108,6 +108,18 @@ def router(
             pass
 
 
+def _cpus(spec: str | None) -> list[int] | None:
+    """``--cpus``/``--pin`` as core numbers (None: not given), or a usage error."""
+    if spec is None:
+        return None
+    from ovis.services.runtime import pick_cpus
+
+    try:
+        return pick_cpus(spec)
+    except ValueError as exc:
+        raise UserError(str(exc), 2) from None
+
+
 def run(
     stage: Annotated[str, typer.Argument(help=f"One of: {', '.join(STAGES)}.")],
     connect: ConnectOpt = None,
@@ -123,6 +135,13 @@ def run(
     ] = None,
     points: Annotated[
         str | None, typer.Option(help="calibrator: control points file, or 'simulator'.")
+    ] = None,
+    cpus: Annotated[
+        str | None,
+        typer.Option(
+            help="Cores to run on: '1', '0,2', 'auto' (the last core) or 'none' "
+            "(default: [service] cpus, else any)."
+        ),
     ] = None,
 ) -> None:
     """Run one service in this process until Ctrl-C/SIGTERM.
@@ -144,6 +163,7 @@ def run(
         fps=fps,
         state_dir=state_dir,
         points=points,
+        cpus=_cpus(cpus),
     )
     _topics(cfg)
     module = importlib.import_module(f"ovis.services.{stage}")
@@ -169,6 +189,14 @@ def up(
     max_restarts: Annotated[
         int, typer.Option(min=0, help="Restarts allowed per process within a minute.")
     ] = 5,
+    pin: Annotated[
+        str,
+        typer.Option(
+            help="Cores for capture, preprocess, label and pose: 'auto' (one core, the "
+            "last, when there are two or more: lowest latency at camera rates), 'none' "
+            "(any core: most frames per second on many cores), or e.g. '1' or '2,3'."
+        ),
+    ] = "auto",
 ) -> None:
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
@@ -184,11 +212,15 @@ def up(
         config, connect=[listen], arena=arena, source=source, fps=fps, state_dir=state_dir
     )
     topics = _topics(cfg)
+    cores = ",".join(map(str, _cpus(pin) or [])) or "none"
     log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-"))
     cfg_path = log_dir / "config.toml"
     from ovis.common.config import dump_toml
+    from ovis.services.runtime import FRAME_PATH, local_peers
 
-    cfg_path.write_text(dump_toml(cfg))
+    # The services share the router's machine: they talk to each other directly.
+    services_cfg = msgspec.structs.replace(cfg, zenoh=local_peers(cfg.zenoh))
+    cfg_path.write_text(dump_toml(services_cfg))
     from ovis.services.supervisor import Supervisor
 
     fleet = Supervisor(log_dir, max_restarts=max_restarts)
@@ -196,11 +228,16 @@ def up(
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     out = sys.stderr if json else sys.stdout
-    print(f"ovis up: arena {topics.arena}, router {listen}, logs in {log_dir}", file=out)
+    print(
+        f"ovis up: arena {topics.arena}, router {listen}, frame path on cores {cores}, "
+        f"logs in {log_dir}",
+        file=out,
+    )
     fleet.start("router", ["router", "--listen", listen])
     time.sleep(0.5)
     for stage in ("calibrator", "pose", "label", "preprocess", "capture"):
-        fleet.start(stage, ["run", stage, "--config", str(cfg_path)])
+        where = ["--cpus", cores] if stage in FRAME_PATH else []
+        fleet.start(stage, ["run", stage, "--config", str(cfg_path), *where])
     from ovis.common.config import ZenohConfig
     from ovis.services.runtime import open_session
 
