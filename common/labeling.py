@@ -208,9 +208,8 @@ _RUN_END = _run_end_table()
 def _trace_borders(contours: tuple[Chain, ...], hierarchy: NDArray[np.int32]) -> Borders:
     """Concatenate the chains of ``cv2.findContours`` and code each point's step.
 
-    Written for few, cheap numpy calls (the per-frame path runs it after the stage has
-    slept, when every distinct numpy function costs tens of µs): chain bounds in plain
-    Python, then one gather for the step from each point to the next of its chain.
+    Written for few numpy calls (the per-frame path runs it after the stage has slept,
+    when every distinct numpy function costs tens of µs): chain bounds in plain Python.
     """
     length_list = [len(c) for c in contours]
     start_list = [0, *itertools.accumulate(length_list)]
@@ -218,9 +217,10 @@ def _trace_borders(contours: tuple[Chain, ...], hierarchy: NDArray[np.int32]) ->
     points = np.concatenate(contours).reshape(total, 2)
     start = np.array(start_list, dtype=np.int64)
     length = np.array(length_list, dtype=np.int64)
-    after = np.arange(1, total + 1)
-    after[start + length - 1] = start  # each chain is closed
-    d = points[after] - points
+    last = start + length - 1
+    d = np.empty_like(points)
+    np.subtract(points[1:], points[:-1], out=d[:-1])
+    d[last] = points[start] - points[last]  # closing step of every chain
     code = step_code(d[:, 0], d[:, 1]).astype(np.int64)
     return Borders(points, start, length, hierarchy[:, 3].astype(np.int64), code)
 
@@ -311,25 +311,37 @@ def _border_sums(b: Borders) -> FloatArray:
     about H·W³/3) for images up to about 10 000 pixels a side, so the sums are exact in
     float64.
     """
-    before = np.arange(-1, b.code.size - 1)
-    before[b.start] = b.start + b.length - 1  # the arriving step of each chain's start
-    kind = _RUN_END[b.code[before] * 9 + b.code]
-    e = kind & 1
-    a = e - (kind >> 1)  # e − s
-    c = e + (kind >> 1)  # e + s
+    arrive = np.empty_like(b.code)
+    arrive[1:] = b.code[:-1]
+    arrive[b.start] = b.code[b.start + b.length - 1]  # arriving step of each chain's start
+    arrive *= 9
+    arrive += b.code
+    kind = _RUN_END[arrive]
+    terms = np.empty((6, kind.size))  # rows: Σ1, Σcol, Σrow, Σcol², Σrow², Σcol·row
+    g0, g1, yg0, g2, yyg0, yg1 = terms
+    e = (kind & 1).astype(np.float64)
+    s = (kind >> 1).astype(np.float64)
     x = b.points[:, 0].astype(np.float64)
     y = b.points[:, 1].astype(np.float64)
-    terms = np.empty((x.size, 6))
-    g0 = a * x + e
-    g1 = (a * x + c) * x * 0.5
-    g2 = (a * (2.0 * x * x + 1.0) + 3.0 * c * x) * x / 6.0
-    terms[:, 0] = g0
-    terms[:, 1] = g1
-    terms[:, 2] = y * g0
-    terms[:, 3] = g2
-    terms[:, 4] = y * y * g0
-    terms[:, 5] = y * g1
-    return np.add.reduceat(terms, b.start, axis=0).T
+    a, c = e - s, e + s
+    np.multiply(a, x, out=g0)
+    np.add(g0, c, out=g1)
+    g1 *= x
+    g1 *= 0.5
+    np.multiply(x, x, out=g2)
+    g2 *= 2.0
+    g2 += 1.0
+    g2 *= a
+    c *= 3.0
+    c *= x
+    g2 += c
+    g2 *= x
+    g2 /= 6.0
+    g0 += e
+    np.multiply(y, g0, out=yg0)
+    np.multiply(y, yg0, out=yyg0)
+    np.multiply(y, g1, out=yg1)
+    return np.add.reduceat(terms, b.start, axis=1)
 
 
 def _boxes(b: Borders, which: IntArray) -> tuple[IntArray, IntArray, IntArray, IntArray]:

@@ -65,7 +65,9 @@ def initial_calibration(
             if reply.ok:
                 return
             service.log.warning("initial calibration failed: %s; retrying", reply.error)
-        service.stop.wait(INITIAL_RETRY_S)
+            service.stop.wait(INITIAL_RETRY_S)
+        else:  # frames, but none with its truth yet (the capture sends it just after)
+            service.stop.wait(0.05)
 
 
 def main(service: Service) -> None:

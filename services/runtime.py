@@ -366,9 +366,19 @@ class Service:
         )
 
         def fetch() -> None:
-            for reply in self.session.get(self.topics.calibration, timeout=2.0):
-                if reply.ok is not None:
-                    accept(reply.ok.payload.to_bytes())
+            # Until a calibration is known: a calibrator not reachable yet (starting, or a
+            # peer still being discovered) answers nothing; one without a calibration
+            # answers nothing until it has one (and then also publishes it).
+            delay = 0.25
+            while not self.stop.is_set() and self.calibration.version == 0:
+                try:
+                    for reply in self.session.get(self.topics.calibration, timeout=2.0):
+                        if reply.ok is not None:
+                            accept(reply.ok.payload.to_bytes())
+                except zenoh.ZError:  # the session is closing
+                    return
+                self.stop.wait(delay)
+                delay = min(2 * delay, 5.0)
 
         threading.Thread(target=fetch, name=f"{self.name}-calibration", daemon=True).start()
 
