@@ -87,7 +87,8 @@ def local_peers(zc: ZenohConfig) -> ZenohConfig:
     Zenoh peers listening on loopback instead of clients. They still join through the
     router, which tells them about each other (gossip), and then send each message
     straight to the next stage: one TCP hop per message instead of two through the
-    router (four stage hops at 30 frames/s: ≈1.4 → ≈1.2 ms p50 here). Tools and
+    router (four hops of this pipeline's message sizes at 30 frames/s, no work: p50
+    ≈1.6–2.0 → ≈1.2–1.4 ms on this project's 2-core VM). Tools and
     subscribers on other machines still reach them through the router. A configuration
     with its own Zenoh file (TLS, access control) or mode is left as it is.
     """
