@@ -293,12 +293,8 @@ class Detector:
         if robot >= 0:  # the robot on its top plane, everything else on the obstacles'
             is_robot[robot] = True
             z[robot] = pose.robot_height_cm
-            j = PixelJacobian(
-                *(
-                    np.concatenate([f[:robot], t[robot : robot + 1], f[robot + 1 :]])
-                    for f, t in zip(floor, top, strict=True)
-                )
-            )
+            pairs = zip(floor, top, strict=True)
+            j = PixelJacobian(*(np.where(is_robot, t, f) for f, t in pairs))
         area_cm2, heading, elongation = world_shape(blobs, j)
         radius = np.sqrt(area_cm2 / np.pi)
         ok = j.valid
