@@ -110,8 +110,9 @@ def pick_cpus(spec: str) -> list[int]:
     Why one core: at camera rates every stage sleeps between frames and each hand-over
     wakes the next one; on the same core it finds numpy's and Zenoh's code still in
     cache and needs no cross-core wake-up. Measured at 640×480, 30 frames/s on this
-    project's 2-core VM: end-to-end p50 ≈3.5–4.0 → ≈2.8–3.2 ms, and still 400 frames/s
-    sustained.
+    project's 2-core VM: end-to-end p50 2.84–3.89 ms in 11 runs on one core, 2.90–3.82
+    ms in 8 runs on any core (minutes apart at a busy hour: 3.48, 4.01 on any core,
+    3.04, 3.13 on one); one core sustains 300 frames/s at 640×480 and 200 at 1080p.
     """
     spec = spec.strip().lower()
     if spec == "none":
