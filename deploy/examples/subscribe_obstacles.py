@@ -44,8 +44,10 @@ not know. Numbers meant as reals are float64, but accept integers there too.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import queue
 import re
 import signal
 import sys
@@ -58,6 +60,8 @@ import zenoh
 __all__ = ["BadMessageError", "client_config", "format_json", "format_text", "main", "parse"]
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+#: Messages waiting to be printed, at most (more are skipped).
+INBOX = 1000
 MESSAGE_TYPE = "obstacles"
 _ARENA = re.compile(r"[A-Za-z0-9_.-]{1,64}")
 _REQUIRED = ("seq", "calibration_version", "robot", "obstacles", "planner")
@@ -164,15 +168,26 @@ def main(
     """
     session = zenoh.open(conf)
     try:
-        subscriber = session.declare_subscriber(key)  # a FIFO channel, read with recv()
+        # Zenoh's thread queues each sample; this (main) thread waits on the queue with a
+        # timeout, so Ctrl-C and SIGTERM are handled at once whatever Zenoh is doing.
+        inbox: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize=INBOX)
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            with contextlib.suppress(queue.Full):  # a printer that cannot keep up skips
+                inbox.put_nowait((str(sample.key_expr), sample.payload.to_bytes()))
+
+        session.declare_subscriber(key, on_sample)
         print(f"subscribed to {key}", file=sys.stderr, flush=True)
         seen = 0
         while count is None or seen < count:
-            sample = subscriber.recv()
             try:
-                msg = parse(sample.payload.to_bytes())
+                where, payload = inbox.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            try:
+                msg = parse(payload)
             except BadMessageError as exc:
-                print(f"skipped a message on {sample.key_expr}: {exc}", file=sys.stderr)
+                print(f"skipped a message on {where}: {exc}", file=sys.stderr)
                 continue
             seen += 1
             out.write((format_json(msg) if as_json else format_text(msg)) + "\n")
