@@ -36,7 +36,7 @@ from ovis.common.config import OvisConfig, ZenohConfig, dump_toml
 from ovis.common.detection import Detector
 from ovis.common.messages import ObstacleFrame, ServiceStatus, Topics, decode
 from ovis.common.sources import SimSource
-from ovis.services.runtime import FRAME_PATH, local_peers, pick_cpus, zenoh_config
+from ovis.services.runtime import cpus_option, local_peers, pick_cpus, zenoh_config
 
 __all__ = ["e2e_rows", "memory_rows"]
 
@@ -188,7 +188,7 @@ class Bench:
     ) -> None:
         self.workdir = workdir
         #: where the frame path runs, as ``ovis up --pin`` places it
-        self.cores = ",".join(map(str, pick_cpus(pin))) or "none"
+        self.cpus = pick_cpus(pin)
         self.port = free_port()
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
         self.config_file = write_config(workdir / "bench.toml", config, self.port, **service)
@@ -214,7 +214,7 @@ class Bench:
 
     def run_args(self, stage: str, *extra: str) -> list[str]:
         """``ovis run STAGE`` as ``ovis up`` starts it (the frame path on its cores)."""
-        where = ["--cpus", self.cores] if stage in FRAME_PATH else []
+        where = cpus_option(stage, self.cpus)
         return ["run", stage, "--config", str(self.config_file), *where, *extra]
 
     def __exit__(self, *_exc) -> None:

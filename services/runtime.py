@@ -42,6 +42,7 @@ __all__ = [
     "Service",
     "ZenohUnreachableError",
     "calibration_from_config",
+    "cpus_option",
     "local_peers",
     "open_session",
     "pick_cpus",
@@ -123,16 +124,26 @@ def pick_cpus(spec: str) -> list[int]:
     try:
         cpus = sorted({int(part) for part in spec.split(",") if part.strip()})
     except ValueError:
+        cpus = []
+    if not cpus:
         raise ValueError(
             f"cores {spec!r}: expected 'auto', 'none' or core numbers such as 1 or 0,2"
-        ) from None
+        )
     missing = [c for c in cpus if c not in allowed]
-    if not cpus or missing:
+    if missing:
         raise ValueError(
-            f"cores {spec!r}: {missing or cpus} not available; this process may "
+            f"cores {spec!r}: {missing} not available; this process may "
             f"use {','.join(map(str, allowed))}"
         )
     return cpus
+
+
+def cpus_option(stage: str, cpus: list[int]) -> list[str]:
+    """The ``ovis run STAGE`` arguments that put ``stage`` where ``ovis up`` puts it: on
+    ``cpus`` if it is on the frame path (:data:`FRAME_PATH`; [] → "none"), else nothing."""
+    if stage not in FRAME_PATH:
+        return []
+    return ["--cpus", ",".join(map(str, cpus)) or "none"]
 
 
 def pin_to_cpus(cpus: list[int], log: logging.Logger) -> bool:
@@ -141,8 +152,8 @@ def pin_to_cpus(cpus: list[int], log: logging.Logger) -> bool:
     if not cpus:
         return False
     try:
-        os.sched_setaffinity(0, cpus)
-        # Threads started at import (OpenBLAS's pool) do not inherit it: pin them too.
+        # Every thread, also those started at import (OpenBLAS's pool), which would not
+        # inherit it; threads started later do.
         for tid in os.listdir("/proc/self/task"):
             with contextlib.suppress(ProcessLookupError):
                 os.sched_setaffinity(int(tid), cpus)

@@ -13,7 +13,13 @@ import pytest
 from zenoh_helpers import free_port, ovis_cmd
 
 from ovis.common.config import ZenohConfig, config_from_dict
-from ovis.services.runtime import LOOPBACK_PEER, local_peers, pick_cpus, pin_to_cpus
+from ovis.services.runtime import (
+    LOOPBACK_PEER,
+    cpus_option,
+    local_peers,
+    pick_cpus,
+    pin_to_cpus,
+)
 
 ALLOWED = sorted(os.sched_getaffinity(0))
 
@@ -39,8 +45,11 @@ def test_pick_cpus() -> None:
         pick_cpus("fast")
     with pytest.raises(ValueError, match="not available"):
         pick_cpus(str(max(ALLOWED) + 1))
-    with pytest.raises(ValueError, match="not available"):
+    with pytest.raises(ValueError, match="expected 'auto', 'none' or core numbers"):
         pick_cpus(",")
+    assert cpus_option("label", [1]) == ["--cpus", "1"]
+    assert cpus_option("pose", []) == ["--cpus", "none"]
+    assert cpus_option("calibrator", [1]) == []
 
 
 def test_config_refuses_bad_core_numbers() -> None:

@@ -212,11 +212,11 @@ def up(
         config, connect=[listen], arena=arena, source=source, fps=fps, state_dir=state_dir
     )
     topics = _topics(cfg)
-    cores = ",".join(map(str, _cpus(pin) or [])) or "none"
+    cpus = _cpus(pin) or []
     log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-"))
     cfg_path = log_dir / "config.toml"
     from ovis.common.config import dump_toml
-    from ovis.services.runtime import FRAME_PATH, local_peers
+    from ovis.services.runtime import cpus_option, local_peers
 
     # The services share the router's machine: they talk to each other directly.
     services_cfg = msgspec.structs.replace(cfg, zenoh=local_peers(cfg.zenoh))
@@ -229,15 +229,15 @@ def up(
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     out = sys.stderr if json else sys.stdout
     print(
-        f"ovis up: arena {topics.arena}, router {listen}, frame path on cores {cores}, "
+        f"ovis up: arena {topics.arena}, router {listen}, frame path on cores "
+        f"{','.join(map(str, cpus)) or 'any'}, "
         f"logs in {log_dir}",
         file=out,
     )
     fleet.start("router", ["router", "--listen", listen])
     time.sleep(0.5)
     for stage in ("calibrator", "pose", "label", "preprocess", "capture"):
-        where = ["--cpus", cores] if stage in FRAME_PATH else []
-        fleet.start(stage, ["run", stage, "--config", str(cfg_path), *where])
+        fleet.start(stage, ["run", stage, "--config", str(cfg_path), *cpus_option(stage, cpus)])
     from ovis.common.config import ZenohConfig
     from ovis.services.runtime import open_session
 
