@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import collections
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import msgspec
@@ -36,38 +37,27 @@ from ovis.common.simulator import control_points
 from ovis.services.runtime import Inbox, Service
 
 KEEP_FRAMES = 64
-
-
 INITIAL_RETRY_S = 2.0
+TRUTH_WAIT_S = 1.0  # how long a named frame's ground truth may trail the frame
 
 
 def initial_calibration(
     service: Service,
-    frames: collections.OrderedDict[int, bytes],
-    truths: collections.OrderedDict[int, TruthFrame],
-    lock: threading.Lock,
     first_frame: threading.Event,
-    run_calibration,
-    *,
-    needs_truth: bool,
+    run_calibration: Callable[[CalibrateRequest], CalibrateReply],
 ) -> None:
     """Calibrate on the newest usable frame once frames flow, retrying every
-    ``INITIAL_RETRY_S`` until it works (a frame may come before its ground truth, or a
-    scene may be infeasible for a while); queries are served meanwhile only after."""
+    ``INITIAL_RETRY_S`` until it works (a scene may be infeasible for a while); queries
+    are served only after."""
     service.log.info("no saved calibration: calibrating on the first usable frame")
     while not service.stop.is_set():
         if not first_frame.wait(0.2):
             continue
-        with lock:
-            usable = [s for s in frames if not needs_truth or s in truths]
-        if usable:
-            reply = run_calibration(CalibrateRequest(frame_seq=usable[-1]))
-            if reply.ok:
-                return
-            service.log.warning("initial calibration failed: %s; retrying", reply.error)
-            service.stop.wait(INITIAL_RETRY_S)
-        else:  # frames, but none with its truth yet (the capture sends it just after)
-            service.stop.wait(0.05)
+        reply = run_calibration(CalibrateRequest())
+        if reply.ok:
+            return
+        service.log.warning("initial calibration failed: %s; retrying", reply.error)
+        service.stop.wait(INITIAL_RETRY_S)
 
 
 def main(service: Service) -> None:
@@ -85,14 +75,24 @@ def main(service: Service) -> None:
 
     frames: collections.OrderedDict[int, bytes] = collections.OrderedDict()  # raw payloads
     truths: collections.OrderedDict[int, TruthFrame] = collections.OrderedDict()
-    lock = threading.Lock()
+    lock = threading.Condition()  # guards frames and truths; notified when either grows
     first_frame = threading.Event()
+    needs_truth = file_points is None
 
     def keep(store_: collections.OrderedDict, seq: int, item: Any) -> None:
         with lock:
             store_[seq] = item
             while len(store_) > KEEP_FRAMES:
                 store_.popitem(last=False)
+            lock.notify_all()
+
+    def newest_usable() -> int:
+        """The newest frame with its control points: the capture publishes a frame just
+        before its ground truth, so the very newest may not have it yet."""
+        for seq in reversed(frames):
+            if not needs_truth or seq in truths:
+                return seq
+        return next(reversed(frames))
 
     def on_frame(sample: zenoh.Sample) -> None:
         # Only the header is decoded here (cheap); the image when a calibration needs it.
@@ -129,7 +129,9 @@ def main(service: Service) -> None:
         with lock:
             if not frames:
                 return CalibrateReply(ok=False, error="no frame received yet from capture")
-            seq = request.frame_seq if request.frame_seq is not None else next(reversed(frames))
+            seq = request.frame_seq if request.frame_seq is not None else newest_usable()
+            if needs_truth:  # its truth may still be on its way
+                lock.wait_for(lambda: seq in truths or seq not in frames, TRUTH_WAIT_S)
             payload = frames.get(seq)
             truth = truths.get(seq)
         if payload is None:
@@ -214,15 +216,7 @@ def main(service: Service) -> None:
 
     service.state = "ok" if service.calibration.version > 0 else "no calibration"
     if saved is None and cfg.service.auto_calibrate:
-        initial_calibration(
-            service,
-            frames,
-            truths,
-            lock,
-            first_frame,
-            run_calibration,
-            needs_truth=file_points is None,
-        )
+        initial_calibration(service, first_frame, run_calibration)
     while not service.stop.is_set():
         query = queries.get(timeout=0.2)
         if query is None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -24,6 +25,7 @@ from ovis.common.messages import (
     BlobList,
     BlobMeasure,
     CalibrateReply,
+    CalibrateRequest,
     Frame,
     ServiceStatus,
     Topics,
@@ -31,6 +33,7 @@ from ovis.common.messages import (
     decode,
     encode,
 )
+from ovis.common.simulator import Arena
 from ovis.services.cli.watching import collect_status
 
 PAPER_DIPE_MM = 0.735214
@@ -243,3 +246,66 @@ def test_capture_with_a_missing_camera_keeps_retrying(tmp_path: Path) -> None:
     finally:
         stop([capture, router])
     assert "Traceback" not in (tmp_path / "capture.log").read_text()
+
+
+def test_calibrator_waits_for_the_truth_that_trails_its_frame(tmp_path: Path) -> None:
+    """The capture publishes each frame just before its ground truth: a query names
+    the newest frame with its truth, and a frame named before its truth arrives is
+    calibrated once the truth follows (a CI run once saw "no control points")."""
+    config = tmp_path / "config.toml"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config.write_text(
+        f'preset = "default"\n[service]\nauto_calibrate = false\nstate_dir = "{tmp_path}"\n'
+        f'[zenoh]\nconnect = ["{endpoint}"]\n'
+    )
+    router = spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")
+    calibrator = spawn(
+        ovis_cmd("run", "calibrator", "--config", str(config)), tmp_path / "calibrator.log"
+    )
+    topics = Topics("default")
+    shots = list(Arena(load_config(config), seed=5).frames(3))
+    small = encode(CalibrateRequest(seed=1, population=40, generations=20))
+
+    def publish(session: zenoh.Session, seq: int, what: str) -> None:
+        image, truth = shots[seq]
+        if what == "frame":
+            msg = encode(Frame.from_image(image, seq=seq, stamp_ns=time.time_ns()))
+            session.put(topics.frames, msg)
+        else:
+            session.put(topics.truth, encode(TruthFrame(seq=seq, objects=truth.objects)))
+
+    def calibrate(session: zenoh.Session, payload: bytes) -> CalibrateReply:
+        replies = list(session.get(topics.calibrate, payload=payload, timeout=60))
+        assert len(replies) == 1 and replies[0].ok is not None
+        return decode(replies[0].ok.payload.to_bytes(), CalibrateReply)
+
+    try:
+        with client(endpoint) as session:
+            wait_for(lambda: "calibrator" in alive(session), 30, "the calibrator alive")
+            publish(session, 0, "frame")
+            publish(session, 0, "truth")
+            publish(session, 1, "frame")  # its truth not (yet) sent
+            time.sleep(0.3)
+            reply = calibrate(session, small)
+            assert reply.ok, reply.error
+            assert reply.frame_seq == 0  # the newest frame with control points
+            # Frame 2 named while its truth is still on its way: the truth comes 0.3 s later.
+            publish(session, 2, "frame")
+            time.sleep(0.1)
+            late = threading.Timer(0.3, publish, (session, 2, "truth"))
+            late.start()
+            payload = encode(CalibrateRequest(frame_seq=2, seed=1, population=40, generations=20))
+            reply = calibrate(session, payload)
+            late.join()
+            assert reply.ok, reply.error
+            assert reply.frame_seq == 2 and reply.version == 2
+            # A frame whose truth never comes: a clear error after the wait, not a hang.
+            t0 = time.monotonic()
+            payload = encode(CalibrateRequest(frame_seq=1, seed=1, population=40, generations=20))
+            reply = calibrate(session, payload)
+            assert not reply.ok and "no control points" in reply.error
+            assert time.monotonic() - t0 < 5
+            assert calibrator.poll() is None
+    finally:
+        stop([calibrator, router])
+    assert "Traceback" not in (tmp_path / "calibrator.log").read_text()
