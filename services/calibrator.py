@@ -151,8 +151,9 @@ def main(service: Service) -> None:
             return CalibrateReply(
                 ok=False,
                 frame_seq=seq,
-                error="no control points: set service.points to a points file "
-                "(the simulator's ground truth is only there for simulated frames)",
+                error=f"no control points: no ground truth for frame {seq} within "
+                f"{TRUTH_WAIT_S:g} s (the simulator sends it); for a real camera set "
+                "service.points to a points file",
             )
         ga = msgspec.structs.replace(
             cfg.ga,

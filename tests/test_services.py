@@ -264,7 +264,6 @@ def test_calibrator_waits_for_the_truth_that_trails_its_frame(tmp_path: Path) ->
     )
     topics = Topics("default")
     shots = list(Arena(load_config(config), seed=5).frames(3))
-    small = encode(CalibrateRequest(seed=1, population=40, generations=20))
 
     def publish(session: zenoh.Session, seq: int, what: str) -> None:
         image, truth = shots[seq]
@@ -274,8 +273,9 @@ def test_calibrator_waits_for_the_truth_that_trails_its_frame(tmp_path: Path) ->
         else:
             session.put(topics.truth, encode(TruthFrame(seq=seq, objects=truth.objects)))
 
-    def calibrate(session: zenoh.Session, payload: bytes) -> CalibrateReply:
-        replies = list(session.get(topics.calibrate, payload=payload, timeout=60))
+    def calibrate(session: zenoh.Session, seq: int | None = None) -> CalibrateReply:
+        small = CalibrateRequest(frame_seq=seq, seed=1, population=40, generations=20)
+        replies = list(session.get(topics.calibrate, payload=encode(small), timeout=60))
         assert len(replies) == 1 and replies[0].ok is not None
         return decode(replies[0].ok.payload.to_bytes(), CalibrateReply)
 
@@ -286,7 +286,7 @@ def test_calibrator_waits_for_the_truth_that_trails_its_frame(tmp_path: Path) ->
             publish(session, 0, "truth")
             publish(session, 1, "frame")  # its truth not (yet) sent
             time.sleep(0.3)
-            reply = calibrate(session, small)
+            reply = calibrate(session)
             assert reply.ok, reply.error
             assert reply.frame_seq == 0  # the newest frame with control points
             # Frame 2 named while its truth is still on its way: the truth comes 0.3 s later.
@@ -294,15 +294,13 @@ def test_calibrator_waits_for_the_truth_that_trails_its_frame(tmp_path: Path) ->
             time.sleep(0.1)
             late = threading.Timer(0.3, publish, (session, 2, "truth"))
             late.start()
-            payload = encode(CalibrateRequest(frame_seq=2, seed=1, population=40, generations=20))
-            reply = calibrate(session, payload)
+            reply = calibrate(session, 2)
             late.join()
             assert reply.ok, reply.error
             assert reply.frame_seq == 2 and reply.version == 2
             # A frame whose truth never comes: a clear error after the wait, not a hang.
             t0 = time.monotonic()
-            payload = encode(CalibrateRequest(frame_seq=1, seed=1, population=40, generations=20))
-            reply = calibrate(session, payload)
+            reply = calibrate(session, 1)
             assert not reply.ok and "no control points" in reply.error
             assert time.monotonic() - t0 < 5
             assert calibrator.poll() is None
