@@ -9,7 +9,7 @@ process is the subscriber, a Zenoh client of the router that decodes every
 the capture stamp. The capture replays pre-rendered frames (``service.prerender``) so
 the renderer is not the bottleneck; it is restarted for each frame rate while the other
 stages keep running. A frame counts as published when its ground-truth message (sent
-by the capture just before the frame) arrives here, and as dropped when its obstacles
+by the capture just after the frame) arrives here, and as dropped when its obstacles
 never do.
 """
 

@@ -291,7 +291,7 @@ class TruthFrame(_Msg, tag="truth", kw_only=True):
 class CalibrateRequest(_Msg, tag="calibrate", kw_only=True):
     """Query payload of ``ovis/<arena>/calibrate``; every field is optional."""
 
-    frame_seq: Seq | None = None  # default: the latest frame
+    frame_seq: Seq | None = None  # default: the latest frame (simulated: with its truth)
     seed: Seq | None = None
     population: Annotated[int, msgspec.Meta(ge=2, le=10000)] | None = None
     generations: Annotated[int, msgspec.Meta(ge=1, le=10000)] | None = None

@@ -2,10 +2,12 @@
 
 A query runs the GA (paper §4) on the latest frame, or on the frame named in the query,
 with the configured control points (a points file, or for the simulated arena the
-frame's ground truth); the result is saved atomically as a new version, published on
-``ovis/<arena>/calibration`` (the other services switch to it without restarting) and
-returned in the reply. ``ovis/<arena>/calibration`` is also a queryable returning the
-current calibration, so late starters pick it up.
+frame's ground truth, which the capture sends just after the frame: the latest frame
+that has it, and a named frame's is waited for up to ``TRUTH_WAIT_S``); the result is
+saved atomically as a new version, published on ``ovis/<arena>/calibration`` (the other
+services switch to it without restarting) and returned in the reply.
+``ovis/<arena>/calibration`` is also a queryable returning the current calibration, so
+late starters pick it up.
 """
 
 from __future__ import annotations

@@ -230,8 +230,7 @@ def up(
     out = sys.stderr if json else sys.stdout
     print(
         f"ovis up: arena {topics.arena}, router {listen}, frame path on cores "
-        f"{','.join(map(str, cpus)) or 'any'}, "
-        f"logs in {log_dir}",
+        f"{','.join(map(str, cpus)) or 'any'}, logs in {log_dir}",
         file=out,
     )
     fleet.start("router", ["router", "--listen", listen])
