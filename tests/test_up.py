@@ -4,6 +4,7 @@ and a clean shutdown with no orphans."""
 from __future__ import annotations
 
 import json
+import re
 import signal
 import time
 from pathlib import Path
@@ -44,6 +45,9 @@ def test_up_runs_the_pipeline_and_summarises(tmp_path: Path) -> None:
     assert [e.distance_cm for e in m.planner] == pytest.approx(expected.distance_cm.tolist())
     summary = json.loads(out)
     assert summary["frames_processed"] >= 40 and summary["frames_captured"] >= 40
+    # The capture starts once every other stage is up: no frame is captured and missed
+    # (at most the ones in flight when it stops).
+    assert summary["frames_captured"] - summary["frames_processed"] <= 2
     assert summary["objects_missed"] == 0 and summary["position_error_cm_max"] < 1.0
     assert summary["latency_ms_p50"] > 0 and summary["calibration_version"] >= 1
     assert set(summary["exit_codes"]) == {
@@ -56,6 +60,13 @@ def test_up_runs_the_pipeline_and_summarises(tmp_path: Path) -> None:
     }
     log_dir = up_log_dir(err)
     assert pids_with(log_dir) == []  # no orphans
+    started = {
+        stage: re.search(
+            r"^(\S+ \S+) \S+ INFO started", (Path(log_dir) / f"{stage}.log").read_text(), re.M
+        )[1]
+        for stage in ("capture", "preprocess", "label", "pose", "calibrator")
+    }
+    assert all(started["capture"] >= t for t in started.values()), started
 
 
 def test_up_stops_cleanly_on_sigterm(tmp_path: Path) -> None:

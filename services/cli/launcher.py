@@ -20,6 +20,8 @@ __all__ = ["register"]
 
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+#: `ovis up` starts the capture once the other stages are alive, or after this long.
+STARTUP_S = 30.0
 
 ConfigOpt = Annotated[
     Path | None,
@@ -235,9 +237,15 @@ def up(
     )
     fleet.start("router", ["router", "--listen", listen])
     time.sleep(0.5)
-    for stage in ("calibrator", "pose", "label", "preprocess", "capture"):
+
+    def start(stage: str) -> None:
         fleet.start(stage, ["run", stage, "--config", str(cfg_path), *cpus_option(stage, cpus)])
+
+    downstream = ("calibrator", "pose", "label", "preprocess")
+    for stage in downstream:
+        start(stage)
     from ovis.common.config import ZenohConfig
+    from ovis.services.cli.watching import alive_services
     from ovis.services.runtime import open_session
 
     view = LiveView(topics, cfg)
@@ -245,6 +253,14 @@ def up(
     try:
         with open_session(ZenohConfig(connect=[listen])) as session:
             view.attach(session)
+            # Frames only once every stage listens: none is captured and then missed.
+            deadline = time.monotonic() + STARTUP_S
+            while not stop.is_set() and time.monotonic() < deadline:
+                fleet.supervise()
+                if set(downstream) <= alive_services(session, topics, timeout=0.5):
+                    break
+                stop.wait(0.1)
+            start("capture")
             view.run(
                 stop,
                 until=(started + duration) if duration is not None else None,

@@ -64,14 +64,20 @@ class ServiceReport(msgspec.Struct):
     status: ServiceStatus | None = None
 
 
-def collect_status(
-    session: zenoh.Session, topics: Topics, timeout: float = 1.5
-) -> list[ServiceReport]:
-    """Liveliness tokens and status replies of every service of the arena."""
+def alive_services(session: zenoh.Session, topics: Topics, timeout: float = 1.5) -> set[str]:
+    """The services of the arena whose liveliness token is up."""
     alive = set()
     for reply in session.liveliness().get(topics.alive_all, timeout=timeout):
         if reply.ok is not None:
             alive.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+    return alive
+
+
+def collect_status(
+    session: zenoh.Session, topics: Topics, timeout: float = 1.5
+) -> list[ServiceReport]:
+    """Liveliness tokens and status replies of every service of the arena."""
+    alive = alive_services(session, topics, timeout)
     statuses: dict[str, ServiceStatus] = {}
     for reply in session.get(topics.status_all, timeout=timeout):
         if reply.ok is None:
