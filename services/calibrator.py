@@ -43,6 +43,19 @@ INITIAL_RETRY_S = 2.0
 TRUTH_WAIT_S = 1.0  # how long a named frame's ground truth may trail the frame
 
 
+def missing_frame(seq: int, kept: tuple[int, int] | None) -> str:
+    """Why frame ``seq`` cannot be calibrated on: too old, or never received."""
+    if kept is None:
+        return f"frame {seq} is not here: no frame received"
+    first, last = kept
+    if seq < first:
+        return f"frame {seq} is gone: the calibrator keeps the last {KEEP_FRAMES} ({first}–{last})"
+    return (
+        f"frame {seq} never reached the calibrator (it has {first}–{last}; a frame the bus "
+        "dropped, or a number from another run); ask without a frame for the newest"
+    )
+
+
 def initial_calibration(
     service: Service,
     first_frame: threading.Event,
@@ -136,10 +149,9 @@ def main(service: Service) -> None:
                 lock.wait_for(lambda: seq in truths or seq not in frames, TRUTH_WAIT_S)
             payload = frames.get(seq)
             truth = truths.get(seq)
+            kept = (next(iter(frames)), next(reversed(frames))) if frames else None
         if payload is None:
-            return CalibrateReply(
-                ok=False, frame_seq=seq, error=f"frame {seq} is not among the last {KEEP_FRAMES}"
-            )
+            return CalibrateReply(ok=False, frame_seq=seq, error=missing_frame(seq, kept))
         frame = service.decode(payload, Frame, "frame")
         if frame is None:
             return CalibrateReply(
@@ -218,6 +230,7 @@ def main(service: Service) -> None:
         query.reply(service.topics.calibrate, encode(reply), encoding=zenoh.Encoding(ENCODING))
 
     service.state = "ok" if service.calibration.version > 0 else "no calibration"
+    service.ready()
     if saved is None and cfg.service.auto_calibrate:
         initial_calibration(service, first_frame, run_calibration)
     while not service.stop.is_set():

@@ -21,6 +21,7 @@ def main(service: Service) -> None:
     source: FrameSource | None = None
     seq = 0
     next_t = time.monotonic()
+    service.ready()
     try:
         while not service.stop.is_set():
             if source is None:

@@ -271,7 +271,7 @@ class Service:
         self._lock = threading.Lock()
         self.calibration: Calibration = calibration_from_config(config)
         self._calibration_listeners: list[Callable[[Calibration], None]] = []
-        self._token = session.liveliness().declare_token(self.topics.alive(name))
+        self._token: zenoh.LivelinessToken | None = None  # declared by ready()
         self._status_q = session.declare_queryable(self.topics.status(name), self._on_status)
 
     # --- inputs -------------------------------------------------------------------
@@ -434,6 +434,15 @@ class Service:
             self.log.warning("status reply failed: %s", exc)
 
     # --- main loop ----------------------------------------------------------------
+    def ready(self) -> None:
+        """Declare the liveliness token ``ovis/<arena>/alive/<name>``: call it once the
+        stage listens to its inputs, so that whoever waits for it to be alive (``ovis
+        up`` before it starts the capture, tests before they publish) loses nothing.
+        Zenoh sends a session's declarations in order, so a peer that sees the token
+        has seen the subscribers declared before it."""
+        if self._token is None:
+            self._token = self.session.liveliness().declare_token(self.topics.alive(self.name))
+
     def serve(self, inbox: Inbox, handle: Callable[[bytes, int], None]) -> None:
         """Run ``handle(payload, receipt_ns)`` on the newest input until stopped; an
         exception in ``handle`` is counted and logged, and the loop goes on.
@@ -443,6 +452,7 @@ class Service:
         the older ones are dropped (counted) instead of queueing up in the network
         stack, and what is processed is always the newest."""
         self.state = "waiting for input"
+        self.ready()
         while not self.stop.is_set():
             item = inbox.get(timeout=0.2)
             if item is None:
