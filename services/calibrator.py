@@ -43,11 +43,8 @@ INITIAL_RETRY_S = 2.0
 TRUTH_WAIT_S = 1.0  # how long a named frame's ground truth may trail the frame
 
 
-def missing_frame(seq: int, kept: tuple[int, int] | None) -> str:
-    """Why frame ``seq`` cannot be calibrated on: too old, or never received."""
-    if kept is None:
-        return f"frame {seq} is not here: no frame received"
-    first, last = kept
+def missing_frame(seq: int, first: int, last: int) -> str:
+    """Why frame ``seq`` is not among the kept frames ``first``..``last``."""
     if seq < first:
         return f"frame {seq} is gone: the calibrator keeps the last {KEEP_FRAMES} ({first}–{last})"
     return (
@@ -149,9 +146,9 @@ def main(service: Service) -> None:
                 lock.wait_for(lambda: seq in truths or seq not in frames, TRUTH_WAIT_S)
             payload = frames.get(seq)
             truth = truths.get(seq)
-            kept = (next(iter(frames)), next(reversed(frames))) if frames else None
+            kept = next(iter(frames)), next(reversed(frames))
         if payload is None:
-            return CalibrateReply(ok=False, frame_seq=seq, error=missing_frame(seq, kept))
+            return CalibrateReply(ok=False, frame_seq=seq, error=missing_frame(seq, *kept))
         frame = service.decode(payload, Frame, "frame")
         if frame is None:
             return CalibrateReply(

@@ -267,13 +267,13 @@ def test_calibrator_waits_for_the_truth_that_trails_its_frame(tmp_path: Path) ->
 
     def publish(session: zenoh.Session, seq: int, what: str) -> None:
         image, truth = shots[seq]
-        if what == "frame":
-            msg = encode(Frame.from_image(image, seq=seq, stamp_ns=time.time_ns()))
-        else:
-            msg = encode(TruthFrame(seq=seq, objects=truth.objects))
+        topic, msg = (
+            (topics.frames, Frame.from_image(image, seq=seq, stamp_ns=time.time_ns()))
+            if what == "frame"
+            else (topics.truth, TruthFrame(seq=seq, objects=truth.objects))
+        )
         # BLOCK: back-to-back 300 KB frames are not dropped at the source for lack of room.
-        topic = topics.frames if what == "frame" else topics.truth
-        session.put(topic, msg, congestion_control=zenoh.CongestionControl.BLOCK)
+        session.put(topic, encode(msg), congestion_control=zenoh.CongestionControl.BLOCK)
 
     def calibrate(session: zenoh.Session, seq: int | None = None) -> CalibrateReply:
         small = CalibrateRequest(frame_seq=seq, seed=1, population=40, generations=20)
