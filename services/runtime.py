@@ -442,6 +442,7 @@ class Service:
         has seen the subscribers declared before it."""
         if self._token is None:
             self._token = self.session.liveliness().declare_token(self.topics.alive(self.name))
+            self.log.info("listening: alive on %s", self.topics.alive(self.name))
 
     def serve(self, inbox: Inbox, handle: Callable[[bytes, int], None]) -> None:
         """Run ``handle(payload, receipt_ns)`` on the newest input until stopped; an

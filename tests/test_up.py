@@ -60,13 +60,16 @@ def test_up_runs_the_pipeline_and_summarises(tmp_path: Path) -> None:
     }
     log_dir = up_log_dir(err)
     assert pids_with(log_dir) == []  # no orphans
-    started = {
-        stage: re.search(
-            r"^(\S+ \S+) \S+ INFO started", (Path(log_dir) / f"{stage}.log").read_text(), re.M
-        )[1]
-        for stage in ("capture", "preprocess", "label", "pose", "calibrator")
-    }
-    assert all(started["capture"] >= t for t in started.values()), started
+
+    def logged(stage: str, what: str) -> str:
+        """When ``stage`` logged ``what`` (its log's timestamp, which sorts as text)."""
+        text = (Path(log_dir) / f"{stage}.log").read_text()
+        return re.search(rf"^(\S+ \S+) \S+ INFO {what}", text, re.M)[1]
+
+    # The capture starts only once every other stage listens to its inputs.
+    capture = logged("capture", "started")
+    listening = {s: logged(s, "listening") for s in ("preprocess", "label", "pose", "calibrator")}
+    assert all(capture >= t for t in listening.values()), (capture, listening)
 
 
 def test_up_stops_cleanly_on_sigterm(tmp_path: Path) -> None:

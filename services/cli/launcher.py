@@ -255,12 +255,21 @@ def up(
             view.attach(session)
             # Frames only once every stage listens: none is captured and then missed.
             deadline = time.monotonic() + STARTUP_S
+            waiting = set(downstream)
             while not stop.is_set() and time.monotonic() < deadline:
                 fleet.supervise()
-                if set(downstream) <= alive_services(session, topics, timeout=0.5):
+                waiting = set(downstream) - alive_services(session, topics, timeout=0.5)
+                if not waiting:
                     break
                 stop.wait(0.1)
-            start("capture")
+            if waiting and not stop.is_set():
+                print(
+                    f"ovis up: {', '.join(sorted(waiting))} not listening after {STARTUP_S:g} s; "
+                    f"starting the capture anyway (see their logs in {log_dir})",
+                    file=sys.stderr,
+                )
+            if not stop.is_set():
+                start("capture")
             view.run(
                 stop,
                 until=(started + duration) if duration is not None else None,
