@@ -32,10 +32,10 @@ import numpy as np
 import zenoh
 
 from benchmarks.core import Row, Stats, ratio, scaled_config, size_label, stats
+from ovis.common.capture.sources import SimSource
 from ovis.common.config import OvisConfig, ZenohConfig, dump_toml
-from ovis.common.detection import Detector
 from ovis.common.messages import ObstacleFrame, ServiceStatus, Topics, decode
-from ovis.common.sources import SimSource
+from ovis.common.world.detection import Detector
 from ovis.services.runtime import cpus_option, local_peers, pick_cpus, zenoh_config
 
 __all__ = ["e2e_rows", "memory_rows"]

@@ -16,11 +16,11 @@ import msgspec
 import numpy as np
 
 from benchmarks.core import Row
-from ovis.common.calibration import INFEASIBLE, CalibrationProblem, calibrate
+from ovis.common.calibration.ga import GAResult, run_ga
+from ovis.common.calibration.problem import INFEASIBLE, CalibrationProblem, calibrate
 from ovis.common.config import OvisConfig, load_config
-from ovis.common.ga import GAResult, run_ga
-from ovis.common.preprocess import as_gray, smooth
-from ovis.common.simulator import Arena, control_points
+from ovis.common.sim.arena import Arena, control_points
+from ovis.common.vision.preprocess import as_gray, smooth
 
 __all__ = ["calibration_rows"]
 

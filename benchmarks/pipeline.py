@@ -27,8 +27,8 @@ from numpy.typing import NDArray
 
 from benchmarks.core import SIZES, Row, Stats, ratio, scaled_config, size_label, stats
 from ovis.common.config import OvisConfig
-from ovis.common.detection import Detector
-from ovis.common.simulator import Arena
+from ovis.common.sim.arena import Arena
+from ovis.common.world.detection import Detector
 
 __all__ = ["PipelineResult", "measure_pipeline", "pipeline_rows", "scaling_rows"]
 

@@ -13,8 +13,8 @@ import msgspec
 
 from benchmarks.core import scaled_config
 from benchmarks.pipeline import SCALING_SIZE_FILTER_CM2, disk_centres, scene_with_disks
-from ovis.common.detection import Detector
-from ovis.common.simulator import Arena
+from ovis.common.sim.arena import Arena
+from ovis.common.world.detection import Detector
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -91,7 +91,7 @@ class CameraParams(
     Lengths of the set-up are in cm, of the image plane in mm; ``c_x``/``c_y`` are the row
     and column of the image centre (the paper's x_f is the row). ``Z0_cm, lam_mm, k1, k2,
     k3, s_x, s_y`` are the calibrated ones; the rest are fixed constants of the set-up.
-    Functions of :mod:`ovis.common.camera` also accept instances whose calibrated fields
+    Functions of :mod:`ovis.common.camera.paper_model` also accept instances whose calibrated fields
     hold numpy arrays (a GA population). ``model = "paper"`` is the tag that tells it
     from :class:`PinholeParams` in a configuration or calibration file.
     """
@@ -136,10 +136,10 @@ class PinholeParams(
     world → camera convention; ``rvec`` is a Rodrigues vector in radians, so the
     camera centre is ``−Rᵀ·tvec_cm``). Distortion coefficients are in OpenCV's order
     ``(k1, k2, p1, p2, k3)``. A negative focal length mirrors the image (the paper
-    model's equivalent pinhole has one, see :mod:`ovis.common.camera_export`).
+    model's equivalent pinhole has one, see :mod:`ovis.common.camera.export`).
     ``pixel_pitch_mm`` only converts pixel errors to millimetres on the image plane
     (the paper's DIPE unit); it plays no part in the projection. Functions of
-    :mod:`ovis.common.pinhole` also accept instances whose fields hold numpy arrays (a
+    :mod:`ovis.common.camera.pinhole` also accept instances whose fields hold numpy arrays (a
     GA population).
     """
 
@@ -296,7 +296,7 @@ class GAConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     seed: Annotated[int, msgspec.Meta(ge=0)] = 0
     coding: Literal["binary", "gray"] = "gray"
     #: after the GA, polish the continuous camera parameters by bounded least squares
-    #: (:mod:`ovis.common.refine`; beyond the paper). False here and in the ``paper``
+    #: (:mod:`ovis.common.calibration.refine`; beyond the paper). False here and in the ``paper``
     #: preset (the paper's method); the ``default`` preset turns it on.
     polish: bool = False
 

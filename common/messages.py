@@ -17,10 +17,10 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
-from ovis.common.calibration_file import Calibration
-from ovis.common.detection import Blobs, DetectedObject, PlannerEntry
-from ovis.common.projection import PixelJacobian
-from ovis.common.simulator import SimObject
+from ovis.common.calibration.file import Calibration
+from ovis.common.camera.projection import PixelJacobian
+from ovis.common.sim.arena import SimObject
+from ovis.common.world.detection import Blobs, DetectedObject, PlannerEntry
 
 __all__ = [
     "ENCODING",
@@ -163,7 +163,7 @@ class BinaryFrame(_Msg, tag="binary", kw_only=True):
 
 class BlobMeasure(msgspec.Struct):
     """One size-filtered blob: image measurements (pixels) and shape (the fields of
-    :class:`~ovis.common.detection.Blobs`)."""
+    :class:`~ovis.common.world.detection.Blobs`)."""
 
     row: Finite
     col: Finite
@@ -180,7 +180,7 @@ Column = Annotated[list[Finite], msgspec.Meta(max_length=100000)]
 
 class PlaneMap(msgspec.Struct):
     """The pixel → plane map at each blob's centroid, column by column (the fields of
-    :class:`~ovis.common.projection.PixelJacobian`: the point in cm, cm per pixel step,
+    :class:`~ovis.common.camera.projection.PixelJacobian`: the point in cm, cm per pixel step,
     and whether the pixel sees the plane)."""
 
     x_cm: Column
@@ -236,7 +236,7 @@ class BlobList(_Msg, tag="blobs", kw_only=True):
 
     @staticmethod
     def measures(blobs: Blobs) -> list[BlobMeasure]:
-        """One :class:`BlobMeasure` per blob of a :class:`~ovis.common.detection.Blobs`."""
+        """One :class:`BlobMeasure` per blob of a :class:`~ovis.common.world.detection.Blobs`."""
         names = BlobMeasure.__struct_fields__  # positional, in field order: fast for many
         return list(map(BlobMeasure, *(getattr(blobs, f).tolist() for f in names)))
 

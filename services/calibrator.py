@@ -20,8 +20,9 @@ from typing import Any
 import msgspec
 import zenoh
 
-from ovis.common.calibration import InfeasibleCalibrationError, calibrate
-from ovis.common.calibration_store import CalibrationStore
+from ovis.common.calibration.problem import InfeasibleCalibrationError, calibrate
+from ovis.common.calibration.store import CalibrationStore
+from ovis.common.camera.projection import camera_parameters
 from ovis.common.config import ControlPoint, load_points
 from ovis.common.messages import (
     ENCODING,
@@ -33,9 +34,8 @@ from ovis.common.messages import (
     TruthFrame,
     encode,
 )
-from ovis.common.preprocess import ImageError
-from ovis.common.projection import camera_parameters
-from ovis.common.simulator import control_points
+from ovis.common.sim.arena import control_points
+from ovis.common.vision.preprocess import ImageError
 from ovis.services.runtime import Inbox, Service
 
 KEEP_FRAMES = 64

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import time
 
+from ovis.common.capture.sources import FrameSource, SourceError, open_source
 from ovis.common.messages import Frame, TruthFrame
-from ovis.common.sources import FrameSource, SourceError, open_source
 from ovis.services.runtime import Service
 
 RETRY_S = 2.0

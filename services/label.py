@@ -5,8 +5,8 @@ the obstacles' and the robot's top planes (the pose service then needs none)."""
 
 from __future__ import annotations
 
-from ovis.common.detection import measure_blobs_and_maps, size_filter_px
 from ovis.common.messages import BinaryFrame, BlobList, FloorMaps, PlaneMap
+from ovis.common.world.detection import measure_blobs_and_maps, size_filter_px
 from ovis.services.runtime import Service
 
 

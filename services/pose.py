@@ -7,8 +7,8 @@ from __future__ import annotations
 import threading
 import time
 
-from ovis.common.detection import Detector
 from ovis.common.messages import BlobList, ObstacleFrame, StreamHealth
+from ovis.common.world.detection import Detector
 from ovis.services.runtime import Service
 
 

@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from ovis.common.messages import BinaryFrame, Frame
-from ovis.common.preprocess import ImageError, as_gray, binarize, smooth
+from ovis.common.vision.preprocess import ImageError, as_gray, binarize, smooth
 from ovis.services.runtime import Service
 
 #: Frames stamped further than this from the local clock are refused (a broken clock or

@@ -25,7 +25,7 @@ from typing import Any
 import msgspec
 import zenoh
 
-from ovis.common.calibration_file import Calibration
+from ovis.common.calibration.file import Calibration
 from ovis.common.config import OvisConfig, ZenohConfig
 from ovis.common.messages import (
     ENCODING,

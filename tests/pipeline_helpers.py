@@ -16,7 +16,7 @@ from pathlib import Path
 import zenoh
 from zenoh_helpers import alive, client, free_port, ovis_cmd, spawn, stop, wait_for
 
-from ovis.common.evaluation import match_objects
+from ovis.common.analysis.evaluation import match_objects
 from ovis.common.messages import ObstacleFrame, TruthFrame, decode
 
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator")

@@ -1,4 +1,4 @@
-"""Honest accuracy (common/accuracy.py): held-out errors and what the data determine."""
+"""Honest accuracy (common/calibration/accuracy.py): held-out errors and what the data determine."""
 
 from __future__ import annotations
 
@@ -8,17 +8,17 @@ import msgspec
 import numpy as np
 import pytest
 
-from ovis.common.accuracy import (
+from ovis.common.calibration.accuracy import (
     arena_world_error,
     assess,
     check_errors,
     floor_error_grid,
     load_checks,
 )
-from ovis.common.calibration import calibrate
-from ovis.common.calibration_file import load_calibration, save_calibration
+from ovis.common.calibration.file import load_calibration, save_calibration
+from ovis.common.calibration.problem import calibrate
 from ovis.common.config import ConfigError, load_config
-from ovis.common.simulator import Arena, control_points, write_dataset
+from ovis.common.sim.arena import Arena, control_points, write_dataset
 
 SEED = 3
 

@@ -6,16 +6,16 @@ import msgspec
 import numpy as np
 import pytest
 
-from ovis.common.calibration import (
+from ovis.common.analysis.evaluation import match_objects
+from ovis.common.calibration.problem import (
     INFEASIBLE,
     CalibrationProblem,
     InfeasibleCalibrationError,
     calibrate,
 )
 from ovis.common.config import CALIBRATED_VARIABLES, load_config
-from ovis.common.detection import Detector
-from ovis.common.evaluation import match_objects
-from ovis.common.simulator import Arena, control_points
+from ovis.common.sim.arena import Arena, control_points
+from ovis.common.world.detection import Detector
 
 PAPER_DIPE_MM = 0.735214
 

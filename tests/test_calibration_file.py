@@ -10,7 +10,7 @@ import msgspec
 import pytest
 
 from ovis.common.atomic import write_atomic
-from ovis.common.calibration_file import (
+from ovis.common.calibration.file import (
     Calibration,
     CalibrationFileError,
     load_calibration,

@@ -8,7 +8,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ovis.common.camera import back_project, pixel_footprint_cm2, project, rotation_world_cam
+from ovis.common.camera.paper_model import (
+    back_project,
+    pixel_footprint_cm2,
+    project,
+    rotation_world_cam,
+)
 from ovis.common.config import load_config
 
 PAPER = load_config(preset="paper").camera

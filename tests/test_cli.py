@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ovis.common.calibration_file import load_calibration
+from ovis.common.calibration.file import load_calibration
 from ovis.common.config import load_points
 
 TABLE_1_T1 = [

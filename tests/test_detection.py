@@ -6,12 +6,12 @@ import msgspec
 import numpy as np
 import pytest
 
+from ovis.common.analysis.evaluation import match_objects
 from ovis.common.config import load_config
-from ovis.common.detection import Detector, find_blobs
-from ovis.common.evaluation import match_objects
-from ovis.common.planner import planner_inputs
-from ovis.common.preprocess import ImageError
-from ovis.common.simulator import Arena
+from ovis.common.sim.arena import Arena
+from ovis.common.vision.preprocess import ImageError
+from ovis.common.world.detection import Detector, find_blobs
+from ovis.common.world.planner import planner_inputs
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ovis.common.distortion import distort_radius, undistort_factor
+from ovis.common.camera.distortion import distort_radius, undistort_factor
 
 
 def test_solve_converges_over_the_paper_ranges() -> None:

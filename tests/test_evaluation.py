@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ovis.common.evaluation import match_to_truth
+from ovis.common.analysis.evaluation import match_to_truth
 
 
 def test_match_counts_missed_spurious_and_errors() -> None:
@@ -29,9 +29,9 @@ def test_empty() -> None:
 
 
 def test_match_objects_takes_detections_and_truth_directly() -> None:
+    from ovis.common.analysis.evaluation import match_objects
     from ovis.common.config import load_config
-    from ovis.common.evaluation import match_objects
-    from ovis.common.simulator import Arena
+    from ovis.common.sim.arena import Arena
 
     _, truth = Arena(load_config(), 0).render(clean=True)
     acc = match_objects(truth.objects, truth.objects)

@@ -23,8 +23,8 @@ from typing import IO
 import pytest
 import zenoh
 
-from ovis.common.detection import DetectedObject, PlannerEntry
 from ovis.common.messages import ENCODING, ObstacleFrame, Topics, TruthFrame, encode
+from ovis.common.world.detection import DetectedObject, PlannerEntry
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "deploy" / "examples" / "subscribe_obstacles.py"
 TIMEOUT_S = 20.0

@@ -7,14 +7,14 @@ import itertools
 import numpy as np
 import pytest
 
-from ovis.common.config import GAConfig
-from ovis.common.ga import (
+from ovis.common.calibration.ga import (
     bitwise_mutation,
     decode,
     run_ga,
     tournament_selection,
     two_point_crossover,
 )
+from ovis.common.config import GAConfig
 
 
 def test_decode_maps_codes_linearly_onto_ranges() -> None:

@@ -1,4 +1,4 @@
-"""Tests of ovis.common.labeling: 8-connected labeling, areas, centroids, moments."""
+"""Tests of ovis.common.vision.labeling: 8-connected labeling, areas, centroids, moments."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from ovis.common.labeling import Components, filter_components, label_components
-from ovis.common.preprocess import ImageError
+from ovis.common.vision.labeling import Components, filter_components, label_components
+from ovis.common.vision.preprocess import ImageError
 
 FIELDS = ("area_px", "row", "col", "top", "left", "height", "width", "mu_rr", "mu_cc", "mu_rc")
 

@@ -24,9 +24,8 @@ import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ovis.common.calibration_file import Calibration, GenerationRecord, PointResidual
+from ovis.common.calibration.file import Calibration, GenerationRecord, PointResidual
 from ovis.common.config import CalibrationRanges, GAConfig, load_config
-from ovis.common.detection import DetectedObject, PlannerEntry
 from ovis.common.messages import (
     ENCODING,
     MAX_IMAGE_SIDE,
@@ -49,7 +48,8 @@ from ovis.common.messages import (
     encode,
     message_schema,
 )
-from ovis.common.simulator import SimObject
+from ovis.common.sim.arena import SimObject
+from ovis.common.world.detection import DetectedObject, PlannerEntry
 
 MESSAGE_TYPES = [
     Frame,
@@ -955,13 +955,13 @@ def test_obstacle_frame_refuses_non_finite_numbers(path, value, needle) -> None:
 
 def test_blob_list_carries_the_label_services_floor_maps_and_refuses_ragged_ones() -> None:
     from ovis.common.config import load_config
-    from ovis.common.detection import (
+    from ovis.common.sim.arena import Arena
+    from ovis.common.world.detection import (
         Detector,
         binarize_frame,
         find_blobs,
         measure_blobs_and_maps,
     )
-    from ovis.common.simulator import Arena
 
     cfg = load_config()
     frame, _ = Arena(cfg, 4).render()

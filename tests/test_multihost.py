@@ -219,7 +219,7 @@ class Records:
 def accuracy(msgs: list[dict[str, Any]], rec: Records) -> tuple[list[float], int, int, int]:
     """Position errors (cm) against the simulator's truth of the same frame, missed and
     spurious objects, and how many frames had their truth."""
-    from ovis.common.evaluation import match_to_truth
+    from ovis.common.analysis.evaluation import match_to_truth
 
     errors: list[float] = []
     missed = spurious = judged = 0

@@ -1,4 +1,4 @@
-"""Tests of ovis.common.perimeter: Koplowitz–Bruckstein and Crofton estimators."""
+"""Tests of ovis.common.vision.perimeter: Koplowitz–Bruckstein and Crofton estimators."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from ovis.common.labeling import filter_components, label_components
-from ovis.common.perimeter import (
+from ovis.common.vision.labeling import filter_components, label_components
+from ovis.common.vision.perimeter import (
     CROFTON_DIRECTIONS,
     CROFTON_WEIGHTS,
     KB_A,

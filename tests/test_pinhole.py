@@ -17,11 +17,11 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ovis.common import camera as paper
-from ovis.common import pinhole, projection
-from ovis.common.calibration import calibrate
-from ovis.common.calibration_file import Calibration, load_calibration, save_calibration
-from ovis.common.camera_export import (
+from ovis.common.calibration.file import Calibration, load_calibration, save_calibration
+from ovis.common.calibration.problem import calibrate
+from ovis.common.camera import paper_model as paper
+from ovis.common.camera import pinhole, projection
+from ovis.common.camera.export import (
     paper_to_pinhole,
     reprojection_difference,
     ros_camera_info,
@@ -36,8 +36,8 @@ from ovis.common.config import (
     config_from_dict,
     load_config,
 )
-from ovis.common.detection import Detector
-from ovis.common.simulator import Arena, control_points
+from ovis.common.sim.arena import Arena, control_points
+from ovis.common.world.detection import Detector
 
 PINHOLE = load_config(preset="pinhole")
 TRUTH = PINHOLE.camera
@@ -201,7 +201,7 @@ def test_non_projectable_points_are_flagged_never_nan() -> None:
 
 
 def test_population_cameras_broadcast() -> None:
-    from ovis.common.pinhole_calibration import pinhole_values, pinhole_with
+    from ovis.common.calibration.pinhole import pinhole_values, pinhole_with
 
     values = np.repeat(pinhole_values(TRUTH)[None, :], 5, axis=0)
     values[:, 0] += np.arange(5)  # five focal lengths

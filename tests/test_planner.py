@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ovis.common.planner import planner_inputs, signed_angle_deg
+from ovis.common.world.planner import planner_inputs, signed_angle_deg
 
 R_O1, R_O2 = 4.884, 5.272  # radii of the paper's two obstacles (Case 1)
 

@@ -1,4 +1,4 @@
-"""Plots (common/plots.py): residual vectors on the frame, world-error map, and
+"""Plots (common/analysis/plots.py): residual vectors on the frame, world-error map, and
 `ovis calibrate` writing them with its accuracy report."""
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ import msgspec
 import numpy as np
 import pytest
 
-from ovis.common.accuracy import assess
-from ovis.common.calibration import calibrate
+from ovis.common.analysis.plots import plot_convergence, plot_error_map, plot_residuals
+from ovis.common.calibration.accuracy import assess
+from ovis.common.calibration.problem import calibrate
 from ovis.common.config import load_config
-from ovis.common.plots import plot_convergence, plot_error_map, plot_residuals
-from ovis.common.simulator import Arena, control_points
+from ovis.common.sim.arena import Arena, control_points
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
 from ovis.common.config import PoseConfig
-from ovis.common.pose import ROBOT_ID, Tracker, gated_assignment, pick_robot
+from ovis.common.world.pose import ROBOT_ID, Tracker, gated_assignment, pick_robot
 
 
 def test_robot_is_least_compact_candidate_in_area_range() -> None:

@@ -1,4 +1,4 @@
-"""Tests of ovis.common.preprocess: grey conversion, the paper's median, binarization."""
+"""Tests of ovis.common.vision.preprocess: grey conversion, the paper's median, binarization."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from numpy.lib.stride_tricks import sliding_window_view
 
-from ovis.common.preprocess import ImageError, as_gray, binarize, paper_median, smooth
+from ovis.common.vision.preprocess import ImageError, as_gray, binarize, paper_median, smooth
 
 gray_images = arrays(
     np.uint8,

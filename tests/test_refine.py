@@ -1,5 +1,5 @@
-"""Hybrid refinement (common/refine.py): the least-squares polish after the GA, and local
-least squares / Levenberg–Marquardt from random starts (common/compare.py)."""
+"""Hybrid refinement (common/calibration/refine.py): the least-squares polish after the GA,
+and local least squares / Levenberg–Marquardt from random starts (common/analysis/compare.py)."""
 
 from __future__ import annotations
 
@@ -7,13 +7,11 @@ import msgspec
 import numpy as np
 import pytest
 
-from ovis.common.accuracy import arena_world_error, calibration_values
-from ovis.common.calibration import INFEASIBLE, CalibrationProblem, calibrate, camera_with
-from ovis.common.camera import project
-from ovis.common.compare import METHODS, compare_methods, summarise_compare, write_compare
-from ovis.common.config import CALIBRATED_VARIABLES, load_config
-from ovis.common.ga import run_ga
-from ovis.common.refine import (
+from ovis.common.analysis.compare import METHODS, compare_methods, summarise_compare, write_compare
+from ovis.common.calibration.accuracy import arena_world_error, calibration_values
+from ovis.common.calibration.ga import run_ga
+from ovis.common.calibration.problem import INFEASIBLE, CalibrationProblem, calibrate, camera_with
+from ovis.common.calibration.refine import (
     CONTINUOUS_SLICE,
     dipe_of,
     fit_camera,
@@ -21,7 +19,9 @@ from ovis.common.refine import (
     polish,
     residuals_px,
 )
-from ovis.common.simulator import Arena, control_points
+from ovis.common.camera.paper_model import project
+from ovis.common.config import CALIBRATED_VARIABLES, load_config
+from ovis.common.sim.arena import Arena, control_points
 
 PAPER_DIPE_MM = 0.735214
 

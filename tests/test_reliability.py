@@ -24,8 +24,8 @@ from hypothesis import strategies as st
 from pipeline_helpers import STAGES, Recorder, errors_of, running_pipeline, start_up, up_log_dir
 from zenoh_helpers import alive, client, free_port, ovis_cmd, pids_with, spawn, stop, wait_for
 
-from ovis.common.calibration_file import Calibration, load_calibration
-from ovis.common.calibration_store import CalibrationStore
+from ovis.common.calibration.file import Calibration, load_calibration
+from ovis.common.calibration.store import CalibrationStore
 from ovis.common.config import load_config
 from ovis.common.messages import (
     ENCODING,
@@ -63,8 +63,8 @@ def _calibration(version: int = 1) -> Calibration:
 # --- saved state ------------------------------------------------------------------------
 SAVER = """
 import sys
-from ovis.common.calibration_store import CalibrationStore
-from ovis.common.calibration_file import Calibration
+from ovis.common.calibration.store import CalibrationStore
+from ovis.common.calibration.file import Calibration
 from ovis.common.config import load_config
 cfg = load_config()
 c = Calibration(dipe_px=0.5, dipe_mm=0.1, dipe_max_px=0.6, dipe_max_mm=0.2,

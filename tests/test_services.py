@@ -18,7 +18,7 @@ import zenoh
 from pipeline_helpers import STAGES, Recorder, errors_of, running_pipeline
 from zenoh_helpers import alive, client, free_port, ovis_cmd, spawn, stop, wait_for
 
-from ovis.common.calibration_file import load_calibration
+from ovis.common.calibration.file import load_calibration
 from ovis.common.config import load_config
 from ovis.common.messages import (
     ENCODING,
@@ -33,7 +33,7 @@ from ovis.common.messages import (
     decode,
     encode,
 )
-from ovis.common.simulator import Arena
+from ovis.common.sim.arena import Arena
 from ovis.services.cli.watching import collect_status
 
 PAPER_DIPE_MM = 0.735214

@@ -1,4 +1,4 @@
-"""Tests of ovis.common.shape: compactness (paper eq. 13) and moment orientation."""
+"""Tests of ovis.common.vision.shape: compactness (paper eq. 13) and moment orientation."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ovis.common.labeling import label_components
-from ovis.common.perimeter import KB_A, perimeter
-from ovis.common.shape import MAX_ELONGATION, compactness, orientation
+from ovis.common.vision.labeling import label_components
+from ovis.common.vision.perimeter import KB_A, perimeter
+from ovis.common.vision.shape import MAX_ELONGATION, compactness, orientation
 
 
 def disk(r: float, centre: tuple[float, float]) -> np.ndarray:

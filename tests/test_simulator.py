@@ -10,9 +10,9 @@ import msgspec
 import numpy as np
 import pytest
 
-from ovis.common.camera import back_project, pixel_footprint_cm2, project
+from ovis.common.camera.paper_model import back_project, pixel_footprint_cm2, project
 from ovis.common.config import OvisConfig, config_from_dict, load_config, load_points
-from ovis.common.simulator import (
+from ovis.common.sim.arena import (
     IMAGE_MARGIN_PX,
     MIN_GAP_CM,
     Arena,

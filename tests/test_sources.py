@@ -9,8 +9,7 @@ import msgspec
 import numpy as np
 import pytest
 
-from ovis.common.config import load_config
-from ovis.common.sources import (
+from ovis.common.capture.sources import (
     CameraSource,
     FolderSource,
     SimSource,
@@ -18,6 +17,7 @@ from ovis.common.sources import (
     VideoSource,
     open_source,
 )
+from ovis.common.config import load_config
 
 CFG = load_config()
 

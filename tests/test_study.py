@@ -1,4 +1,4 @@
-"""The GA parametric study (common/study.py; paper §5.1, Figure 7) and `ovis study`."""
+"""The GA parametric study (common/analysis/study.py; paper §5.1, Figure 7) and `ovis study`."""
 
 from __future__ import annotations
 
@@ -11,11 +11,11 @@ import msgspec
 import numpy as np
 import pytest
 
-from ovis.common.calibration import INFEASIBLE, CalibrationProblem
+from ovis.common.analysis.study import FACTORS, run_study, summarise, write_study
+from ovis.common.calibration.ga import run_ga
+from ovis.common.calibration.problem import INFEASIBLE, CalibrationProblem
 from ovis.common.config import GAConfig, load_config
-from ovis.common.ga import run_ga
-from ovis.common.simulator import Arena, control_points
-from ovis.common.study import FACTORS, run_study, summarise, write_study
+from ovis.common.sim.arena import Arena, control_points
 
 TINY_PAPER = {"pc": 0.9, "pm": 0.005, "population": 60, "generations": 15}
 TINY_GRID = {

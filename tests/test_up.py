@@ -15,7 +15,7 @@ from pipeline_helpers import Recorder, errors_of, start_up, up_log_dir
 from zenoh_helpers import client, pids_with, wait_for
 
 from ovis.common.config import load_config
-from ovis.common.planner import planner_inputs
+from ovis.common.world.planner import planner_inputs
 
 
 def test_up_runs_the_pipeline_and_summarises(tmp_path: Path) -> None:
@@ -23,8 +23,14 @@ def test_up_runs_the_pipeline_and_summarises(tmp_path: Path) -> None:
     try:
         with client(endpoint) as session:
             rec = Recorder(session)
-            wait_for(lambda: rec.count() >= 40, 40, "40 obstacle messages from ovis up")
-            msgs = [m for m in rec.since(0) if m.calibration_version >= 1]
+
+            # Calibrated messages: on a loaded host the first calibration may take a
+            # while, so wait for them rather than for a number of messages.
+            def calibrated() -> list:
+                return [m for m in rec.since(0) if m.calibration_version >= 1]
+
+            wait_for(lambda: len(calibrated()) >= 25, 40, "25 calibrated obstacle messages")
+            msgs = calibrated()
         out, _ = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:

@@ -39,10 +39,10 @@ analysis.register(app)
 
 def main() -> None:
     """Console entry point: run the app and turn known failures into one-line errors."""
-    from ovis.common.calibration import InfeasibleCalibrationError
-    from ovis.common.calibration_file import CalibrationFileError
+    from ovis.common.calibration.file import CalibrationFileError
+    from ovis.common.calibration.problem import InfeasibleCalibrationError
     from ovis.common.config import ConfigError
-    from ovis.common.preprocess import ImageError
+    from ovis.common.vision.preprocess import ImageError
     from ovis.services.runtime import ZenohUnreachableError
 
     try:

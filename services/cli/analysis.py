@@ -103,7 +103,13 @@ def study(
     Figure 7 with their spread bands (study.png; log y; the paper's setting marked).
     The default (5 seeds, 1 arena) takes about a minute on two cores.
     """
-    from ovis.common.study import DEFAULT_GRID, QUICK_GRID, run_study, summarise, write_study
+    from ovis.common.analysis.study import (
+        DEFAULT_GRID,
+        QUICK_GRID,
+        run_study,
+        summarise,
+        write_study,
+    )
 
     cfg = _resolve(config, preset)
     grid = QUICK_GRID if quick else DEFAULT_GRID
@@ -175,7 +181,7 @@ def compare(
     Success: DIPE below the paper's 0.735 mm and a floor error below 1 cm everywhere on
     the arena (against the true camera). Writes compare.csv, compare.md, compare.png.
     """
-    from ovis.common.compare import compare_methods, summarise_compare, write_compare
+    from ovis.common.analysis.compare import compare_methods, summarise_compare, write_compare
 
     cfg = _resolve(config, preset)
     con = _console()
@@ -229,7 +235,7 @@ def add_accuracy(
     show: bool = True,
 ):
     """The calibration with its accuracy report (held-out errors, identifiability)."""
-    from ovis.common.accuracy import assess, load_checks
+    from ovis.common.calibration.accuracy import assess, load_checks
 
     checks = load_checks(check) if check is not None else None
     check_image = None
@@ -273,12 +279,12 @@ def write_calibration_plots(
     """Write the residual-vector and world-error plots asked for; one line each."""
     lines = []
     if residuals is not None:
-        from ovis.common.plots import plot_residuals
+        from ovis.common.analysis.plots import plot_residuals
 
         m = plot_residuals(frame, calib, residuals)
         lines.append(f"wrote {residuals} (residual vectors, magnified {m:g}x)")
     if error_map is not None:
-        from ovis.common.plots import plot_error_map
+        from ovis.common.analysis.plots import plot_error_map
 
         if type(cfg.camera) is not type(calib.camera):
             raise UserError(

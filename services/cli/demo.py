@@ -35,11 +35,11 @@ def demo(
     from rich.console import Console
     from rich.table import Table
 
-    from ovis.common.calibration_file import save_calibration
-    from ovis.common.detection import Detector
-    from ovis.common.evaluation import match_objects
-    from ovis.common.plots import draw_detections, plot_convergence, save_png
-    from ovis.common.simulator import Arena, control_points
+    from ovis.common.analysis.evaluation import match_objects
+    from ovis.common.analysis.plots import draw_detections, plot_convergence, save_png
+    from ovis.common.calibration.file import save_calibration
+    from ovis.common.sim.arena import Arena, control_points
+    from ovis.common.world.detection import Detector
     from ovis.services.cli.offline import calibrate_with_progress, resolve_config
 
     con = Console(highlight=False)

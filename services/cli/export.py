@@ -34,9 +34,9 @@ def export(
     image is printed in px. Note: the paper model's image is mirror-inverted, so its
     equivalent has a negative fy.
     """
-    from ovis.common.calibration_file import load_calibration
-    from ovis.common.camera_export import as_pinhole, write_opencv_yaml, write_ros_yaml
-    from ovis.common.pinhole import camera_matrix, distortion_coefficients
+    from ovis.common.calibration.file import load_calibration
+    from ovis.common.camera.export import as_pinhole, write_opencv_yaml, write_ros_yaml
+    from ovis.common.camera.pinhole import camera_matrix, distortion_coefficients
 
     if opencv is None and ros is None:
         raise UserError("give --opencv FILE and/or --ros FILE")

@@ -99,7 +99,7 @@ def simulate(
     control points, plus the configuration), ready for
     `ovis calibrate OUT/frame_0000.png --points OUT/points.toml --out calib.json`.
     """
-    from ovis.common.simulator import write_dataset
+    from ovis.common.sim.arena import write_dataset
 
     cfg = resolve_config(config, preset)
     info = write_dataset(out, cfg, frames, seed)
@@ -185,7 +185,7 @@ def calibrate(
     points, and --check points) and which parameters the data determine (GA restarts,
     Jacobian), and the GA's DIPE beside the least-squares polish's.
     """
-    from ovis.common.calibration_file import save_calibration
+    from ovis.common.calibration.file import save_calibration
     from ovis.common.config import load_points
 
     pts = load_points(points)
@@ -215,7 +215,7 @@ def calibrate(
     )
     save_calibration(out, calib)
     if plot is not None:
-        from ovis.common.plots import plot_convergence
+        from ovis.common.analysis.plots import plot_convergence
 
         plot_convergence(calib, plot)
     simulated = pts.config is not None and config is None  # `ovis simulate` data
@@ -235,7 +235,7 @@ def calibrate_with_progress(frame, points, cfg, *, source: str, show: bool = Tru
     """Run the GA calibration, with a progress bar showing the best DIPE so far."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from ovis.common.calibration import calibrate as run_calibration
+    from ovis.common.calibration.problem import calibrate as run_calibration
 
     if not show:
         return run_calibration(frame, points, cfg, source=source)[0]
@@ -354,8 +354,8 @@ def detect(
     Bruckstein), compactness, world position and radius; per obstacle, the distance
     |O − R| − r_O and the signed angle from the goal direction (CCW positive).
     """
-    from ovis.common.calibration_file import load_calibration
-    from ovis.common.detection import Detector
+    from ovis.common.calibration.file import load_calibration
+    from ovis.common.world.detection import Detector
 
     calib = load_calibration(calibration)
     goal_xy = _numbers(goal, 2, "--goal") if goal is not None else None
@@ -368,7 +368,7 @@ def detect(
         det = detector.detect(frame, goal_xy=goal_xy, goal_angle_deg=goal_angle)
         results.append((path, frame, det))
         if overlay is not None:
-            from ovis.common.plots import draw_detections, save_png
+            from ovis.common.analysis.plots import draw_detections, save_png
 
             target = overlay
             if len(images) > 1:
@@ -440,7 +440,7 @@ def plan(
     (−180, 180]) from the goal direction (robot → goal, or the goal reference line) to
     robot → obstacle. Output is in the order the obstacles are given.
     """
-    from ovis.common.planner import planner_inputs
+    from ovis.common.world.planner import planner_inputs
 
     if goal is None and goal_angle is None:
         raise UserError("give --goal X,Y or --goal-angle DEG")

@@ -13,7 +13,7 @@ import msgspec
 import numpy as np
 import zenoh
 
-from ovis.common.evaluation import match_objects
+from ovis.common.analysis.evaluation import match_objects
 from ovis.common.messages import (
     MessageError,
     ObstacleFrame,

@@ -24,7 +24,7 @@ simulator reproduces what the vision pipeline needs from it, and nothing more:
   camera centre onto the floor: a top face 7 cm up appears up to ~5 % farther from the
   camera's foot, so a world gap alone could let two blobs touch in the image). The
   invariants therefore hold in every frame, not just on average.
-* **Photometry**, all through :func:`ovis.common.projection.back_project` (either
+* **Photometry**, all through :func:`ovis.common.camera.projection.back_project` (either
   camera model, ``[camera] model``), so a perfectly
   calibrated camera sees exactly the truth: the floor has intensity
   ``floor_level × ℓ(row, col)`` and a top face ``object_level × ℓ``, where the lighting
@@ -66,14 +66,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.atomic import write_atomic
-from ovis.common.camera import camera_centre_mm
-from ovis.common.config import CameraModel, CameraParams, ControlPoint, OvisConfig, dump_toml
-from ovis.common.projection import (
+from ovis.common.camera.paper_model import camera_centre_mm
+from ovis.common.camera.projection import (
     back_project,
     camera_centre_cm,
     principal_point_rowcol,
     project,
 )
+from ovis.common.config import CameraModel, CameraParams, ControlPoint, OvisConfig, dump_toml
 
 __all__ = [
     "CLUTTER_CLEARANCE_CM",
@@ -724,7 +724,7 @@ def write_dataset(out_dir: Path, config: OvisConfig, frames: int, seed: int) -> 
       :func:`ovis.common.config.load_points`;
     * ``checks.toml`` (with two frames or more) — the last frame's objects as check
       points and ``image`` = that frame's file, for ``ovis calibrate --check``
-      (:func:`ovis.common.accuracy.load_checks`).
+      (:func:`ovis.common.calibration.accuracy.load_checks`).
     """
     if int(frames) < 1:
         raise ValueError(f"frames must be at least 1, got {frames}")

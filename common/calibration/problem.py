@@ -23,18 +23,18 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
-from ovis.common.calibration_file import Calibration, GenerationRecord, PointResidual, now_iso
+from ovis.common.calibration.dipe import match_points, pixel_error_mm
+from ovis.common.calibration.file import Calibration, GenerationRecord, PointResidual, now_iso
+from ovis.common.calibration.ga import GAResult, GenerationStats, run_ga
+from ovis.common.camera.projection import pixel_footprint_cm2, project
 from ovis.common.config import (
     CALIBRATED_VARIABLES,
     CameraParams,
     ControlPoint,
     OvisConfig,
 )
-from ovis.common.dipe import match_points, pixel_error_mm
-from ovis.common.ga import GAResult, GenerationStats, run_ga
-from ovis.common.labeling import label_components
-from ovis.common.preprocess import as_gray, binarize, smooth
-from ovis.common.projection import pixel_footprint_cm2, project
+from ovis.common.vision.labeling import label_components
+from ovis.common.vision.preprocess import as_gray, binarize, smooth
 
 __all__ = [
     "INFEASIBLE",
@@ -256,7 +256,7 @@ def calibrate(
     object per control point, with what was seen and what to change.
     """
     if config.camera.model == "pinhole":  # the general camera: GA + least squares
-        from ovis.common.pinhole_calibration import calibrate_pinhole
+        from ovis.common.calibration.pinhole import calibrate_pinhole
 
         return calibrate_pinhole(
             image, points, config, on_generation=on_generation, source=source, dedupe=dedupe
@@ -330,7 +330,7 @@ def build_calibration(
         best, band = centre_image_settings(problem, best)
     refined: dict = {}
     if config.camera.model == "paper":  # least-squares polish, `[ga] polish` (refine.py)
-        from ovis.common.refine import refine_for_calibration
+        from ovis.common.calibration.refine import refine_for_calibration
 
         best, refined = refine_for_calibration(problem, best, apply=config.ga.polish)
     ev = problem.evaluate(best[None, :])

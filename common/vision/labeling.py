@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ovis.common.preprocess import ImageError
+from ovis.common.vision.preprocess import ImageError
 
 __all__ = ["Borders", "Components", "filter_components", "label_components"]
 
@@ -247,7 +247,7 @@ def label_components(
     ----------
     binary : (H, W) uint8 or bool array
         Object pixels are the non-zero ones (the output of
-        :func:`ovis.common.preprocess.binarize`).
+        :func:`ovis.common.vision.preprocess.binarize`).
     min_area_px : float
         Components with fewer pixels are left out (specks below any size filter).
 

@@ -7,7 +7,7 @@ adds (beyond the paper):
 
 * **Leave-one-out** (:func:`leave_one_out`): for each control point i, refit the
   camera on the other points by the bounded least squares of
-  :mod:`ovis.common.refine` (starting from the calibration, blobs and matching fixed)
+  :mod:`ovis.common.calibration.refine` (starting from the calibration, blobs and matching fixed)
   and report how far the refit misses point i: in pixels (detected centroid vs
   projection) and in cm on the plane of the point's top face (back-projected centroid
   vs the point).
@@ -36,20 +36,21 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
-from ovis.common.calibration import (
+from ovis.common.calibration.file import Calibration
+from ovis.common.calibration.ga import run_ga
+from ovis.common.calibration.problem import (
     INFEASIBLE,
     CalibrationProblem,
     camera_with,
     centre_image_settings,
 )
-from ovis.common.calibration_file import Calibration
-from ovis.common.config import CameraModel, ConfigError, ControlPoint, OvisConfig
-from ovis.common.ga import run_ga
-from ovis.common.labeling import label_components
-from ovis.common.preprocess import as_gray, binarize, smooth
-from ovis.common.projection import back_project, pixel_footprint_cm2, project
-from ovis.common.quality import AccuracyReport, HeldOut, HeldOutPoint, ParameterDetermination
-from ovis.common.refine import (
+from ovis.common.calibration.quality import (
+    AccuracyReport,
+    HeldOut,
+    HeldOutPoint,
+    ParameterDetermination,
+)
+from ovis.common.calibration.refine import (
     CONTINUOUS,
     CONTINUOUS_SLICE,
     dipe_of,
@@ -58,6 +59,10 @@ from ovis.common.refine import (
     polish,
     residuals_px,
 )
+from ovis.common.camera.projection import back_project, pixel_footprint_cm2, project
+from ovis.common.config import CameraModel, ConfigError, ControlPoint, OvisConfig
+from ovis.common.vision.labeling import label_components
+from ovis.common.vision.preprocess import as_gray, binarize, smooth
 
 __all__ = [
     "CheckSet",
@@ -147,7 +152,8 @@ def leave_one_out(problem: CalibrationProblem, values: NDArray[np.float64]) -> H
     """Leave-one-out errors of the control points (None with fewer than 2 points).
 
     Blobs and matching are those of ``values`` (9,); each refit is the bounded least
-    squares of :func:`ovis.common.refine.fit_camera` from ``values`` on the other points.
+    squares of :func:`ovis.common.calibration.refine.fit_camera` from ``values`` on the other
+    points.
     ``in_sample_px`` is each point's residual in the same least squares on all points.
     """
     n = problem.n_points

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.config import OvisConfig
-from ovis.common.simulator import Arena, FrameTruth
+from ovis.common.sim.arena import Arena, FrameTruth
 
 __all__ = [
     "IMAGE_SUFFIXES",

@@ -17,8 +17,8 @@ from typing import Literal
 import msgspec
 
 from ovis.common.atomic import write_atomic
+from ovis.common.calibration.quality import AccuracyReport
 from ovis.common.config import CalibrationRanges, CameraModel, GAConfig, ImageParams, PoseConfig
-from ovis.common.quality import AccuracyReport
 
 __all__ = [
     "Calibration",
@@ -85,7 +85,7 @@ class Calibration(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     ga_size_filter_cm2: float | None = None
     #: the run of thresholds that see exactly one object per control point
     feasible_thresholds: tuple[int, int] | None = None
-    #: hybrid refinement (ovis.common.refine; `[ga] polish`): whether `camera` is the
+    #: hybrid refinement (ovis.common.calibration.refine; `[ga] polish`): whether `camera` is the
     #: least-squares polish of the GA's, the mean DIPE of the GA's camera alone and of
     #: the polished one (both at the final threshold and size filter; both are reported
     #: whichever one `camera` holds)
@@ -94,7 +94,7 @@ class Calibration(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     ga_dipe_mm: float | None = None
     polish_dipe_px: float | None = None
     polish_dipe_mm: float | None = None
-    #: held-out errors and which parameters the data determine (ovis.common.accuracy)
+    #: held-out errors and which parameters the data determine (ovis.common.calibration.accuracy)
     accuracy: AccuracyReport | None = None
 
     def __post_init__(self) -> None:

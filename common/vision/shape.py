@@ -5,10 +5,10 @@ Compactness, paper §3 eq. 13::
     compactness = 4π · a / p²
 
 with ``a`` the object image area and ``p`` its estimated perimeter
-(:mod:`ovis.common.perimeter`); it is 1 for a disk, π/4 ≈ 0.785 for a square.
+(:mod:`ovis.common.vision.perimeter`); it is 1 for a disk, π/4 ≈ 0.785 for a square.
 
 Orientation and elongation come from the central second moments of
-:class:`ovis.common.labeling.Components`: the eigenvalues of the covariance
+:class:`ovis.common.vision.labeling.Components`: the eigenvalues of the covariance
 ``[[mu_rr, mu_rc], [mu_rc, mu_cc]]``,
 
     λ± = (mu_rr + mu_cc)/2 ± √(((mu_rr − mu_cc)/2)² + mu_rc²),

@@ -11,7 +11,7 @@ Chain, with every length in millimetres inside (world centimetres × 10):
 * eqs. 5–6 (perspective): ``x_u = λ·x/(λ − z)``, ``y_u = λ·y/(λ − z)``; the lens is at
   ``(0, 0, λ)`` and visible points have ``z > λ`` (the image is inverted).
 * eqs. 7–8 (radial distortion): ``x_u = x_d·(1 + k1ρ² + k2ρ⁴ + k3ρ⁶)``, ρ = |(x_d, y_d)|;
-  world → pixel solves this for ρ (:mod:`ovis.common.distortion`).
+  world → pixel solves this for ρ (:mod:`ovis.common.camera.distortion`).
 * eqs. 9–10 (frame memory): ``row = s_x·(N_fx/d_x)·x_d + c_x``,
   ``col = s_y·(N_fy/d_y)·y_d + c_y`` (the paper's x_f is the row, y_f the column).
 
@@ -28,8 +28,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ovis.common.camera.distortion import distort_radius, on_rising_branch, undistort_factor
 from ovis.common.config import CameraParams
-from ovis.common.distortion import distort_radius, on_rising_branch, undistort_factor
 
 __all__ = [
     "BackProjection",

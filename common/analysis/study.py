@@ -7,7 +7,7 @@ population 100, 90 generations). It shows one value per setting. A GA is random,
 here every setting is run with several seeds and the result is a distribution: the
 median and the 10–90 % band are plotted (log scale), with every run as a dot.
 
-Runs share one :class:`~ovis.common.calibration.CalibrationProblem` per frame (the blob
+Runs share one :class:`~ovis.common.calibration.problem.CalibrationProblem` per frame (the blob
 tables of each threshold are computed once). The generations factor costs nothing extra:
 a run's best-so-far after g generations *is* the result of the same seed run for g
 generations (the random stream does not depend on the total), so one long run per seed
@@ -27,11 +27,11 @@ import msgspec
 import numpy as np
 
 from ovis.common.atomic import write_atomic
-from ovis.common.calibration import INFEASIBLE, CalibrationProblem
+from ovis.common.calibration.ga import run_ga
+from ovis.common.calibration.problem import INFEASIBLE, CalibrationProblem
+from ovis.common.calibration.refine import dipe_of
 from ovis.common.config import OvisConfig
-from ovis.common.ga import run_ga
-from ovis.common.refine import dipe_of
-from ovis.common.simulator import Arena, control_points
+from ovis.common.sim.arena import Arena, control_points
 
 __all__ = [
     "DEFAULT_GRID",

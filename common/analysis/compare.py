@@ -3,14 +3,14 @@
 The paper prefers a GA to the Levenberg–Marquardt refinement of Zhang (2000) because
 a local method "may get trapped into local minima" and needs a good initial guess
 (§1, §5.3). This module measures that claim on many simulated arenas (beyond the paper).
-On each arena (the first frame of :class:`~ovis.common.simulator.Arena` with a given
+On each arena (the first frame of :class:`~ovis.common.sim.arena.Arena` with a given
 seed, its objects as the control points) it runs:
 
 ``ga``
     the paper's GA (the configured settings, GA seed = arena seed), with the threshold
     and size filter centred as ``ovis calibrate`` does;
 ``ga+polish``
-    the same, then the bounded least-squares polish of :mod:`ovis.common.refine`;
+    the same, then the bounded least-squares polish of :mod:`ovis.common.calibration.refine`;
 ``lm``
     MINPACK Levenberg–Marquardt (``scipy.optimize.least_squares(method="lm")``,
     unbounded) on the GA's objective — the pixel residuals of eq. 14 with the optimal
@@ -44,21 +44,21 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
-from ovis.common.accuracy import arena_world_error
+from ovis.common.analysis.study import PAPER_DIPE_MM
 from ovis.common.atomic import write_atomic
-from ovis.common.calibration import (
+from ovis.common.calibration.accuracy import arena_world_error
+from ovis.common.calibration.dipe import match_points, pixel_error_mm
+from ovis.common.calibration.ga import run_ga
+from ovis.common.calibration.problem import (
     INFEASIBLE,
     CalibrationProblem,
     camera_with,
     centre_image_settings,
 )
-from ovis.common.camera import project
+from ovis.common.calibration.refine import CONTINUOUS_SLICE, fit_camera, matched_blobs, polish
+from ovis.common.camera.paper_model import project
 from ovis.common.config import OvisConfig
-from ovis.common.dipe import match_points, pixel_error_mm
-from ovis.common.ga import run_ga
-from ovis.common.refine import CONTINUOUS_SLICE, fit_camera, matched_blobs, polish
-from ovis.common.simulator import Arena, control_points
-from ovis.common.study import PAPER_DIPE_MM
+from ovis.common.sim.arena import Arena, control_points
 
 __all__ = [
     "METHODS",

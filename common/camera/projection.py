@@ -2,13 +2,13 @@
 
 ovis has two camera models, selected by ``[camera] model``:
 
-* ``"paper"`` — the paper's tripod model, eqs. 4–10 (:mod:`ovis.common.camera`,
+* ``"paper"`` — the paper's tripod model, eqs. 4–10 (:mod:`ovis.common.camera.paper_model`,
   :class:`~ovis.common.config.CameraParams`);
 * ``"pinhole"`` — a pinhole with 6-DoF pose and Brown–Conrady distortion, OpenCV's
-  model (:mod:`ovis.common.pinhole`, :class:`~ovis.common.config.PinholeParams`).
+  model (:mod:`ovis.common.camera.pinhole`, :class:`~ovis.common.config.PinholeParams`).
 
 Everything that projects (detection, calibration, the simulator) calls the functions
-here; they take the same arguments as :mod:`ovis.common.camera` (camera last) and
+here; they take the same arguments as :mod:`ovis.common.camera.paper_model` (camera last) and
 dispatch on the camera's type, so a population camera (fields holding ``(P, 1)``
 arrays) works for both models.
 """
@@ -18,9 +18,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ovis.common import camera as paper
-from ovis.common import pinhole
-from ovis.common.camera import BackProjection, PixelJacobian, Projection
+from ovis.common.camera import paper_model as paper
+from ovis.common.camera import pinhole
+from ovis.common.camera.paper_model import BackProjection, PixelJacobian, Projection
 from ovis.common.config import CALIBRATED_VARIABLES, CameraModel, CameraParams, PinholeParams
 
 __all__ = [
@@ -70,7 +70,7 @@ def pixel_jacobian(
 ) -> PixelJacobian:
     """The pixel → plane Z = ``z_cm`` map at (row, col) and its Jacobian (cm per pixel,
     central differences ±½ px), for either model (see
-    :func:`ovis.common.camera.pixel_jacobian`)."""
+    :func:`ovis.common.camera.paper_model.pixel_jacobian`)."""
     if not isinstance(cam, PinholeParams):
         _check(cam)
         return paper.pixel_jacobian(row, col, cam, z_cm)

@@ -1,7 +1,7 @@
 """How good a calibration is, as stored in the calibration file (beyond the paper).
 
 The paper judges a calibration by the DIPE of the points it was fitted to. These
-records say what that number hides (computed by :mod:`ovis.common.accuracy`):
+records say what that number hides (computed by :mod:`ovis.common.calibration.accuracy`):
 
 * :class:`HeldOut` — errors on points *not* used for the fit: leave-one-out over the
   control points, or extra check points (possibly on another frame), in pixels and in

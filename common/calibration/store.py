@@ -18,7 +18,7 @@ from pathlib import Path
 
 import msgspec
 
-from ovis.common.calibration_file import (
+from ovis.common.calibration.file import (
     Calibration,
     CalibrationFileError,
     load_calibration,

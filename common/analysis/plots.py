@@ -10,8 +10,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.atomic import write_atomic
-from ovis.common.calibration_file import Calibration
-from ovis.common.detection import Detection
+from ovis.common.calibration.file import Calibration
+from ovis.common.world.detection import Detection
 
 __all__ = [
     "draw_detections",
@@ -234,8 +234,8 @@ def plot_error_map(
     import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm, Normalize
 
-    from ovis.common.accuracy import arena_world_error, floor_error_grid
-    from ovis.common.projection import back_project
+    from ovis.common.calibration.accuracy import arena_world_error, floor_error_grid
+    from ovis.common.camera.projection import back_project
 
     z = calibration.pose.obstacle_height_cm if z_cm is None else float(z_cm)
     X, Y, err = floor_error_grid(calibration.camera, true_camera, z_cm=z, step_px=step_px)

@@ -17,14 +17,14 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
+from ovis.common.camera.projection import PixelJacobian, pixel_footprint_cm2, pixel_jacobian
 from ovis.common.config import CameraModel, ImageParams, PoseConfig
-from ovis.common.labeling import filter_components, label_components
-from ovis.common.perimeter import perimeter
-from ovis.common.planner import planner_inputs
-from ovis.common.pose import ROBOT_ID, Tracker, pick_robot
-from ovis.common.preprocess import as_gray, binarize, smooth
-from ovis.common.projection import PixelJacobian, pixel_footprint_cm2, pixel_jacobian
-from ovis.common.shape import compactness, orientation
+from ovis.common.vision.labeling import filter_components, label_components
+from ovis.common.vision.perimeter import perimeter
+from ovis.common.vision.preprocess import as_gray, binarize, smooth
+from ovis.common.vision.shape import compactness, orientation
+from ovis.common.world.planner import planner_inputs
+from ovis.common.world.pose import ROBOT_ID, Tracker, pick_robot
 
 __all__ = [
     "Blobs",

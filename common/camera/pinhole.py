@@ -17,7 +17,7 @@ convergence check), then intersect the ray from the camera centre ``C = −Rᵀ�
 the plane.
 
 ovis names pixel coordinates ``row``/``col`` everywhere; OpenCV's x is the column and y
-the row. Conversions happen only in this module and in :mod:`ovis.common.camera_export`.
+the row. Conversions happen only in this module and in :mod:`ovis.common.camera.export`.
 
 Validity: a point is projectable when it lies in front of the camera (``Z_c > 0``) and
 within the radius where the radial distortion is still one-to-one (``d/dr [r·(1 + k1 r² +
@@ -37,7 +37,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ovis.common.camera import BackProjection, Projection
+from ovis.common.camera.paper_model import BackProjection, Projection
 from ovis.common.config import PinholeParams
 
 __all__ = [

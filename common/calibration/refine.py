@@ -18,8 +18,8 @@ least-squares optimum has a larger mean DIPE than its start, or loses feasibilit
 size filter is in cm² through the camera), the start is kept.
 
 :func:`fit_camera` is the general local fit, used also for leave-one-out refits
-(:mod:`ovis.common.accuracy`) and for Levenberg–Marquardt from a random start
-(:mod:`ovis.common.compare`), where the matching can be re-solved at every step as the
+(:mod:`ovis.common.calibration.accuracy`) and for Levenberg–Marquardt from a random start
+(:mod:`ovis.common.analysis.compare`), where the matching can be re-solved at every step as the
 GA's fitness does.
 """
 
@@ -31,10 +31,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from ovis.common.calibration import CalibrationProblem, camera_with
-from ovis.common.camera import project
+from ovis.common.calibration.dipe import match_points, pixel_error_mm
+from ovis.common.calibration.problem import CalibrationProblem, camera_with
+from ovis.common.camera.paper_model import project
 from ovis.common.config import CALIBRATED_VARIABLES
-from ovis.common.dipe import match_points, pixel_error_mm
 
 __all__ = [
     "CONTINUOUS",
@@ -263,7 +263,7 @@ def refine_for_calibration(
     """Polish the GA's (centred) ``values`` and say how both fare, for the calibration file.
 
     Returns the values to keep (the polished ones if ``apply`` and the polish improved
-    the DIPE, else ``values``) and the :class:`~ovis.common.calibration_file.Calibration`
+    the DIPE, else ``values``) and the :class:`~ovis.common.calibration.file.Calibration`
     fields ``polished``, ``ga_dipe_px``/``mm`` and ``polish_dipe_px``/``mm``: both numbers
     are always reported, whichever camera is kept.
     """

@@ -33,12 +33,15 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from ovis.common.calibration import (
+from ovis.common.calibration.dipe import match_points
+from ovis.common.calibration.file import Calibration
+from ovis.common.calibration.ga import GAResult, GenerationStats
+from ovis.common.calibration.problem import (
     CalibrationProblem,
     build_calibration,
     run_constrained_ga,
 )
-from ovis.common.calibration_file import Calibration
+from ovis.common.camera.pinhole import project
 from ovis.common.config import (
     PINHOLE_VARIABLES,
     ConfigError,
@@ -47,9 +50,6 @@ from ovis.common.config import (
     PinholeParams,
     PinholeRanges,
 )
-from ovis.common.dipe import match_points
-from ovis.common.ga import GAResult, GenerationStats
-from ovis.common.pinhole import project
 
 __all__ = [
     "MIN_POINTS",

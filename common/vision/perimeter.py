@@ -49,7 +49,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ovis.common.labeling import Components
+from ovis.common.vision.labeling import Components
 
 __all__ = [
     "CROFTON_DIRECTIONS",

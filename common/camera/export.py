@@ -47,10 +47,10 @@ from typing import Any, NamedTuple
 import cv2
 import numpy as np
 
-from ovis.common import camera as paper
-from ovis.common import pinhole
+from ovis.common.camera import paper_model as paper
+from ovis.common.camera import pinhole
+from ovis.common.camera.distortion import on_rising_branch, undistort_factor
 from ovis.common.config import CameraModel, CameraParams, PinholeParams
-from ovis.common.distortion import on_rising_branch, undistort_factor
 
 __all__ = [
     "PinholeEquivalent",
@@ -136,7 +136,7 @@ def reprojection_difference(
 ) -> tuple[float, float]:
     """RMS and max pixel distance between where ``other`` projects the floor points
     that ``cam`` sees at a grid of pixels over its image (plane Z = ``z_cm``)."""
-    from ovis.common.projection import back_project, project
+    from ovis.common.camera.projection import back_project, project
 
     rows, cols = np.meshgrid(
         np.linspace(0.0, cam.rows - 1.0, grid), np.linspace(0.0, cam.cols - 1.0, grid)

@@ -1,0 +1,119 @@
+"""The layout rule of ``common/``: dependencies between its subpackages point one way.
+
+``LAYERS`` is the rule written down: each part of ``ovis.common`` may import only the
+parts listed for it (and itself). Nothing in ``common`` imports ``ovis.services``. A new
+subpackage or top-level module must be added here, so that the rule covers it.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+COMMON = Path(__file__).resolve().parents[1] / "common"
+
+#: part of ovis.common → the parts it may import (besides itself).
+LAYERS: dict[str, set[str]] = {
+    "config": {"presets"},
+    "atomic": set(),
+    "presets": set(),
+    "camera": {"config", "atomic"},
+    "vision": {"config"},
+    "world": {"config", "camera", "vision"},
+    "calibration": {"config", "atomic", "camera", "vision"},
+    "sim": {"config", "atomic", "camera"},
+    "capture": {"config", "atomic", "camera", "sim"},
+    "messages": {"config", "camera", "vision", "world", "calibration", "sim"},
+    "analysis": {
+        "config",
+        "atomic",
+        "camera",
+        "vision",
+        "world",
+        "calibration",
+        "sim",
+        "capture",
+        "messages",
+    },
+}
+
+
+def part_of(path: Path) -> str:
+    """The part of ``ovis.common`` a source file belongs to (subpackage or module)."""
+    rel = path.relative_to(COMMON)
+    return rel.parts[0] if len(rel.parts) > 1 else rel.stem
+
+
+def imported_modules(path: Path) -> list[tuple[int, str]]:
+    """Every absolute module a file imports, with its line (``from a import b`` gives
+    ``a.b`` too, so ``from ovis.common import camera`` is seen as importing camera)."""
+    found: list[tuple[int, str]] = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.append((node.lineno, node.module))
+            found += [(node.lineno, f"{node.module}.{alias.name}") for alias in node.names]
+    return found
+
+
+def violations(path: Path) -> list[str]:
+    """The imports of one file that break :data:`LAYERS`, as readable lines."""
+    part = part_of(path)
+    allowed = LAYERS[part] | {part}
+    bad: list[str] = []
+    seen: set[tuple[int, str]] = set()
+    for line, module in imported_modules(path):
+        key = (line, ".".join(module.split(".")[:3]))  # one report per line and part
+        if key in seen:
+            continue
+        seen.add(key)
+        where = f"{path.relative_to(COMMON.parent)}:{line}"
+        if module.startswith("ovis.services"):
+            bad.append(f"{where} imports {module}: common never imports services")
+        elif module.startswith("ovis.common."):
+            target = module.split(".")[2]
+            if target in LAYERS and target not in allowed:
+                bad.append(f"{where} ({part}) imports {module}: {part} may import {allowed}")
+    return bad
+
+
+SOURCES = sorted(p for p in COMMON.rglob("*.py") if p.name != "__init__.py" or p.parent != COMMON)
+
+
+def test_every_part_has_a_rule() -> None:
+    parts = {part_of(p) for p in SOURCES}
+    assert parts <= set(LAYERS), f"add {parts - set(LAYERS)} to LAYERS"
+
+
+def test_every_subpackage_says_what_it_holds_and_may_import() -> None:
+    for init in COMMON.glob("*/__init__.py"):
+        if init.parent.name == "presets":
+            continue
+        doc = ast.get_docstring(ast.parse(init.read_text())) or ""
+        assert "May import" in doc, f"{init}: its docstring must say what it may import"
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(COMMON)))
+def test_imports_follow_the_layers(path: Path) -> None:
+    assert violations(path) == []
+
+
+def test_the_rule_catches_a_wrong_import(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The checker itself: vision importing calibration, or common importing services,
+    is reported."""
+    fake = tmp_path / "common"
+    (fake / "vision").mkdir(parents=True)
+    bad = fake / "vision" / "bad.py"
+    bad.write_text(
+        "from ovis.common.calibration.dipe import dipe\n"
+        "from ovis.common import world\n"
+        "import ovis.services.runtime\n"
+        "from ovis.common.config import OvisConfig\n"
+    )
+    monkeypatch.setattr(f"{__name__}.COMMON", fake)
+    found = violations(bad)
+    assert len(found) == 3, found
+    assert "common never imports services" in found[2]
