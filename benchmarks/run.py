@@ -3,10 +3,11 @@ from the repository root.
 
 Writes ``benchmarks/results.json`` (a JSON list of rows: ``name``, ``unit``, ``value``,
 ``floor``, ``ratio``, ``target``, ``met``), ``benchmarks/machine.json`` (CPU, cores,
-versions, date) and the table between ``<!-- benchmarks:start -->`` and
-``<!-- benchmarks:end -->`` in ``README.md``. With ``--only``, the rows of the other
-benchmarks are kept from the previous results; otherwise all rows are replaced.
-``--render`` measures nothing and rewrites the README table from the two JSON files.
+versions, date) and the tables between ``<!-- benchmarks:start -->`` and
+``<!-- benchmarks:end -->`` in ``README.md`` (the rows that have a target) and
+``docs/benchmarks.md`` (every row). With ``--only``, the rows of the other benchmarks are
+kept from the previous results; otherwise all rows are replaced. ``--render`` measures
+nothing and rewrites both tables from the two JSON files.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -24,8 +26,14 @@ from benchmarks.core import CpuMeter, Row, machine_info
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results.json"
 MACHINE = ROOT / "benchmarks" / "machine.json"
-README = ROOT / "README.md"
 START, END = "<!-- benchmarks:start -->", "<!-- benchmarks:end -->"
+
+#: Pages whose table this rewrites, and which rows each shows: the README (read in five
+#: minutes) the rows that have a target, the benchmarks page every row.
+PAGES: dict[Path, Callable[[dict[str, Any]], bool]] = {
+    ROOT / "README.md": lambda row: bool(row.get("target")),
+    ROOT / "docs" / "benchmarks.md": lambda row: True,
+}
 
 #: Benchmark names, in report order, and the prefix of their rows' names.
 GROUPS = {
@@ -143,22 +151,30 @@ def table(rows: list[dict[str, Any]], machine: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def update_readme(rows: list[dict[str, Any]], machine: dict[str, Any]) -> bool:
-    text = README.read_text("utf-8")
+def update_page(page: Path, rows: list[dict[str, Any]], machine: dict[str, Any]) -> bool:
+    """Rewrite the table between the markers of one page with ``rows``."""
+    text = page.read_text("utf-8")
     if START not in text or END not in text:
-        log(f"README.md has no {START} … {END} markers; table not written")
+        log(f"{page.relative_to(ROOT)} has no {START} … {END} markers; table not written")
         return False
     head, rest = text.split(START, 1)
     _, tail = rest.split(END, 1)
-    README.write_text(f"{head}{START}\n{table(rows, machine)}\n{END}{tail}", encoding="utf-8")
+    page.write_text(f"{head}{START}\n{table(rows, machine)}\n{END}{tail}", encoding="utf-8")
     return True
+
+
+def update_pages(rows: list[dict[str, Any]], machine: dict[str, Any]) -> None:
+    """Rewrite the table of every page in :data:`PAGES` with the rows it shows."""
+    for page, shows in PAGES.items():
+        update_page(page, [r for r in rows if shows(r)], machine)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m benchmarks.run",
         description="Measure ovis against floors measured in the same run; write "
-        "benchmarks/results.json, benchmarks/machine.json and the README table.",
+        "benchmarks/results.json, benchmarks/machine.json and the tables of README.md "
+        "and docs/benchmarks.md.",
     )
     parser.add_argument("--quick", action="store_true", help="fewer repetitions, 8 s bus runs")
     parser.add_argument(
@@ -175,11 +191,15 @@ def main(argv: list[str] | None = None) -> int:
         default=300.0,
         help="length of the memory run (default 300)",
     )
-    parser.add_argument("--no-readme", action="store_true", help="do not rewrite README.md")
+    parser.add_argument(
+        "--no-readme",
+        action="store_true",
+        help="do not rewrite the tables of README.md and docs/benchmarks.md",
+    )
     parser.add_argument(
         "--render",
         action="store_true",
-        help="measure nothing: rewrite the README table from results.json and machine.json",
+        help="measure nothing: rewrite the tables from results.json and machine.json",
     )
     args = parser.parse_args(argv)
     if os.getcwd() != str(ROOT):
@@ -187,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.render:
         rows = json.loads(RESULTS.read_text("utf-8"))
         machine = json.loads(MACHINE.read_text("utf-8"))
-        update_readme(rows, machine)
+        update_pages(rows, machine)
         log(table(rows, machine))
         return 0
     names = list(args.only) if args.only else [*DEFAULT, *(["memory"] if args.long else [])]
@@ -206,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
     RESULTS.write_text(json.dumps(rows, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
     MACHINE.write_text(json.dumps(machine, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
     if not args.no_readme:
-        update_readme(rows, machine)
+        update_pages(rows, machine)
     log(table(rows, machine))
     log(f"wrote {RESULTS.name}, {MACHINE.name} in {machine['elapsed_s']:.0f} s")
     return 0
