@@ -36,7 +36,8 @@ from ovis.common.capture.sources import SimSource
 from ovis.common.config import OvisConfig, ZenohConfig, dump_toml
 from ovis.common.messages import ObstacleFrame, ServiceStatus, Topics, decode
 from ovis.common.world.detection import Detector
-from ovis.services.runtime import cpus_option, local_peers, pick_cpus, zenoh_config
+from ovis.services.bus import local_peers, zenoh_config
+from ovis.services.placement import cpus_option, pick_cpus
 
 __all__ = ["e2e_rows", "memory_rows"]
 

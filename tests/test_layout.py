@@ -24,8 +24,19 @@ LAYERS: dict[str, set[str]] = {
     "world": {"config", "camera", "vision"},
     "calibration": {"config", "atomic", "camera", "vision"},
     "sim": {"config", "atomic", "camera"},
-    "capture": {"config", "atomic", "camera", "sim"},
+    "capture": {"config", "atomic", "camera", "sim", "vision"},
     "messages": {"config", "camera", "vision", "world", "calibration", "sim"},
+    "pipeline": {
+        "config",
+        "atomic",
+        "camera",
+        "vision",
+        "world",
+        "calibration",
+        "sim",
+        "capture",
+        "messages",
+    },
     "analysis": {
         "config",
         "atomic",
@@ -110,7 +121,7 @@ def test_the_rule_catches_a_wrong_import(tmp_path: Path, monkeypatch: pytest.Mon
     bad.write_text(
         "from ovis.common.calibration.dipe import dipe\n"
         "from ovis.common import world\n"
-        "import ovis.services.runtime\n"
+        "import ovis.services.bus\n"
         "from ovis.common.config import OvisConfig\n"
     )
     monkeypatch.setattr(f"{__name__}.COMMON", fake)

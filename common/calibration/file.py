@@ -18,16 +18,25 @@ import msgspec
 
 from ovis.common.atomic import write_atomic
 from ovis.common.calibration.quality import AccuracyReport
-from ovis.common.config import CalibrationRanges, CameraModel, GAConfig, ImageParams, PoseConfig
+from ovis.common.config import (
+    CalibrationRanges,
+    CameraModel,
+    GAConfig,
+    ImageParams,
+    OvisConfig,
+    PoseConfig,
+)
 
 __all__ = [
     "Calibration",
     "CalibrationFileError",
     "GenerationRecord",
     "PointResidual",
+    "calibration_from_config",
     "load_calibration",
     "now_iso",
     "save_calibration",
+    "wrong_arena",
 ]
 
 
@@ -133,3 +142,31 @@ def load_calibration(path: Path | str) -> Calibration:
         raise CalibrationFileError(f"calibration file {path} is invalid: {exc}") from None
     except msgspec.DecodeError as exc:
         raise CalibrationFileError(f"calibration file {path} is not valid JSON: {exc}") from None
+
+
+def calibration_from_config(config: OvisConfig) -> Calibration:
+    """Version 0: the configured (nominal, uncalibrated) camera and image settings, what
+    a service uses until a calibration is published."""
+    return Calibration(
+        version=0,
+        dipe_px=0.0,
+        dipe_mm=0.0,
+        dipe_max_px=0.0,
+        dipe_max_mm=0.0,
+        camera=config.camera,
+        image=config.image,
+        pose=config.pose,
+        source_image="configuration (not calibrated)",
+    )
+
+
+def wrong_arena(calibration: Calibration, config: OvisConfig) -> str | None:
+    """Why a published calibration does not fit this arena's configured image size (a
+    service refuses it), or None when it fits."""
+    cam, want = calibration.camera, config.camera
+    if (cam.rows, cam.cols) == (want.rows, want.cols):
+        return None
+    return (
+        f"refused calibration v{calibration.version}: it is for {cam.cols}x{cam.rows}, "
+        f"this arena is {want.cols}x{want.rows}"
+    )
