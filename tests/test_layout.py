@@ -14,6 +14,19 @@ import pytest
 
 COMMON = Path(__file__).resolve().parents[1] / "common"
 
+#: What the parts on top (the running pipeline, the offline analysis) build on.
+FOUNDATION = {
+    "config",
+    "atomic",
+    "camera",
+    "vision",
+    "world",
+    "calibration",
+    "sim",
+    "capture",
+    "messages",
+}
+
 #: part of ovis.common → the parts it may import (besides itself).
 LAYERS: dict[str, set[str]] = {
     "config": {"presets"},
@@ -26,28 +39,8 @@ LAYERS: dict[str, set[str]] = {
     "sim": {"config", "atomic", "camera"},
     "capture": {"config", "atomic", "camera", "sim", "vision"},
     "messages": {"config", "camera", "vision", "world", "calibration", "sim"},
-    "pipeline": {
-        "config",
-        "atomic",
-        "camera",
-        "vision",
-        "world",
-        "calibration",
-        "sim",
-        "capture",
-        "messages",
-    },
-    "analysis": {
-        "config",
-        "atomic",
-        "camera",
-        "vision",
-        "world",
-        "calibration",
-        "sim",
-        "capture",
-        "messages",
-    },
+    "pipeline": FOUNDATION,
+    "analysis": FOUNDATION,
 }
 
 

@@ -17,7 +17,7 @@ from typing import Literal
 import msgspec
 
 from ovis.common.atomic import write_atomic
-from ovis.common.calibration.quality import AccuracyReport
+from ovis.common.calibration.quality import AccuracyReport, PointFit
 from ovis.common.config import (
     CalibrationRanges,
     CameraModel,
@@ -44,17 +44,9 @@ class CalibrationFileError(ValueError):
     """A calibration file that cannot be used; the message names the problem."""
 
 
-class PointResidual(msgspec.Struct, kw_only=True):
+class PointResidual(PointFit, kw_only=True):
     """One control point: where it was detected and projected, and its DIPE."""
 
-    name: str
-    x_cm: float
-    y_cm: float
-    z_cm: float
-    detected_row: float
-    detected_col: float
-    predicted_row: float
-    predicted_col: float
     dipe_px: float
     dipe_mm: float
 

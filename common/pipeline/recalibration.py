@@ -127,20 +127,15 @@ def config_for_request(config: OvisConfig, request: CalibrateRequest) -> OvisCon
     )
 
 
+#: The reply's fields that are the calibration's own.
+_FROM_CALIBRATION = ("version", "dipe_px", "dipe_mm", "dipe_max_px", "elapsed_s")
+
+
 def calibrate_reply(calib: Calibration, seq: int, saved_to: str) -> CalibrateReply:
     """The reply to a calibration that worked: version, DIPE, the camera's parameters
     with the threshold and size filter, and where it was saved."""
     params = camera_parameters(calib.camera)
     params["threshold"] = float(calib.image.threshold)
     params["size_filter_cm2"] = calib.image.size_filter_cm2
-    return CalibrateReply(
-        ok=True,
-        version=calib.version,
-        frame_seq=seq,
-        dipe_px=calib.dipe_px,
-        dipe_mm=calib.dipe_mm,
-        dipe_max_px=calib.dipe_max_px,
-        elapsed_s=calib.elapsed_s,
-        parameters=params,
-        saved_to=saved_to,
-    )
+    same = {name: getattr(calib, name) for name in _FROM_CALIBRATION}
+    return CalibrateReply(ok=True, frame_seq=seq, parameters=params, saved_to=saved_to, **same)

@@ -11,7 +11,7 @@ import typer
 
 from ovis.common.config import resolve_config
 from ovis.services.cli.errors import UserError
-from ovis.services.cli.ui import calibrate_with_progress, console, emit_json, progress
+from ovis.services.cli.ui import calibrate_with_progress, console, emit_json, progress, table
 
 __all__ = ["register"]
 
@@ -96,11 +96,8 @@ def study(
 
 
 def _print_study(con, summary) -> None:
-    from rich.table import Table
-
-    t = Table(title="GA parametric study (paper Figure 7): best DIPE", title_justify="left")
-    for c in ("factor", "value", "runs", "median px", "10-90 % px", "median mm", "success"):
-        t.add_column(c, justify="right")
+    columns = ("factor", "value", "runs", "median px", "10-90 % px", "median mm", "success")
+    t = table("GA parametric study (paper Figure 7): best DIPE", columns)
     for s in summary:
         v = f"{int(s.value)}" if s.factor in ("population", "generations") else f"{s.value:g}"
         t.add_row(
@@ -155,11 +152,8 @@ def compare(
     if json:
         _emit_json(summary, paths)
         return
-    from rich.table import Table
-
-    t = Table(title="calibration methods on simulated arenas", title_justify="left")
-    for c in ("method", "runs", "success", "median DIPE px", "median world max cm", "p90"):
-        t.add_column(c, justify="right")
+    columns = ("method", "runs", "success", "median DIPE px", "median world max cm", "p90")
+    t = table("calibration methods on simulated arenas", columns)
     for s in summary:
         t.add_row(
             s.method,
@@ -194,8 +188,6 @@ def demo(
     processed with that calibration and compared with the simulator's ground truth.
     Writes calib.json, convergence.png and overlay.png (last frame) to --out.
     """
-    from rich.table import Table
-
     from ovis.common.analysis.plots import draw_detections, plot_convergence, save_png
     from ovis.common.analysis.tracking import track_simulated
     from ovis.common.calibration.file import save_calibration
@@ -239,9 +231,7 @@ def demo(
             )
     pe, re = np.asarray(score.position_error_cm), np.asarray(score.radius_error_cm)
     n_true = frames * len(points)
-    t = Table(title="accuracy against ground truth", title_justify="left")
-    t.add_column("measure")
-    t.add_column("value", justify="right")
+    t = table("accuracy against ground truth", ("measure", "value"), left={"measure"})
     found = f"{pe.size} of {n_true} ({score.missed} missed, {score.spurious} spurious)"
     t.add_row("objects found", found)
     if pe.size:

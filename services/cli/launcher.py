@@ -254,7 +254,7 @@ def up(
             statuses = view.poll_status(session)
     finally:
         codes = fleet.stop()
-    summary = view.summary(statuses, codes, time.monotonic() - started, fleet.restarts())
+    summary = view.score.summary(statuses, codes, time.monotonic() - started, fleet.restarts())
     if json:
         sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
     else:

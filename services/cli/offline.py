@@ -13,7 +13,14 @@ import typer
 from ovis.common.config import resolve_config
 from ovis.common.vision.imageio import read_image
 from ovis.services.cli.errors import UserError
-from ovis.services.cli.ui import JsonOpt, calibrate_with_progress, console, emit_json, progress
+from ovis.services.cli.ui import (
+    JsonOpt,
+    calibrate_with_progress,
+    console,
+    emit_json,
+    progress,
+    table,
+)
 
 __all__ = ["register"]
 
@@ -340,11 +347,7 @@ def plan(
     if json:
         emit_json(rows)
         return
-    from rich.table import Table
-
-    t = Table(title="motion planner inputs", title_justify="left")
-    for col in ("obstacle", "X,Y,R cm", "distance cm", "angle deg"):
-        t.add_column(col, justify="right")
+    t = table("motion planner inputs", ("obstacle", "X,Y,R cm", "distance cm", "angle deg"))
     for i, (o, row) in enumerate(zip(obs, rows, strict=True), start=1):
         t.add_row(
             str(i),

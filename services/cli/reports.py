@@ -7,19 +7,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ovis.services.cli.ui import console
+from ovis.services.cli.ui import console, table
 
 __all__ = ["print_accuracy", "print_calibration", "print_detection"]
 
 
 def print_calibration(calib, out: Path, plot: Path | None) -> None:
-    from rich.table import Table
-
     con = console()
     cam = calib.camera
-    t = Table(title="calibrated parameters", title_justify="left")
-    t.add_column("parameter")
-    t.add_column("value", justify="right")
+    t = table("calibrated parameters", ("parameter", "value"), left={"parameter"})
     band = calib.feasible_thresholds
     centred = f" (GA {calib.ga_threshold}; {band[0]}-{band[1]} see the right count)" if band else ""
     ga_af = calib.ga_size_filter_cm2
@@ -31,36 +27,17 @@ def print_calibration(calib, out: Path, plot: Path | None) -> None:
             + (f" (GA {ga_af:.2f})" if ga_af is not None and band else ""),
         ),
     ]
-    if cam.model == "pinhole":
-        rows += _pinhole_rows(cam)
-    else:
-        rows += _paper_rows(cam)
+    rows += _parameter_rows(cam)
     for name, value in rows:
         t.add_row(name, value)
     con.print(t)
     _print_residuals(calib, out, plot)
 
 
-def _paper_rows(cam) -> list[tuple[str, str]]:
-    """Parameter rows of a paper-model camera."""
-    return [
-        ("Z0", f"{cam.Z0_cm:.3f} cm"),
-        ("λ", f"{cam.lam_mm:.4f} mm"),
-        ("k1", f"{cam.k1:.3e}"),
-        ("k2", f"{cam.k2:.3e}"),
-        ("k3", f"{cam.k3:.3e}"),
-        ("s_x", f"{cam.s_x:.5f}"),
-        ("s_y", f"{cam.s_y:.5f}"),
-    ]
-
-
 def _print_residuals(calib, out: Path, plot: Path | None) -> None:
-    from rich.table import Table
-
     con = console()
-    p = Table(title="DIPE per control point (eq. 14)", title_justify="left")
-    for col in ("point", "X,Y,Z cm", "detected row,col", "predicted row,col", "px", "mm"):
-        p.add_column(col, justify="right")
+    columns = ("point", "X,Y,Z cm", "detected row,col", "predicted row,col", "px", "mm")
+    p = table("DIPE per control point (eq. 14)", columns)
     for r in calib.points:
         p.add_row(
             r.name,
@@ -80,17 +57,32 @@ def _print_residuals(calib, out: Path, plot: Path | None) -> None:
     con.print(f"wrote {out}" + (f" and {plot}" if plot else ""))
 
 
-def _pinhole_rows(cam) -> list[tuple[str, str]]:
-    """Parameter rows of a pinhole camera (OpenCV: x = column, y = row)."""
-    return [
-        ("fx (columns)", f"{cam.fx:.3f} px"),
-        ("fy (rows)", f"{cam.fy:.3f} px"),
-        ("cx (column)", f"{cam.cx:.3f} px"),
-        ("cy (row)", f"{cam.cy:.3f} px"),
-        *((n, f"{getattr(cam, n):.5g}") for n in ("k1", "k2", "p1", "p2", "k3")),
-        ("rvec", ", ".join(f"{v:.5f}" for v in cam.rvec) + " rad"),
-        ("tvec", ", ".join(f"{v:.3f}" for v in cam.tvec_cm) + " cm"),
-    ]
+#: (label, field, format) of each camera model's parameters (pinhole: OpenCV's x is the
+#: column, y the row).
+_PARAMETERS = {
+    "paper": (
+        ("Z0", "Z0_cm", "{:.3f} cm"),
+        ("λ", "lam_mm", "{:.4f} mm"),
+        *((k, k, "{:.3e}") for k in ("k1", "k2", "k3")),
+        *((s, s, "{:.5f}") for s in ("s_x", "s_y")),
+    ),
+    "pinhole": (
+        ("fx (columns)", "fx", "{:.3f} px"),
+        ("fy (rows)", "fy", "{:.3f} px"),
+        ("cx (column)", "cx", "{:.3f} px"),
+        ("cy (row)", "cy", "{:.3f} px"),
+        *((k, k, "{:.5g}") for k in ("k1", "k2", "p1", "p2", "k3")),
+    ),
+}
+
+
+def _parameter_rows(cam) -> list[tuple[str, str]]:
+    """The camera's parameters as (name, value) rows."""
+    rows = [(label, fmt.format(getattr(cam, f))) for label, f, fmt in _PARAMETERS[cam.model]]
+    if cam.model == "pinhole":
+        rows.append(("rvec", ", ".join(f"{v:.5f}" for v in cam.rvec) + " rad"))
+        rows.append(("tvec", ", ".join(f"{v:.3f}" for v in cam.tvec_cm) + " cm"))
+    return rows
 
 
 _SHORT = {"Z0_cm": "Z0 cm", "lam_mm": "λ mm"}
@@ -108,8 +100,6 @@ def print_accuracy(calib, con=None) -> None:
     rep = calib.accuracy
     if rep is None:
         return
-    from rich.table import Table
-
     con = con or console()
     if calib.ga_dipe_px is not None and calib.polish_dipe_px is not None:
         if calib.polished:
@@ -126,9 +116,10 @@ def print_accuracy(calib, con=None) -> None:
     for held in (rep.leave_one_out, rep.check):
         if held is None:
             continue
-        t = Table(title=f"held-out error: {held.method} ({held.source})", title_justify="left")
-        for c in ("point", "X,Y,Z cm", "error px", "error cm", "in-sample px"):
-            t.add_column(c, justify="right")
+        t = table(
+            f"held-out error: {held.method} ({held.source})",
+            ("point", "X,Y,Z cm", "error px", "error cm", "in-sample px"),
+        )
         for p in held.points:
             t.add_row(
                 p.name,
@@ -149,10 +140,8 @@ def print_accuracy(calib, con=None) -> None:
         if held.missing:
             con.print(f"not found near their projection: {', '.join(held.missing)}")
     if rep.parameters:
-        t = Table(title="what the control points determine", title_justify="left")
-        for c in ("param.", "value", "range moves", "std. error", "of range", "restarts"):
-            t.add_column(c, justify="right")
-        t.add_column("fixed")
+        columns = ("param.", "value", "range moves", "std. error", "of range", "restarts", "fixed")
+        t = table("what the control points determine", columns, left={"fixed"})
         for q in rep.parameters:
             t.add_row(
                 _SHORT.get(q.name, q.name),
@@ -174,23 +163,9 @@ def print_accuracy(calib, con=None) -> None:
 
 
 def print_detection(path: Path, det) -> None:
-    from rich.table import Table
-
     con = console()
-    t = Table(title=f"{path}: {len(det.objects)} object(s)", title_justify="left")
-    for col in (
-        "id",
-        "kind",
-        "row",
-        "col",
-        "area px",
-        "perim px",
-        "compact.",
-        "X cm",
-        "Y cm",
-        "r cm",
-    ):
-        t.add_column(col, justify="right")
+    columns = ("id", "kind", "row", "col", "area px", "perim px", "compact.")
+    t = table(f"{path}: {len(det.objects)} object(s)", (*columns, "X cm", "Y cm", "r cm"))
     for o in det.objects:
         t.add_row(
             str(o.id),
@@ -206,9 +181,7 @@ def print_detection(path: Path, det) -> None:
         )
     con.print(t)
     if det.planner:
-        p = Table(title="motion planner inputs", title_justify="left")
-        for col in ("obstacle", "distance cm", "angle deg"):
-            p.add_column(col, justify="right")
+        p = table("motion planner inputs", ("obstacle", "distance cm", "angle deg"))
         for e in det.planner:
             p.add_row(str(e.obstacle_id), f"{e.distance_cm:.3f}", f"{e.angle_deg:.3f}")
         con.print(p)

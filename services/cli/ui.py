@@ -4,14 +4,14 @@ bars for long work (on stderr, so that stdout stays clean for --json)."""
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterable, Iterator
 from contextlib import contextmanager
 from typing import Annotated, Any
 
 import msgspec
 import typer
 
-__all__ = ["JsonOpt", "calibrate_with_progress", "console", "emit_json", "progress"]
+__all__ = ["JsonOpt", "calibrate_with_progress", "console", "emit_json", "progress", "table"]
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")]
 
@@ -21,6 +21,16 @@ def console():
     from rich.console import Console
 
     return Console(highlight=False)
+
+
+def table(title: str, columns: Iterable[str], *, left: Collection[str] = ()):
+    """A table titled on the left; numbers (every column not in ``left``) on the right."""
+    from rich.table import Table
+
+    t = Table(title=title, title_justify="left")
+    for col in columns:
+        t.add_column(col, justify="left" if col in left else "right")
+    return t
 
 
 def emit_json(data: Any) -> None:

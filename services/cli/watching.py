@@ -22,6 +22,7 @@ from ovis.common.messages import (
     TruthFrame,
     decode,
 )
+from ovis.services.cli.ui import table
 
 __all__ = [
     "LiveView",
@@ -100,22 +101,12 @@ def collect_status(
 
 
 def status_table(report: list[ServiceReport], topics: Topics):
-    from rich.table import Table
-
-    t = Table(title=f"ovis services of arena {topics.arena}", title_justify="left")
-    for col in (
-        "service",
-        "alive",
-        "state",
-        "fps",
-        "in",
-        "out",
-        "dropped",
-        "errors",
-        "calib",
-        "pid@host",
-    ):
-        t.add_column(col, justify="right" if col in ("fps", "in", "out", "dropped") else "left")
+    columns = ("service", "alive", "state", "fps", "in", "out", "dropped", "errors", "calib")
+    t = table(
+        f"ovis services of arena {topics.arena}",
+        (*columns, "pid@host"),
+        left={"service", "alive", "state", "errors", "calib", "pid@host"},
+    )
     for r in report:
         s = r.status
         if s is None:
@@ -214,22 +205,9 @@ class LiveView:
     def poll_status(self, session: zenoh.Session) -> dict[str, ServiceStatus]:
         return {r.service: r.status for r in collect_status(session, self.topics) if r.status}
 
-    def summary(
-        self,
-        statuses: dict[str, ServiceStatus],
-        codes: dict[str, int],
-        duration: float,
-        restarts: dict[str, int] | None = None,
-    ) -> RunSummary:
-        return self.score.summary(statuses, codes, duration, restarts)
-
 
 def summary_table(s: RunSummary):
-    from rich.table import Table
-
-    t = Table(title="ovis up: summary", title_justify="left")
-    t.add_column("measure")
-    t.add_column("value", justify="right")
+    t = table("ovis up: summary", ("measure", "value"), left={"measure"})
 
     def fmt(v: float | None, unit: str, digits: int = 2) -> str:
         return "-" if v is None else f"{v:.{digits}f} {unit}"
