@@ -139,16 +139,14 @@ def load_calibration(path: Path | str) -> Calibration:
 def calibration_from_config(config: OvisConfig) -> Calibration:
     """Version 0: the configured (nominal, uncalibrated) camera and image settings, what
     a service uses until a calibration is published."""
+    no_dipe = dict.fromkeys(("dipe_px", "dipe_mm", "dipe_max_px", "dipe_max_mm"), 0.0)
     return Calibration(
         version=0,
-        dipe_px=0.0,
-        dipe_mm=0.0,
-        dipe_max_px=0.0,
-        dipe_max_mm=0.0,
         camera=config.camera,
         image=config.image,
         pose=config.pose,
         source_image="configuration (not calibrated)",
+        **no_dipe,
     )
 
 

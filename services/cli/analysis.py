@@ -37,6 +37,8 @@ ConfigOpt = Annotated[
         "--config", "-c", help="TOML configuration (default: the preset).", dir_okay=False
     ),
 ]
+PresetOpt = Annotated[str, typer.Option(help="'default' (640x480) or 'paper' (192x192).")]
+SummaryJsonOpt = Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")]
 
 
 def study(
@@ -50,11 +52,9 @@ def study(
     quick: Annotated[
         bool, typer.Option("--quick", help="A smaller grid (about a quarter of the work).")
     ] = False,
-    preset: Annotated[str, typer.Option(help="'default' (640x480) or 'paper' (192x192).")] = (
-        "default"
-    ),
+    preset: PresetOpt = "default",
     config: ConfigOpt = None,
-    json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    json: SummaryJsonOpt = False,
 ) -> None:
     """Reproduce the paper's parametric study of the GA (§5.1, Figure 7), with spread.
 
@@ -121,11 +121,9 @@ def compare(
     starts: Annotated[
         int, typer.Option(min=1, max=1000, help="Random starts per arena for the local methods.")
     ] = 5,
-    preset: Annotated[str, typer.Option(help="'default' (640x480) or 'paper' (192x192).")] = (
-        "default"
-    ),
+    preset: PresetOpt = "default",
     config: ConfigOpt = None,
-    json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    json: SummaryJsonOpt = False,
 ) -> None:
     """GA alone, GA + least-squares polish, and Levenberg-Marquardt from random starts.
 
@@ -174,9 +172,7 @@ def demo(
     ] = Path("ovis-demo"),
     frames: Annotated[int, typer.Option(min=1, max=10000, help="Frames to detect on.")] = 30,
     seed: Annotated[int, typer.Option(min=0, help="Arena seed.")] = 0,
-    preset: Annotated[str, typer.Option(help="'default' (640x480) or 'paper' (192x192).")] = (
-        "default"
-    ),
+    preset: PresetOpt = "default",
     config: Annotated[
         Path | None, typer.Option("--config", "-c", help="TOML configuration.", dir_okay=False)
     ] = None,

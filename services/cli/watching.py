@@ -30,6 +30,7 @@ __all__ = [
     "collect_status",
     "format_health",
     "format_obstacles",
+    "query_statuses",
     "status_table",
     "summary_table",
 ]
@@ -82,11 +83,10 @@ def alive_services(session: zenoh.Session, topics: Topics, timeout: float = 1.5)
     return alive
 
 
-def collect_status(
+def query_statuses(
     session: zenoh.Session, topics: Topics, timeout: float = 1.5
-) -> list[ServiceReport]:
-    """Liveliness tokens and status replies of every service of the arena."""
-    alive = alive_services(session, topics, timeout)
+) -> dict[str, ServiceStatus]:
+    """The status replies of the arena's services, by name (a bad reply is skipped)."""
     statuses: dict[str, ServiceStatus] = {}
     for reply in session.get(topics.status_all, timeout=timeout):
         if reply.ok is None:
@@ -96,6 +96,15 @@ def collect_status(
         except MessageError:
             continue
         statuses[st.service] = st
+    return statuses
+
+
+def collect_status(
+    session: zenoh.Session, topics: Topics, timeout: float = 1.5
+) -> list[ServiceReport]:
+    """Liveliness tokens and status replies of every service of the arena."""
+    alive = alive_services(session, topics, timeout)
+    statuses = query_statuses(session, topics, timeout)
     names = list(STAGES) + sorted((alive | set(statuses)) - set(STAGES))
     return [ServiceReport(n, n in alive, statuses.get(n) if n in alive else None) for n in names]
 
