@@ -116,7 +116,9 @@ def test_the_stages_over_the_wire_find_what_one_process_finds(scene) -> None:
 
     alone = Detector(calib.camera, calib.image, calib.pose).detect(image).objects
     assert len(staged) == len(alone) == len(truth.objects)
-    by_x = lambda objects: sorted(objects, key=lambda o: o.x_cm)  # noqa: E731
+    def by_x(objects: list) -> list:
+        return sorted(objects, key=lambda o: o.x_cm)
+
     for a, b in zip(by_x(staged), by_x(alone), strict=True):
         assert (a.kind, a.x_cm, a.y_cm) == pytest.approx((b.kind, b.x_cm, b.y_cm), abs=1e-6)
     acc = match_objects(staged, truth.objects)

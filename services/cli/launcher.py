@@ -1,4 +1,4 @@
-"""Service commands: router, run, up, watch, recalibrate, status, schema."""
+"""Commands of the running system: router, run, up, watch, recalibrate, status, schema."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ import msgspec
 import typer
 
 from ovis.services.cli.errors import UserError
+from ovis.services.cli.ui import JsonOpt
 
 __all__ = ["register"]
 
@@ -34,7 +35,6 @@ ConnectOpt = Annotated[
 ArenaOpt = Annotated[
     str | None, typer.Option(help="Arena name: key expressions are rooted at ovis/<arena>/.")
 ]
-JsonOpt = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")]
 
 
 def _config(config: Path | None, **options: Any):
