@@ -116,6 +116,7 @@ def test_the_stages_over_the_wire_find_what_one_process_finds(scene) -> None:
 
     alone = Detector(calib.camera, calib.image, calib.pose).detect(image).objects
     assert len(staged) == len(alone) == len(truth.objects)
+
     def by_x(objects: list) -> list:
         return sorted(objects, key=lambda o: o.x_cm)
 
