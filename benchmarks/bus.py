@@ -34,9 +34,11 @@ import zenoh
 from benchmarks.core import Row, Stats, ratio, scaled_config, size_label, stats
 from ovis.common.capture.sources import SimSource
 from ovis.common.config import OvisConfig, ZenohConfig, dump_toml
-from ovis.common.messages import ObstacleFrame, ServiceStatus, Topics, decode
+from ovis.common.messages import ObstacleFrame, Topics, decode
 from ovis.common.world.detection import Detector
-from ovis.services.runtime import cpus_option, local_peers, pick_cpus, zenoh_config
+from ovis.services.bus import local_peers, zenoh_config
+from ovis.services.cli.watching import query_statuses
+from ovis.services.placement import cpus_option, pick_cpus
 
 __all__ = ["e2e_rows", "memory_rows"]
 
@@ -244,16 +246,8 @@ class Bench:
 
     def stage_drops(self) -> dict[str, int]:
         """Each running stage's own count of dropped frames (from its status)."""
-        out = {}
-        for reply in self.session.get(self.topics.status("*"), timeout=2.0):
-            if reply.ok is None:
-                continue
-            try:
-                st = decode(reply.ok.payload.to_bytes(), ServiceStatus)
-            except Exception:
-                continue
-            out[st.service] = st.dropped
-        return out
+        statuses = query_statuses(self.session, self.topics, timeout=2.0)
+        return {name: st.dropped for name, st in statuses.items()}
 
     def run_capture(self, fps: float, duration_s: float, log=print) -> StepResult:
         """Start the capture at ``fps``, measure ``duration_s`` after the first obstacle

@@ -9,10 +9,10 @@ frame: ``cv2.medianBlur(g, 3)`` + ``cv2.threshold`` + ``cv2.connectedComponentsW
 Both are measured in their steady state, as each runs on a camera stream: in blocks of
 :data:`BLOCK` timed frames after one untimed frame, the floor's block and then ovis's on
 the same frames. Blocks of all cases (sizes, object counts) take turns, so that a change
-of load on the machine hits floor and ovis, and every case, alike within ≈ 0.1 s. (Taking
+of load on the machine hits floor and ovis, and every case, alike within a block. (Taking
 turns frame by frame instead puts every ovis frame right after the floor's or another
-size's, whose label images flush the caches: at 640×480 ovis then reads 0.86 ms instead
-of 0.57 ms, the floor 1.07 ms instead of 1.00 ms.)
+size's, whose label images flush the caches: both then read slower than on a stream,
+ovis more than the floor.)
 """
 
 from __future__ import annotations

@@ -40,6 +40,10 @@ __all__ = [
     "load_config",
     "load_points",
     "preset_text",
+    "resolve_config",
+    "router_zenoh",
+    "with_ga",
+    "with_options",
 ]
 
 PRESETS = ("default", "paper", "pinhole")
@@ -520,3 +524,71 @@ def dump_toml(obj: msgspec.Struct | dict[str, Any]) -> str:
         return v
 
     return tomli_w.dumps(drop_none(data))
+
+
+def resolve_config(
+    config_file: Path | None, preset: str | None, points_config: dict[str, Any] | None = None
+) -> OvisConfig:
+    """The configuration a command works with: the ``--config`` file, else a points
+    file's ``[config]`` table (when no preset is named), else the preset (default
+    ``default``)."""
+    if config_file is not None:
+        return load_config(config_file)
+    if points_config is not None and preset is None:
+        return config_from_dict(points_config, "points file [config]")
+    return load_config(preset=preset or "default")
+
+
+def with_options(
+    config_file: Path | None,
+    *,
+    connect: list[str] | None = None,
+    listen: list[str] | None = None,
+    mode: str | None = None,
+    **service: Any,
+) -> OvisConfig:
+    """The configuration (a file, else the default preset) with command-line options
+    laid over it, validated again: Zenoh's connect (when given), listen and mode, and
+    every ``[service]`` field that is not None."""
+    cfg = load_config(config_file) if config_file is not None else load_config()
+    data = msgspec.to_builtins(cfg)
+    if connect:
+        data["zenoh"]["connect"] = connect
+    if listen is not None:
+        data["zenoh"]["listen"] = listen
+    if mode is not None:
+        data["zenoh"]["mode"] = mode
+    data["service"].update({k: v for k, v in service.items() if v is not None})
+    return config_from_dict(data, "configuration with command-line options")
+
+
+def with_ga(config: OvisConfig, **ga: Any) -> OvisConfig:
+    """The configuration with the ``[ga]`` fields given (not None) replaced."""
+    given = {k: v for k, v in ga.items() if v is not None}
+    if not given:
+        return config
+    return msgspec.structs.replace(config, ga=msgspec.structs.replace(config.ga, **given))
+
+
+def router_zenoh(
+    config: OvisConfig,
+    config_file: Path | None,
+    *,
+    listen: list[str] | None,
+    connect: list[str] | None,
+    default_endpoint: str,
+) -> ZenohConfig:
+    """A router's Zenoh settings: the command line's ``listen``/``connect`` first, then
+    what the configuration file's ``[zenoh]`` section itself sets, else listen on
+    ``default_endpoint`` (none when a Zenoh JSON5 file names the endpoints) and mesh
+    with no other router."""
+    given: dict[str, Any] = {}
+    if config_file is not None:
+        given = _read_toml(Path(config_file), "configuration file").get("zenoh", {})
+    zc = config.zenoh
+    default_listen = [] if zc.config_file else [default_endpoint]
+    return msgspec.structs.replace(
+        zc,
+        listen=listen or (zc.listen if "listen" in given else default_listen),
+        connect=connect or (zc.connect if "connect" in given else []),
+    )

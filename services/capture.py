@@ -8,7 +8,8 @@ import time
 
 from ovis.common.capture.sources import FrameSource, SourceError, open_source
 from ovis.common.messages import Frame, TruthFrame
-from ovis.services.runtime import Service
+from ovis.common.pipeline.pacing import Pacer
+from ovis.services.service import Service
 
 RETRY_S = 2.0
 
@@ -17,30 +18,25 @@ def main(service: Service) -> None:
     cfg = service.config.service
     publish_frame = service.publisher(service.topics.frames)
     publish_truth = service.publisher(service.topics.truth)
-    period = 1.0 / cfg.fps if cfg.fps > 0 else 0.0
+    pacer = Pacer(cfg.fps)
     source: FrameSource | None = None
     seq = 0
-    next_t = time.monotonic()
     service.ready()
     try:
         while not service.stop.is_set():
-            if source is None:
-                try:
+            try:
+                if source is None:
                     source = open_source(cfg.source, service.config)
                     service.log.info("capturing from %s", source.description)
                     service.state = "ok"
-                except SourceError as exc:
-                    service.state = "source unavailable"
-                    service.error("source", f"{exc}; retrying in {RETRY_S:g} s")
-                    service.stop.wait(RETRY_S)
-                    continue
-            try:
                 image, truth = source.read()
             except SourceError as exc:
+                again = "retrying" if source is None else "reopening"
                 service.state = "source unavailable"
-                service.error("source", f"{exc}; reopening in {RETRY_S:g} s")
-                source.close()
-                source = None
+                service.error("source", f"{exc}; {again} in {RETRY_S:g} s")
+                if source is not None:
+                    source.close()
+                    source = None
                 service.stop.wait(RETRY_S)
                 continue
             stamp = time.time_ns()
@@ -53,13 +49,7 @@ def main(service: Service) -> None:
             service.saw_frame(seq, stamp)
             service.sent()
             seq += 1
-            if period:
-                next_t += period
-                delay = next_t - time.monotonic()
-                if delay > 0:
-                    service.stop.wait(delay)
-                else:
-                    next_t = time.monotonic()  # running late: do not try to catch up
+            service.stop.wait(pacer.delay())
     finally:
         if source is not None:
             source.close()

@@ -6,15 +6,10 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
-
-from ovis.common.messages import BinaryFrame, Frame
-from ovis.common.vision.preprocess import ImageError, as_gray, binarize, smooth
-from ovis.services.runtime import Service
-
-#: Frames stamped further than this from the local clock are refused (a broken clock or
-#: a forged frame would otherwise give nonsense ages and velocities downstream).
-MAX_CLOCK_SKEW_S = 3600.0
+from ovis.common.messages import Frame
+from ovis.common.pipeline.stages import binary_frame, clock_skew
+from ovis.common.vision.preprocess import ImageError, as_gray
+from ovis.services.service import Service
 
 
 def main(service: Service) -> None:
@@ -23,15 +18,7 @@ def main(service: Service) -> None:
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
         frame = service.decode(payload, Frame, "frame")
-        if frame is None:
-            return
-        skew = abs(time.time_ns() - frame.stamp_ns) / 1e9
-        if skew > MAX_CLOCK_SKEW_S:
-            service.error(
-                "bad_frame",
-                f"frame {frame.seq} is stamped {skew:.0f} s away from this machine's clock; "
-                "check the capture host's clock (NTP)",
-            )
+        if frame is None or service.refused("bad_frame", clock_skew(frame, time.time_ns())):
             return
         calib = service.calibration
         if not service.fits_camera(frame, "frame"):
@@ -42,20 +29,6 @@ def main(service: Service) -> None:
             service.error("bad_frame", f"frame {frame.seq}: {exc}")
             return
         service.saw_frame(frame.seq, frame.stamp_ns)
-        params = calib.image
-        binary = binarize(smooth(gray, params.median), params.threshold, params.polarity)
-        publish(
-            BinaryFrame(
-                seq=frame.seq,
-                stamp_ns=frame.stamp_ns,
-                rows=frame.rows,
-                cols=frame.cols,
-                bits=np.packbits(binary).tobytes(),
-                threshold=params.threshold,
-                calibration_version=calib.version,
-            )
-        )
-        service.sent()
-        service.state = "ok"
+        service.publish_result(publish, binary_frame(frame, gray, calib))
 
     service.serve(service.inbox(service.topics.frames), handle)

@@ -1,10 +1,10 @@
 """Supervision of the router and the stages started by `ovis up`.
 
-A child that dies is restarted after a back-off (1 s, doubling up to 10 s) while its
-restart budget lasts (``max_restarts`` within ``window_s``); the reason (exit code or
-signal, and the last lines of its log) is logged. Children get SIGTERM when the
-supervisor dies (``PR_SET_PDEATHSIG``), so nothing is left orphaned, and the number of
-restarts is passed to each child (``OVIS_RESTARTS``) so that `ovis status` shows it.
+A child that dies is restarted after a back-off while its restart budget lasts (the
+rule: :mod:`ovis.common.pipeline.restarts`); the reason (exit code or signal, and the
+last lines of its log) is logged. Children get SIGTERM when the supervisor dies
+(``PR_SET_PDEATHSIG``), so nothing is left orphaned, and the number of restarts is
+passed to each child (``OVIS_RESTARTS``) so that `ovis status` shows it.
 """
 
 from __future__ import annotations
@@ -17,16 +17,14 @@ import signal
 import subprocess
 import sys
 import time
-from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["Child", "Supervisor", "describe_exit", "die_with_parent"]
+from ovis.common.pipeline.restarts import RestartBudget, describe_exit
+
+__all__ = ["Child", "Supervisor", "die_with_parent"]
 
 log = logging.getLogger("ovis.up")
-
-BACKOFF_START_S = 1.0
-BACKOFF_MAX_S = 10.0
 
 
 def die_with_parent() -> None:
@@ -35,28 +33,16 @@ def die_with_parent() -> None:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
-def describe_exit(code: int) -> str:
-    """'exit code 3' or 'killed by SIGKILL'."""
-    if code < 0:
-        try:
-            return f"killed by {signal.Signals(-code).name}"
-        except ValueError:
-            return f"killed by signal {-code}"
-    return f"exit code {code}"
-
-
 @dataclass
 class Child:
     """One supervised process."""
 
     name: str
     args: list[str]
+    budget: RestartBudget
     proc: subprocess.Popen[bytes] | None = None
-    restarts: int = 0
-    recent: deque[float] = field(default_factory=lambda: deque(maxlen=64))
     started_at: float = 0.0
     restart_at: float | None = None
-    backoff: float = BACKOFF_START_S
     gave_up: str = ""
     last_exit: str = ""
 
@@ -73,13 +59,16 @@ class Supervisor:
         self.stopping = False
 
     def start(self, name: str, args: list[str]) -> None:
-        child = self.children.setdefault(name, Child(name, args))
+        if name not in self.children:
+            budget = RestartBudget(self.max_restarts, self.window_s)
+            self.children[name] = Child(name, args, budget)
+        child = self.children[name]
         child.started_at = time.monotonic()
         self._spawn(child)
 
     def _spawn(self, child: Child) -> None:
         logfile = open(self.log_dir / f"{child.name}.log", "ab")  # noqa: SIM115 (the child keeps it)
-        env = dict(os.environ, OVIS_RESTARTS=str(child.restarts))
+        env = dict(os.environ, OVIS_RESTARTS=str(child.budget.restarts))
         child.proc = subprocess.Popen(
             [sys.executable, "-m", "ovis.services.cli", *child.args],
             stdout=logfile,
@@ -107,22 +96,19 @@ class Supervisor:
                 continue
             if child.restart_at is not None:  # dead, waiting for its back-off
                 if now >= child.restart_at:
-                    child.restarts += 1
-                    child.recent.append(now)
+                    child.budget.restarted(now)
                     child.restart_at = None
                     child.started_at = now
                     self._spawn(child)
-                    news.append(f"{child.name} restarted (restart {child.restarts})")
+                    news.append(f"{child.name} restarted (restart {child.budget.restarts})")
                 continue
             code = child.proc.poll()
             if code is None:
-                if now - child.started_at > 30.0:  # has run fine for a while
-                    child.backoff = BACKOFF_START_S
+                child.budget.running(now, child.started_at)
                 continue
             child.last_exit = describe_exit(code)
-            while child.recent and now - child.recent[0] > self.window_s:
-                child.recent.popleft()
-            if len(child.recent) >= self.max_restarts:
+            backoff = child.budget.died(now)
+            if backoff is None:
                 child.gave_up = (
                     f"{child.name} died ({child.last_exit}) and used its restart budget "
                     f"({self.max_restarts} in {self.window_s:g} s): left stopped"
@@ -130,14 +116,13 @@ class Supervisor:
                 news.append(child.gave_up)
                 log.error(child.gave_up)
                 continue
-            child.restart_at = now + child.backoff
+            child.restart_at = now + backoff
             msg = (
-                f"{child.name} died ({child.last_exit}); restarting in {child.backoff:g} s. "
+                f"{child.name} died ({child.last_exit}); restarting in {backoff:g} s. "
                 f"Last log: {self._tail(child.name)}"
             )
             news.append(msg)
             log.warning(msg)
-            child.backoff = min(BACKOFF_MAX_S, child.backoff * 2)
         self.events.extend(news)
         return news
 
@@ -145,7 +130,7 @@ class Supervisor:
         return [c.gave_up for c in self.children.values() if c.gave_up]
 
     def restarts(self) -> dict[str, int]:
-        return {n: c.restarts for n, c in self.children.items()}
+        return {n: c.budget.restarts for n, c in self.children.items()}
 
     def stop(self, timeout: float = 5.0) -> dict[str, int]:
         """SIGTERM the stages, then the router; SIGKILL whatever outlives ``timeout``."""

@@ -91,7 +91,7 @@ def probe_main(argv: list[str]) -> None:
 
     from ovis.common.config import load_config
     from ovis.common.messages import ObstacleFrame, StreamHealth, TruthFrame, decode
-    from ovis.services.runtime import open_session
+    from ovis.services.bus import open_session
 
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())

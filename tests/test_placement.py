@@ -13,13 +13,8 @@ import pytest
 from zenoh_helpers import free_port, ovis_cmd
 
 from ovis.common.config import ZenohConfig, config_from_dict
-from ovis.services.runtime import (
-    LOOPBACK_PEER,
-    cpus_option,
-    local_peers,
-    pick_cpus,
-    pin_to_cpus,
-)
+from ovis.services.bus import LOOPBACK_PEER, local_peers
+from ovis.services.placement import cpus_option, pick_cpus, pin_to_cpus
 
 ALLOWED = sorted(os.sched_getaffinity(0))
 

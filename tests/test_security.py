@@ -30,7 +30,7 @@ from ovis.common.messages import (
     decode,
     encode,
 )
-from ovis.services.runtime import zenoh_config
+from ovis.services.bus import zenoh_config
 
 SECURE = Path(__file__).resolve().parents[1] / "deploy" / "secure"
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator")

@@ -15,7 +15,7 @@ from pathlib import Path
 import zenoh
 
 from ovis.common.config import ZenohConfig
-from ovis.services.runtime import zenoh_config
+from ovis.services.bus import zenoh_config
 
 
 def free_port() -> int:

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
-__all__ = ["FrameAccuracy", "match_objects", "match_to_truth"]
+__all__ = ["FrameAccuracy", "TrackingScore", "match_objects", "match_to_truth"]
 
 
 class FrameAccuracy(NamedTuple):
@@ -81,3 +81,39 @@ def match_objects(
         [o.kind for o in truth],
         gate_cm=gate_cm,
     )
+
+
+class TrackedObject(FloorObject, Protocol):
+    """A floor object with an identity (a detection's id, the simulator's object id)."""
+
+    id: int
+
+
+class TrackingScore:
+    """Detections of many frames against their ground truth, added up: position and
+    radius errors of the matched objects, missed, spurious and mislabelled ones, and
+    identity switches (a true object whose matched detection changes id)."""
+
+    def __init__(self) -> None:
+        self.position_error_cm: list[float] = []
+        self.radius_error_cm: list[float] = []
+        self.matched = self.missed = self.spurious = self.wrong_kind = self.id_switches = 0
+        self._id_of: dict[int, int] = {}  # true id -> the detection id it was matched to
+
+    def add(
+        self, detected: Sequence[TrackedObject], truth: Sequence[TrackedObject]
+    ) -> FrameAccuracy:
+        """Score one frame; its accuracy."""
+        acc = match_objects(detected, truth)
+        self.position_error_cm.extend(acc.position_error_cm.tolist())
+        self.radius_error_cm.extend(acc.radius_error_cm.tolist())
+        self.matched += int(acc.truth_index.size)
+        self.missed += acc.missed
+        self.spurious += acc.spurious
+        self.wrong_kind += int((~acc.kind_correct).sum())
+        for ti, di in zip(acc.truth_index, acc.detection_index, strict=True):
+            true_id, det_id = truth[ti].id, detected[di].id
+            if self._id_of.setdefault(true_id, det_id) != det_id:
+                self.id_switches += 1
+                self._id_of[true_id] = det_id
+        return acc

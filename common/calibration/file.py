@@ -17,17 +17,26 @@ from typing import Literal
 import msgspec
 
 from ovis.common.atomic import write_atomic
-from ovis.common.calibration.quality import AccuracyReport
-from ovis.common.config import CalibrationRanges, CameraModel, GAConfig, ImageParams, PoseConfig
+from ovis.common.calibration.quality import AccuracyReport, PointFit
+from ovis.common.config import (
+    CalibrationRanges,
+    CameraModel,
+    GAConfig,
+    ImageParams,
+    OvisConfig,
+    PoseConfig,
+)
 
 __all__ = [
     "Calibration",
     "CalibrationFileError",
     "GenerationRecord",
     "PointResidual",
+    "calibration_from_config",
     "load_calibration",
     "now_iso",
     "save_calibration",
+    "wrong_arena",
 ]
 
 
@@ -35,17 +44,9 @@ class CalibrationFileError(ValueError):
     """A calibration file that cannot be used; the message names the problem."""
 
 
-class PointResidual(msgspec.Struct, kw_only=True):
+class PointResidual(PointFit, kw_only=True):
     """One control point: where it was detected and projected, and its DIPE."""
 
-    name: str
-    x_cm: float
-    y_cm: float
-    z_cm: float
-    detected_row: float
-    detected_col: float
-    predicted_row: float
-    predicted_col: float
     dipe_px: float
     dipe_mm: float
 
@@ -133,3 +134,29 @@ def load_calibration(path: Path | str) -> Calibration:
         raise CalibrationFileError(f"calibration file {path} is invalid: {exc}") from None
     except msgspec.DecodeError as exc:
         raise CalibrationFileError(f"calibration file {path} is not valid JSON: {exc}") from None
+
+
+def calibration_from_config(config: OvisConfig) -> Calibration:
+    """Version 0: the configured (nominal, uncalibrated) camera and image settings, what
+    a service uses until a calibration is published."""
+    no_dipe = dict.fromkeys(("dipe_px", "dipe_mm", "dipe_max_px", "dipe_max_mm"), 0.0)
+    return Calibration(
+        version=0,
+        camera=config.camera,
+        image=config.image,
+        pose=config.pose,
+        source_image="configuration (not calibrated)",
+        **no_dipe,
+    )
+
+
+def wrong_arena(calibration: Calibration, config: OvisConfig) -> str | None:
+    """Why a published calibration does not fit this arena's configured image size (a
+    service refuses it), or None when it fits."""
+    cam, want = calibration.camera, config.camera
+    if (cam.rows, cam.cols) == (want.rows, want.cols):
+        return None
+    return (
+        f"refused calibration v{calibration.version}: it is for {cam.cols}x{cam.rows}, "
+        f"this arena is {want.cols}x{want.rows}"
+    )

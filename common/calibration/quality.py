@@ -19,18 +19,12 @@ from __future__ import annotations
 
 import msgspec
 
-__all__ = ["AccuracyReport", "HeldOut", "HeldOutPoint", "ParameterDetermination"]
+__all__ = ["AccuracyReport", "HeldOut", "HeldOutPoint", "ParameterDetermination", "PointFit"]
 
 
-class HeldOutPoint(msgspec.Struct, kw_only=True):
-    """One held-out point: how far the calibration misses it.
-
-    ``error_px`` is the distance between the detected blob centroid and the projection
-    of the point; ``error_cm`` is the distance on the plane Z = ``z_cm`` between the
-    back-projected centroid and the point (None if the pixel does not see the plane).
-    ``in_sample_px`` is the same point's residual when it *was* used for the fit
-    (leave-one-out only).
-    """
+class PointFit(msgspec.Struct, kw_only=True):
+    """A point of known position: where its blob was detected and where the calibration
+    projects it (pixels)."""
 
     name: str
     x_cm: float
@@ -40,6 +34,18 @@ class HeldOutPoint(msgspec.Struct, kw_only=True):
     detected_col: float
     predicted_row: float
     predicted_col: float
+
+
+class HeldOutPoint(PointFit, kw_only=True):
+    """One held-out point: how far the calibration misses it.
+
+    ``error_px`` is the distance between the detected blob centroid and the projection
+    of the point; ``error_cm`` is the distance on the plane Z = ``z_cm`` between the
+    back-projected centroid and the point (None if the pixel does not see the plane).
+    ``in_sample_px`` is the same point's residual when it *was* used for the fit
+    (leave-one-out only).
+    """
+
     error_px: float
     error_cm: float | None = None
     in_sample_px: float | None = None

@@ -55,6 +55,8 @@ from ovis.common.config import CameraModel, CameraParams, PinholeParams
 __all__ = [
     "PinholeEquivalent",
     "as_pinhole",
+    "export_note",
+    "export_summary",
     "paper_to_pinhole",
     "ros_camera_info",
     "write_opencv_yaml",
@@ -217,3 +219,34 @@ def write_ros_yaml(
         ros_camera_info(cam, camera_name), sort_keys=False, default_flow_style=None
     )
     write_atomic(path, text.encode("utf-8"))
+
+
+def export_note(eq: PinholeEquivalent, source: str) -> str:
+    """The comment written into the exported files: where the camera comes from and,
+    for a paper-model camera, how well its pinhole equivalent fits."""
+    if eq.exact:
+        return f"from {source} (pinhole model)"
+    return (
+        f"from {source}: the paper model's equivalent pinhole; Brown-Conrady fit "
+        f"residual over the image RMS {eq.rms_px:.3g} px, max {eq.max_px:.3g} px; "
+        "fy < 0: the paper model images the world mirror-inverted"
+    )
+
+
+def export_summary(
+    model: str, eq: PinholeEquivalent, *, opencv: Path | None, ros: Path | None
+) -> dict[str, Any]:
+    """What an export wrote, as plain data (``ovis export --json``)."""
+    cam = eq.camera
+    return {
+        "model": model,
+        "exact": eq.exact,
+        "fit_rms_px": eq.rms_px,
+        "fit_max_px": eq.max_px,
+        "camera_matrix": pinhole.camera_matrix(cam).tolist(),
+        "distortion_coefficients": pinhole.distortion_coefficients(cam).tolist(),
+        "rvec": list(cam.rvec),
+        "tvec_cm": list(cam.tvec_cm),
+        "opencv": str(opencv) if opencv else None,
+        "ros": str(ros) if ros else None,
+    }

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from ovis.common.config import OvisConfig
 from ovis.common.sim.arena import Arena, FrameTruth
+from ovis.common.vision.imageio import to_uint8
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -82,12 +83,6 @@ class SimSource:
         pass
 
 
-def _as_uint8(image: NDArray) -> NDArray[np.uint8]:
-    if image.dtype == np.uint16:
-        return (image >> 8).astype(np.uint8)
-    return image
-
-
 class FolderSource:
     """The images of a folder in name order, looping when ``loop`` is set."""
 
@@ -109,7 +104,7 @@ class FolderSource:
         image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if image is None:
             raise SourceError(f"cannot read {path} as an image")
-        return _as_uint8(image), None
+        return to_uint8(image), None
 
     def close(self) -> None:
         pass
@@ -134,7 +129,7 @@ class _CaptureSource:
             ok, image = self.cap.read()
         if not ok or image is None:
             raise SourceError(f"{self.description} delivered no frame (ended or unplugged)")
-        return _as_uint8(image), None
+        return to_uint8(image), None
 
     def close(self) -> None:
         self.cap.release()

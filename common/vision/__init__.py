@@ -1,5 +1,6 @@
 """The image pipeline of paper §3: grey, median, binarize (``preprocess``), 8-connected
 labeling and moments (``labeling``), perimeter (``perimeter``), compactness and
-orientation (``shape``, eq. 13). Works in pixels only: knows no camera.
+orientation (``shape``, eq. 13), and reading an image file (``imageio``). Works in
+pixels only: knows no camera.
 May import: ``config``.
 """

@@ -185,7 +185,7 @@ def crofton_perimeter(components: Components) -> FloatArray:
     an axis), against −5.2 % … +2.6 % for 4 directions. It is invariant under the 8
     symmetries of the pixel grid (90° turns, flips). A Python loop over components, each
     one a 2×2-window histogram (Euler number) and eight shifted XORs of its padded crop
-    (OpenCV): ≈ 40 µs for a blob of radius 35 px. Meant to run after the size filter.
+    (OpenCV); its cost per frame is in ``benchmarks/``. Meant to run after the size filter.
     """
     c = components
     out = np.empty(c.count, dtype=np.float64)

@@ -55,8 +55,8 @@ NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=1e12)]
 
 class DetectedObject(msgspec.Struct):
     """One object seen in a frame: image measurements and world pose (built positionally,
-    in field order, by :meth:`Detector.from_blobs`: several times faster than keywords
-    for hundreds of objects)."""
+    in field order, by :meth:`Detector.from_blobs`: cheaper than keywords for hundreds
+    of objects)."""
 
     id: Annotated[int, msgspec.Meta(ge=0)]
     kind: Literal["robot", "obstacle"]

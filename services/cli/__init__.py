@@ -30,11 +30,13 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
-from ovis.services.cli import analysis, launcher, offline  # noqa: E402  (they register commands)
+# One module per command group; each registers its commands.
+from ovis.services.cli import analysis, export, launcher, offline  # noqa: E402
 
 offline.register(app)
 launcher.register(app)
 analysis.register(app)
+export.register(app)
 
 
 def main() -> None:
@@ -43,7 +45,7 @@ def main() -> None:
     from ovis.common.calibration.problem import InfeasibleCalibrationError
     from ovis.common.config import ConfigError
     from ovis.common.vision.preprocess import ImageError
-    from ovis.services.runtime import ZenohUnreachableError
+    from ovis.services.bus import ZenohUnreachableError
 
     try:
         app()  # click itself handles usage errors, --help and Ctrl-C, then exits

@@ -1,64 +1,27 @@
-"""Analysis commands (beyond the paper): `ovis study`, `ovis compare`, and the accuracy
-report and plots that `ovis calibrate` adds to every calibration."""
+"""Analysis commands (beyond the paper): `ovis study`, `ovis compare` and `ovis demo`."""
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
-import msgspec
+import numpy as np
 import typer
 
+from ovis.common.config import resolve_config
 from ovis.services.cli.errors import UserError
+from ovis.services.cli.ui import calibrate_with_progress, console, emit_json, progress, table
 
-__all__ = ["add_accuracy", "print_accuracy", "register", "write_calibration_plots"]
+__all__ = ["register"]
 
 
 def _emit_json(summary: object, paths: dict[str, Path]) -> None:
     """The summary and the files written, as indented JSON on stdout."""
-    import sys
-
-    payload = {
-        "summary": msgspec.to_builtins(summary),
-        "files": {k: str(v) for k, v in paths.items()},
-    }
-    sys.stdout.write(msgspec.json.format(msgspec.json.encode(payload), indent=2).decode() + "\n")
-
-
-def _console():
-    from rich.console import Console
-
-    return Console(highlight=False)
-
-
-def _progress(con, what: str):
-    """A progress bar on stderr (stdout stays clean for --json and redirection)."""
-    from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
-    return Progress(
-        TextColumn(f"[bold]{what}[/]"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("{task.fields[label]}"),
-        TimeElapsedColumn(),
-        TextColumn("eta"),
-        TimeRemainingColumn(),
-        console=Console(stderr=True, highlight=False),
-    )
+    emit_json({"summary": summary, "files": {k: str(v) for k, v in paths.items()}})
 
 
 def _resolve(config: Path | None, preset: str):
-    from ovis.services.cli.offline import resolve_config
-
     cfg = resolve_config(config, preset)
     if cfg.camera.model != "paper":
         raise UserError(
@@ -74,6 +37,8 @@ ConfigOpt = Annotated[
         "--config", "-c", help="TOML configuration (default: the preset).", dir_okay=False
     ),
 ]
+PresetOpt = Annotated[str, typer.Option(help="'default' (640x480) or 'paper' (192x192).")]
+SummaryJsonOpt = Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")]
 
 
 def study(
@@ -87,11 +52,9 @@ def study(
     quick: Annotated[
         bool, typer.Option("--quick", help="A smaller grid (about a quarter of the work).")
     ] = False,
-    preset: Annotated[str, typer.Option(help="'default' (640x480) or 'paper' (192x192).")] = (
-        "default"
-    ),
+    preset: PresetOpt = "default",
     config: ConfigOpt = None,
-    json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    json: SummaryJsonOpt = False,
 ) -> None:
     """Reproduce the paper's parametric study of the GA (§5.1, Figure 7), with spread.
 
@@ -101,7 +64,7 @@ def study(
     arena(s). Writes every run (study.csv), a summary table with the median, 10-90 %
     band and share of runs below the paper's DIPE (study.md), and the four panels of
     Figure 7 with their spread bands (study.png; log y; the paper's setting marked).
-    The default (5 seeds, 1 arena) takes about a minute on two cores.
+    The progress bar shows how far it is and how long the rest will take.
     """
     from ovis.common.analysis.study import (
         DEFAULT_GRID,
@@ -113,14 +76,9 @@ def study(
 
     cfg = _resolve(config, preset)
     grid = QUICK_GRID if quick else DEFAULT_GRID
-    con = _console()
+    con = console()
     t0 = time.perf_counter()
-    with _progress(con, "study") as progress:
-        task = progress.add_task("study", total=None, label="")
-
-        def on_run(done: int, total: int, label: str) -> None:
-            progress.update(task, completed=done, total=total, label=label)
-
+    with progress("study") as on_run:
         runs = run_study(cfg, grid=grid, seeds=seeds, arena_seeds=range(arenas), on_run=on_run)
     note = (
         f"{seeds} GA seed(s) x {arenas} arena(s) per setting, {cfg.preset} preset "
@@ -138,11 +96,8 @@ def study(
 
 
 def _print_study(con, summary) -> None:
-    from rich.table import Table
-
-    t = Table(title="GA parametric study (paper Figure 7): best DIPE", title_justify="left")
-    for c in ("factor", "value", "runs", "median px", "10-90 % px", "median mm", "success"):
-        t.add_column(c, justify="right")
+    columns = ("factor", "value", "runs", "median px", "10-90 % px", "median mm", "success")
+    t = table("GA parametric study (paper Figure 7): best DIPE", columns)
     for s in summary:
         v = f"{int(s.value)}" if s.factor in ("population", "generations") else f"{s.value:g}"
         t.add_row(
@@ -166,11 +121,9 @@ def compare(
     starts: Annotated[
         int, typer.Option(min=1, max=1000, help="Random starts per arena for the local methods.")
     ] = 5,
-    preset: Annotated[str, typer.Option(help="'default' (640x480) or 'paper' (192x192).")] = (
-        "default"
-    ),
+    preset: PresetOpt = "default",
     config: ConfigOpt = None,
-    json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    json: SummaryJsonOpt = False,
 ) -> None:
     """GA alone, GA + least-squares polish, and Levenberg-Marquardt from random starts.
 
@@ -184,14 +137,9 @@ def compare(
     from ovis.common.analysis.compare import compare_methods, summarise_compare, write_compare
 
     cfg = _resolve(config, preset)
-    con = _console()
+    con = console()
     t0 = time.perf_counter()
-    with _progress(con, "compare") as progress:
-        task = progress.add_task("compare", total=None, label="")
-
-        def on_run(done: int, total: int, label: str) -> None:
-            progress.update(task, completed=done, total=total, label=label)
-
+    with progress("compare") as on_run:
         runs = compare_methods(cfg, arena_seeds=range(arenas), lm_starts=starts, on_run=on_run)
     note = (
         f"{arenas} arena(s), {starts} random start(s) each for the local methods, "
@@ -202,11 +150,8 @@ def compare(
     if json:
         _emit_json(summary, paths)
         return
-    from rich.table import Table
-
-    t = Table(title="calibration methods on simulated arenas", title_justify="left")
-    for c in ("method", "runs", "success", "median DIPE px", "median world max cm", "p90"):
-        t.add_column(c, justify="right")
+    columns = ("method", "runs", "success", "median DIPE px", "median world max cm", "p90")
+    t = table("calibration methods on simulated arenas", columns)
     for s in summary:
         t.add_row(
             s.method,
@@ -221,167 +166,83 @@ def compare(
     con.print("wrote " + ", ".join(str(p) for p in paths.values()))
 
 
-# ---------------------------------------------------------------- ovis calibrate helpers
+def demo(
+    out: Annotated[
+        Path, typer.Option(help="Folder for the calibration, plots and overlays.")
+    ] = Path("ovis-demo"),
+    frames: Annotated[int, typer.Option(min=1, max=10000, help="Frames to detect on.")] = 30,
+    seed: Annotated[int, typer.Option(min=0, help="Arena seed.")] = 0,
+    preset: PresetOpt = "default",
+    config: Annotated[
+        Path | None, typer.Option("--config", "-c", help="TOML configuration.", dir_okay=False)
+    ] = None,
+) -> None:
+    """Simulate an arena, calibrate on its first frame, then track robot and obstacles.
 
+    The first frame's objects are the control points (as in the paper: four objects of
+    known position). The GA calibrates the camera on it; then every later frame is
+    processed with that calibration and compared with the simulator's ground truth.
+    Writes calib.json, convergence.png and overlay.png (last frame) to --out.
+    """
+    from ovis.common.analysis.plots import draw_detections, plot_convergence, save_png
+    from ovis.common.analysis.tracking import track_simulated
+    from ovis.common.calibration.file import save_calibration
+    from ovis.common.sim.arena import Arena, control_points
+    from ovis.common.world.detection import Detector
 
-def add_accuracy(
-    frame,
-    points,
-    cfg,
-    calib,
-    *,
-    check: Path | None = None,
-    restarts: int = 4,
-    show: bool = True,
-):
-    """The calibration with its accuracy report (held-out errors, identifiability)."""
-    from ovis.common.calibration.accuracy import assess, load_checks
-
-    checks = load_checks(check) if check is not None else None
-    check_image = None
-    if checks is not None and checks.image is not None:
-        from ovis.services.cli.offline import read_image
-
-        check_image = read_image(checks.image)
-    if not show:
-        report = assess(
-            frame, points, cfg, calib, n_restarts=restarts, checks=checks, check_image=check_image
-        )
-    else:
-        with _progress(_console(), "accuracy") as progress:
-            task = progress.add_task("accuracy", total=None, label="")
-
-            def on_step(stage: str, done: int, total: int) -> None:
-                progress.update(task, completed=done, total=total, label=stage)
-
-            report = assess(
-                frame,
-                points,
-                cfg,
-                calib,
-                n_restarts=restarts,
-                checks=checks,
-                check_image=check_image,
-                on_step=on_step,
+    con = console()
+    cfg = resolve_config(config, preset)
+    arena = Arena(cfg, seed)
+    frame0, truth0 = arena.render()
+    points = control_points(truth0)
+    con.print(
+        f"[bold]1. simulated arena[/] {cfg.preset}, {cfg.camera.cols}x{cfg.camera.rows}, "
+        f"seed {seed}: robot + {len(points) - 1} obstacles; control points "
+        + ", ".join(f"{p.name} ({p.x_cm:.1f}, {p.y_cm:.1f}, {p.z_cm:.1f})" for p in points)
+    )
+    con.print("[bold]2. GA calibration[/] on frame 0 (paper §4)")
+    calib = calibrate_with_progress(frame0, points, cfg, source="simulated frame 0", con=con)
+    out.mkdir(parents=True, exist_ok=True)
+    save_calibration(out / "calib.json", calib)
+    plot_convergence(calib, out / "convergence.png")
+    con.print(
+        f"   DIPE {calib.dipe_px:.3f} px = {calib.dipe_mm:.4f} mm (paper 0.735 mm), "
+        f"threshold {calib.image.threshold}, A^f {calib.image.size_filter_cm2:.1f} cm², "
+        f"{calib.elapsed_s:.2f} s"
+    )
+    con.print(f"[bold]3. detection[/] on {frames} frames with identities kept")
+    detector = Detector(calib.camera, calib.image, calib.pose)
+    run = track_simulated(arena, detector, frames)
+    score, last = run.score, run.last_detection
+    if last is not None and run.last_frame is not None:
+        save_png(out / "overlay.png", draw_detections(run.last_frame, last))
+        robot = next((o for o in last.objects if o.kind == "robot"), None)
+        if robot is not None and last.planner:
+            con.print(
+                f"   last frame: robot at ({robot.x_cm:.1f}, {robot.y_cm:.1f}) cm; "
+                + "; ".join(
+                    f"O{e.obstacle_id}: {e.distance_cm:.1f} cm, {e.angle_deg:+.1f}°"
+                    for e in last.planner
+                )
             )
-    return msgspec.structs.replace(calib, accuracy=report)
-
-
-def write_calibration_plots(
-    frame,
-    calib,
-    cfg,
-    *,
-    residuals: Path | None = None,
-    error_map: Path | None = None,
-    arena: Any = None,
-) -> list[str]:
-    """Write the residual-vector and world-error plots asked for; one line each."""
-    lines = []
-    if residuals is not None:
-        from ovis.common.analysis.plots import plot_residuals
-
-        m = plot_residuals(frame, calib, residuals)
-        lines.append(f"wrote {residuals} (residual vectors, magnified {m:g}x)")
-    if error_map is not None:
-        from ovis.common.analysis.plots import plot_error_map
-
-        if type(cfg.camera) is not type(calib.camera):
-            raise UserError(
-                "--error-map needs a reference camera of the same model as the calibration"
-            )
-        mean, worst = plot_error_map(calib, cfg.camera, error_map, arena=arena)
-        where = "arena" if arena is not None else "view"
-        lines.append(
-            f"wrote {error_map} (floor error against the configuration's camera: mean "
-            f"{mean:.3f} cm, max {worst:.3f} cm over the {where})"
-        )
-    return lines
-
-
-_SHORT = {"Z0_cm": "Z0 cm", "lam_mm": "λ mm"}
-
-
-def _num(v: float) -> str:
-    """Two significant digits, never in e-notation (0.00007, 1300)."""
-    import numpy as np
-
-    if not np.isfinite(v):
-        return str(v)
-    return np.format_float_positional(v, precision=2, fractional=False, trim="-")
-
-
-def print_accuracy(calib, con=None) -> None:
-    """Print a calibration's accuracy report (if it has one)."""
-    rep = calib.accuracy
-    if rep is None:
-        return
-    from rich.table import Table
-
-    con = con or _console()
-    if calib.ga_dipe_px is not None and calib.polish_dipe_px is not None:
-        if calib.polished:
-            which = "the polished camera is kept"
-        elif calib.polish_dipe_px < calib.ga_dipe_px:
-            which = "the GA's camera is kept: \\[ga] polish = false"
-        else:
-            which = "the polish does not lower the DIPE here: the GA's camera is kept"
-        con.print(
-            f"GA alone: DIPE {calib.ga_dipe_px:.3f} px = {calib.ga_dipe_mm:.4f} mm; with the "
-            f"least-squares polish: {calib.polish_dipe_px:.3f} px = {calib.polish_dipe_mm:.4f} "
-            f"mm ({which})"
-        )
-    for held in (rep.leave_one_out, rep.check):
-        if held is None:
-            continue
-        t = Table(title=f"held-out error: {held.method} ({held.source})", title_justify="left")
-        for c in ("point", "X,Y,Z cm", "error px", "error cm", "in-sample px"):
-            t.add_column(c, justify="right")
-        for p in held.points:
-            t.add_row(
-                p.name,
-                f"{p.x_cm:.1f}, {p.y_cm:.1f}, {p.z_cm:.1f}",
-                f"{p.error_px:.3f}",
-                "-" if p.error_cm is None else f"{p.error_cm:.3f}",
-                "-" if p.in_sample_px is None else f"{p.in_sample_px:.3f}",
-            )
-        if held.mean_px is not None:
-            t.add_row(
-                "mean",
-                "",
-                f"{held.mean_px:.3f}",
-                "-" if held.mean_cm is None else f"{held.mean_cm:.3f}",
-                "",
-            )
-        con.print(t)
-        if held.missing:
-            con.print(f"not found near their projection: {', '.join(held.missing)}")
-    if rep.parameters:
-        t = Table(title="what the control points determine", title_justify="left")
-        for c in ("param.", "value", "range moves", "std. error", "of range", "restarts"):
-            t.add_column(c, justify="right")
-        t.add_column("fixed")
-        for q in rep.parameters:
-            t.add_row(
-                _SHORT.get(q.name, q.name),
-                f"{q.value:.4g}",
-                f"{_num(q.sweep_px)} px",
-                "-" if q.standard_error is None else f"±{_num(q.standard_error)}",
-                "-" if q.relative_error is None else f"{_num(100 * q.relative_error)} %",
-                "-" if q.restart_spread is None else f"{_num(100 * q.restart_spread)} %",
-                "yes" if q.determined else "no",
-            )
-        con.print(t)
-        con.print(
-            "range moves: largest shift of a control point when the parameter alone sweeps "
-            "its search range; restarts: spread of the values over GA restarts (share of the "
-            "range); fixed: std. error below 5 % of the range"
-        )
-    for note in rep.notes:
-        con.print(f"- {note}")
+    pe, re = np.asarray(score.position_error_cm), np.asarray(score.radius_error_cm)
+    n_true = frames * len(points)
+    t = table("accuracy against ground truth", ("measure", "value"), left={"measure"})
+    found = f"{pe.size} of {n_true} ({score.missed} missed, {score.spurious} spurious)"
+    t.add_row("objects found", found)
+    if pe.size:
+        t.add_row("position error mean / max", f"{pe.mean():.3f} / {pe.max():.3f} cm")
+        t.add_row("radius error mean / max |.|", f"{re.mean():+.3f} / {np.abs(re).max():.3f} cm")
+    t.add_row("robot/obstacle mislabelled", str(score.wrong_kind))
+    t.add_row("identity switches", str(score.id_switches))
+    ms = 1000 * run.detect_s
+    t.add_row("detection time p50 / p99", f"{np.median(ms):.2f} / {np.percentile(ms, 99):.2f} ms")
+    con.print(t)
+    con.print(f"wrote {out / 'calib.json'}, {out / 'convergence.png'}, {out / 'overlay.png'}")
 
 
 def register(app: typer.Typer) -> None:
     """Add the analysis commands to the `ovis` app."""
     app.command()(study)
     app.command()(compare)
+    app.command()(demo)

@@ -8,8 +8,9 @@ from typing import Annotated
 import typer
 
 from ovis.services.cli.errors import UserError
+from ovis.services.cli.ui import JsonOpt, console, emit_json
 
-__all__ = ["export"]
+__all__ = ["export", "register"]
 
 
 def export(
@@ -24,7 +25,7 @@ def export(
     camera_name: Annotated[str, typer.Option(help="camera_name in the ROS file.")] = (
         "ovis_camera"
     ),
-    json: Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")] = False,
+    json: JsonOpt = False,
 ) -> None:
     """Export a calibrated camera for OpenCV and ROS.
 
@@ -35,22 +36,21 @@ def export(
     equivalent has a negative fy.
     """
     from ovis.common.calibration.file import load_calibration
-    from ovis.common.camera.export import as_pinhole, write_opencv_yaml, write_ros_yaml
-    from ovis.common.camera.pinhole import camera_matrix, distortion_coefficients
+    from ovis.common.camera.export import (
+        as_pinhole,
+        export_note,
+        export_summary,
+        write_opencv_yaml,
+        write_ros_yaml,
+    )
+    from ovis.common.camera.pinhole import distortion_coefficients
 
     if opencv is None and ros is None:
         raise UserError("give --opencv FILE and/or --ros FILE")
     calib = load_calibration(calibration)
     eq = as_pinhole(calib.camera)
     cam = eq.camera
-    if eq.exact:
-        note = f"from {calibration} (pinhole model)"
-    else:
-        note = (
-            f"from {calibration}: the paper model's equivalent pinhole; Brown-Conrady fit "
-            f"residual over the image RMS {eq.rms_px:.3g} px, max {eq.max_px:.3g} px; "
-            "fy < 0: the paper model images the world mirror-inverted"
-        )
+    note = export_note(eq, str(calibration))
     for target in (opencv, ros):
         if target is not None and target.is_dir():
             raise UserError(f"{target} is a folder; give a file name")
@@ -58,26 +58,11 @@ def export(
         write_opencv_yaml(opencv, cam, note=note)
     if ros is not None:
         write_ros_yaml(ros, cam, camera_name=camera_name, note=note)
-    summary = {
-        "model": calib.camera.model,
-        "exact": eq.exact,
-        "fit_rms_px": eq.rms_px,
-        "fit_max_px": eq.max_px,
-        "camera_matrix": camera_matrix(cam).tolist(),
-        "distortion_coefficients": distortion_coefficients(cam).tolist(),
-        "rvec": list(cam.rvec),
-        "tvec_cm": list(cam.tvec_cm),
-        "opencv": str(opencv) if opencv else None,
-        "ros": str(ros) if ros else None,
-    }
+    summary = export_summary(calib.camera.model, eq, opencv=opencv, ros=ros)
     if json:
-        from ovis.services.cli.offline import _emit_json
-
-        _emit_json(summary)
+        emit_json(summary)
         return
-    from rich.console import Console
-
-    con = Console(highlight=False)
+    con = console()
     kind = "pinhole (exact)" if eq.exact else "paper model → equivalent pinhole"
     con.print(f"{calibration}: {kind}")
     con.print(f"  fx {cam.fx:.4f}  fy {cam.fy:.4f}  cx {cam.cx:.3f}  cy {cam.cy:.3f} px")
@@ -91,3 +76,8 @@ def export(
             f"{eq.max_px:.3g} px; fy < 0 (the paper model's image is mirror-inverted)"
         )
     con.print("wrote " + " and ".join(str(p) for p in (opencv, ros) if p is not None))
+
+
+def register(app: typer.Typer) -> None:
+    """Add `ovis export` to the `ovis` app."""
+    app.command()(export)

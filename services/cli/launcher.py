@@ -1,4 +1,4 @@
-"""Service commands: router, run, up, watch, recalibrate, status, schema."""
+"""Commands of the running system: router, run, up, watch, recalibrate, status, schema."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ import msgspec
 import typer
 
 from ovis.services.cli.errors import UserError
+from ovis.services.cli.ui import JsonOpt
 
 __all__ = ["register"]
 
@@ -34,30 +35,21 @@ ConnectOpt = Annotated[
 ArenaOpt = Annotated[
     str | None, typer.Option(help="Arena name: key expressions are rooted at ovis/<arena>/.")
 ]
-JsonOpt = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")]
 
 
-def _config(
-    config: Path | None,
-    *,
-    connect: list[str] | None = None,
-    listen: list[str] | None = None,
-    mode: str | None = None,
-    **service: Any,
-):
-    """The configuration with command-line overrides applied (and validated)."""
-    from ovis.common.config import config_from_dict, load_config
+def _config(config: Path | None, **options: Any):
+    """The configuration with command-line options laid over it (and validated)."""
+    from ovis.common.config import with_options
 
-    cfg = load_config(config) if config is not None else load_config()
-    data = msgspec.to_builtins(cfg)
-    if connect:
-        data["zenoh"]["connect"] = connect
-    if listen is not None:
-        data["zenoh"]["listen"] = listen
-    if mode is not None:
-        data["zenoh"]["mode"] = mode
-    data["service"].update({k: v for k, v in service.items() if v is not None})
-    return config_from_dict(data, "configuration with command-line options")
+    return with_options(config, **options)
+
+
+def _stop_on_signals() -> threading.Event:
+    """An event that Ctrl-C or SIGTERM sets: the command then stops cleanly."""
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    return stop
 
 
 def _topics(cfg):
@@ -85,23 +77,14 @@ def router(
     file in `config_file`). Only what the command line or the [zenoh] section sets
     overrides the JSON5 file.
     """
-    import tomllib
-
-    from ovis.services.runtime import open_session
+    from ovis.common.config import router_zenoh
+    from ovis.services.bus import open_session
 
     cfg = _config(config, mode="router")  # a bad file has been refused here
-    given: dict[str, Any] = {}
-    if config is not None:
-        given = tomllib.loads(config.read_text("utf-8")).get("zenoh", {})
-    default_listen = [] if cfg.zenoh.config_file else [DEFAULT_ENDPOINT]
-    zc = msgspec.structs.replace(
-        cfg.zenoh,
-        listen=listen or (cfg.zenoh.listen if "listen" in given else default_listen),
-        connect=connect or (cfg.zenoh.connect if "connect" in given else []),
+    zc = router_zenoh(
+        cfg, config, listen=listen, connect=connect, default_endpoint=DEFAULT_ENDPOINT
     )
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    stop = _stop_on_signals()
     with open_session(zc) as session:
         where = ", ".join(zc.listen) or f"the endpoints of {zc.config_file}"
         meshed = f"; meshed with {', '.join(zc.connect)}" if zc.connect else ""
@@ -114,7 +97,7 @@ def _cpus(spec: str | None) -> list[int] | None:
     """``--cpus``/``--pin`` as core numbers (None: not given), or a usage error."""
     if spec is None:
         return None
-    from ovis.services.runtime import pick_cpus
+    from ovis.services.placement import pick_cpus
 
     try:
         return pick_cpus(spec)
@@ -153,7 +136,7 @@ def run(
     """
     import importlib
 
-    from ovis.services.runtime import run as run_service
+    from ovis.services.service import run as run_service
 
     if stage not in STAGES:
         raise UserError(f"unknown stage {stage!r}; choose one of {', '.join(STAGES)}")
@@ -218,7 +201,8 @@ def up(
     log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-"))
     cfg_path = log_dir / "config.toml"
     from ovis.common.config import dump_toml
-    from ovis.services.runtime import cpus_option, local_peers
+    from ovis.services.bus import local_peers
+    from ovis.services.placement import cpus_option
 
     # The services share the router's machine: they talk to each other directly.
     services_cfg = msgspec.structs.replace(cfg, zenoh=local_peers(cfg.zenoh))
@@ -226,9 +210,7 @@ def up(
     from ovis.services.supervisor import Supervisor
 
     fleet = Supervisor(log_dir, max_restarts=max_restarts)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    stop = _stop_on_signals()
     out = sys.stderr if json else sys.stdout
     print(
         f"ovis up: arena {topics.arena}, router {listen}, frame path on cores "
@@ -245,8 +227,7 @@ def up(
     for stage in downstream:
         start(stage)
     from ovis.common.config import ZenohConfig
-    from ovis.services.cli.watching import alive_services
-    from ovis.services.runtime import open_session
+    from ovis.services.bus import open_session
 
     view = LiveView(topics, cfg)
     started = time.monotonic()
@@ -254,14 +235,7 @@ def up(
         with open_session(ZenohConfig(connect=[listen])) as session:
             view.attach(session)
             # Frames only once every stage listens: none is captured and then missed.
-            deadline = time.monotonic() + STARTUP_S
-            waiting = set(downstream)
-            while not stop.is_set() and time.monotonic() < deadline:
-                fleet.supervise()
-                waiting = set(downstream) - alive_services(session, topics, timeout=0.5)
-                if not waiting:
-                    break
-                stop.wait(0.1)
+            waiting = _wait_listening(fleet, session, topics, downstream, stop)
             if waiting and not stop.is_set():
                 print(
                     f"ovis up: {', '.join(sorted(waiting))} not listening after {STARTUP_S:g} s; "
@@ -280,7 +254,7 @@ def up(
             statuses = view.poll_status(session)
     finally:
         codes = fleet.stop()
-    summary = view.summary(statuses, codes, time.monotonic() - started, fleet.restarts())
+    summary = view.score.summary(statuses, codes, time.monotonic() - started, fleet.restarts())
     if json:
         sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
     else:
@@ -291,6 +265,22 @@ def up(
     if bad or fleet.gave_up():
         reasons = "; ".join(fleet.gave_up()) or f"process(es) {', '.join(bad)} exited abnormally"
         raise UserError(f"{reasons}; see the logs in {log_dir}", 1)
+
+
+def _wait_listening(fleet, session, topics, stages: tuple[str, ...], stop) -> set[str]:
+    """Wait until every stage's liveliness token is up (or ``STARTUP_S``, or ``stop``),
+    restarting what dies meanwhile; the stages still not listening."""
+    from ovis.services.cli.watching import alive_services
+
+    deadline = time.monotonic() + STARTUP_S
+    waiting = set(stages)
+    while not stop.is_set() and time.monotonic() < deadline:
+        fleet.supervise()
+        waiting = set(stages) - alive_services(session, topics, timeout=0.5)
+        if not waiting:
+            break
+        stop.wait(0.1)
+    return waiting
 
 
 def watch(
@@ -308,15 +298,14 @@ def watch(
     "type" is "obstacles" for a frame, "health" for the stream's state.
     """
     from ovis.common.messages import ObstacleFrame, StreamHealth, decode
-    from ovis.services.cli.watching import format_obstacles
-    from ovis.services.runtime import Inbox, open_session
+    from ovis.services.bus import open_session
+    from ovis.services.cli.watching import format_health, format_obstacles
+    from ovis.services.inbox import Inbox
 
     cfg = _config(config, connect=connect, arena=arena)
     topics = _topics(cfg)
     box = Inbox(depth=64)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    stop = _stop_on_signals()
     seen = 0
     deadline = time.monotonic() + duration if duration is not None else None
     with open_session(cfg.zenoh) as session:
@@ -338,13 +327,7 @@ def watch(
             elif isinstance(msg, ObstacleFrame):
                 sys.stdout.write(format_obstacles(msg) + "\n")
             elif msg.state != "ok":
-                since = msg.seconds_since_frame
-                ago = (
-                    f"the last frame ({msg.last_seq}) came {since:.1f} s ago"
-                    if since
-                    else ("no frame yet")
-                )
-                sys.stdout.write(f"NO DATA: frames {msg.state}; {ago}\n")
+                sys.stdout.write(format_health(msg) + "\n")
             seen += isinstance(msg, ObstacleFrame)
             sys.stdout.flush()
 
@@ -363,7 +346,7 @@ def recalibrate(
     Shows the new calibration's DIPE, parameters and version.
     """
     from ovis.common.messages import CalibrateReply, CalibrateRequest, decode, encode
-    from ovis.services.runtime import open_session
+    from ovis.services.bus import open_session
 
     cfg = _config(config, connect=connect, arena=arena)
     topics = _topics(cfg)
@@ -405,8 +388,8 @@ def status(
     json: JsonOpt = False,
 ) -> None:
     """Which services are alive (Zenoh liveliness), their frame rates, drops and errors."""
+    from ovis.services.bus import open_session
     from ovis.services.cli.watching import collect_status, status_table
-    from ovis.services.runtime import open_session
 
     cfg = _config(config, connect=connect, arena=arena)
     topics = _topics(cfg)

@@ -1,4 +1,4 @@
-"""Offline commands: simulate, calibrate, detect, plan, config show."""
+"""Offline commands, on files: simulate, calibrate, detect, plan, config show."""
 
 from __future__ import annotations
 
@@ -10,19 +10,19 @@ import msgspec
 import numpy as np
 import typer
 
+from ovis.common.config import resolve_config
+from ovis.common.vision.imageio import read_image
 from ovis.services.cli.errors import UserError
+from ovis.services.cli.ui import (
+    JsonOpt,
+    calibrate_with_progress,
+    console,
+    emit_json,
+    progress,
+    table,
+)
 
 __all__ = ["register"]
-
-
-def _console():
-    from rich.console import Console
-
-    return Console(stderr=False, highlight=False)
-
-
-def _emit_json(data: Any) -> None:
-    sys.stdout.write(msgspec.json.format(msgspec.json.encode(data), indent=2).decode() + "\n")
 
 
 def _numbers(text: str, n: int, what: str) -> tuple[float, ...]:
@@ -36,34 +36,6 @@ def _numbers(text: str, n: int, what: str) -> tuple[float, ...]:
         fmt = ",".join("XYR"[:n]) if n <= 3 else "…"
         raise UserError(f"{what} must be {n} finite numbers as {fmt} (cm), got {text!r}")
     return values
-
-
-def read_image(path: Path) -> np.ndarray:
-    """Read an image file as uint8 (grey or BGR), or fail with what to do."""
-    import cv2
-
-    if not path.exists():
-        raise UserError(f"image {path} does not exist")
-    if path.is_dir():
-        raise UserError(f"{path} is a folder; give an image file (PNG, JPEG, BMP, …)")
-    if path.stat().st_size == 0:
-        raise UserError(f"image {path} is empty (0 bytes)")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None or image.size == 0:
-        raise UserError(f"cannot read {path} as an image; give a PNG, JPEG, BMP or TIFF file")
-    if image.dtype == np.uint16:
-        image = (image >> 8).astype(np.uint8)
-    return image
-
-
-def resolve_config(config_file: Path | None, preset: str | None, points_config=None):
-    from ovis.common.config import config_from_dict, load_config
-
-    if config_file is not None:
-        return load_config(config_file)
-    if points_config is not None and preset is None:
-        return config_from_dict(points_config, "points file [config]")
-    return load_config(preset=preset or "default")
 
 
 ConfigOpt = Annotated[
@@ -81,7 +53,6 @@ PresetOpt = Annotated[
         help="Built-in preset when no --config is given: 'default', 'paper' or 'pinhole'."
     ),
 ]
-JsonOpt = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")]
 
 
 def simulate(
@@ -104,9 +75,9 @@ def simulate(
     cfg = resolve_config(config, preset)
     info = write_dataset(out, cfg, frames, seed)
     if json:
-        _emit_json(info)
+        emit_json(info)
         return
-    con = _console()
+    con = console()
     con.print(
         f"wrote {frames} frame(s) of the {cfg.preset} arena "
         f"({cfg.camera.cols}x{cfg.camera.rows}, seed {seed}) to {out}"
@@ -186,30 +157,18 @@ def calibrate(
     Jacobian), and the GA's DIPE beside the least-squares polish's.
     """
     from ovis.common.calibration.file import save_calibration
-    from ovis.common.config import load_points
+    from ovis.common.config import load_points, with_ga
+    from ovis.services.cli.reports import print_calibration
 
     pts = load_points(points)
     cfg = resolve_config(config, preset, pts.config)
-    overrides = {
-        k: v
-        for k, v in dict(
-            seed=seed,
-            population=population,
-            generations=generations,
-            pc=pc,
-            pm=pm,
-            polish=polish,
-        ).items()
-        if v is not None
-    }
-    if overrides:
-        cfg = msgspec.structs.replace(cfg, ga=msgspec.structs.replace(cfg.ga, **overrides))
+    cfg = with_ga(
+        cfg, seed=seed, population=population, generations=generations, pc=pc, pm=pm, polish=polish
+    )
     frame = read_image(image)
     calib = calibrate_with_progress(
         frame, pts.points, cfg, source=str(image), show=not quiet and not json
     )
-    from ovis.services.cli.analysis import add_accuracy, write_calibration_plots
-
     calib = add_accuracy(
         frame, pts.points, cfg, calib, check=check, restarts=restarts, show=not quiet and not json
     )
@@ -224,107 +183,77 @@ def calibrate(
         frame, calib, cfg, residuals=residuals, error_map=error_map, arena=arena
     )
     if json:
-        _emit_json(calib)
+        emit_json(calib)
         return
-    _print_calibration(calib, out, plot)
+    print_calibration(calib, out, plot)
     for line in wrote:
-        _console().print(line)
+        console().print(line)
 
 
-def calibrate_with_progress(frame, points, cfg, *, source: str, show: bool = True, con=None):
-    """Run the GA calibration, with a progress bar showing the best DIPE so far."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
-    from ovis.common.calibration.problem import calibrate as run_calibration
-
-    if not show:
-        return run_calibration(frame, points, cfg, source=source)[0]
-    progress = Progress(
-        TextColumn("[bold]GA[/]"),
-        BarColumn(),
-        TextColumn("gen {task.completed}/{task.total}"),
-        TextColumn("best DIPE {task.fields[best]}"),
-        TimeElapsedColumn(),
-        console=con or _console(),
-    )
-    task = progress.add_task("ga", total=cfg.ga.generations, best="-")
-
-    def on_generation(stats) -> None:
-        best = f"{stats.best_so_far:.3f} px" if stats.best_so_far < 1e6 else "infeasible"
-        progress.update(task, completed=stats.generation, best=best)
-
-    with progress:
-        return run_calibration(frame, points, cfg, on_generation=on_generation, source=source)[0]
+# ------------------------------------------------ what `ovis calibrate` adds to a calibration
 
 
-def _print_calibration(calib, out: Path, plot: Path | None) -> None:
-    from rich.table import Table
+def add_accuracy(
+    frame,
+    points,
+    cfg,
+    calib,
+    *,
+    check: Path | None = None,
+    restarts: int = 4,
+    show: bool = True,
+):
+    """The calibration with its accuracy report (held-out errors, identifiability)."""
+    from ovis.common.calibration.accuracy import assess, load_checks
 
-    con = _console()
-    cam = calib.camera
-    t = Table(title="calibrated parameters", title_justify="left")
-    t.add_column("parameter")
-    t.add_column("value", justify="right")
-    band = calib.feasible_thresholds
-    centred = f" (GA {calib.ga_threshold}; {band[0]}-{band[1]} see the right count)" if band else ""
-    ga_af = calib.ga_size_filter_cm2
-    rows: list[tuple[str, str]] = [
-        ("threshold", f"{calib.image.threshold}{centred}"),
-        (
-            "size filter A^f",
-            f"{calib.image.size_filter_cm2:.2f} cm²"
-            + (f" (GA {ga_af:.2f})" if ga_af is not None and band else ""),
-        ),
-    ]
-    if cam.model == "pinhole":
-        rows += _pinhole_rows(cam)
-    else:
-        rows += _paper_rows(cam)
-    for name, value in rows:
-        t.add_row(name, value)
-    con.print(t)
-    _print_residuals(calib, out, plot)
-
-
-def _paper_rows(cam) -> list[tuple[str, str]]:
-    """Parameter rows of a paper-model camera."""
-    return [
-        ("Z0", f"{cam.Z0_cm:.3f} cm"),
-        ("λ", f"{cam.lam_mm:.4f} mm"),
-        ("k1", f"{cam.k1:.3e}"),
-        ("k2", f"{cam.k2:.3e}"),
-        ("k3", f"{cam.k3:.3e}"),
-        ("s_x", f"{cam.s_x:.5f}"),
-        ("s_y", f"{cam.s_y:.5f}"),
-    ]
-
-
-def _print_residuals(calib, out: Path, plot: Path | None) -> None:
-    from rich.table import Table
-
-    con = _console()
-    p = Table(title="DIPE per control point (eq. 14)", title_justify="left")
-    for col in ("point", "X,Y,Z cm", "detected row,col", "predicted row,col", "px", "mm"):
-        p.add_column(col, justify="right")
-    for r in calib.points:
-        p.add_row(
-            r.name,
-            f"{r.x_cm:g}, {r.y_cm:g}, {r.z_cm:g}",
-            f"{r.detected_row:.2f}, {r.detected_col:.2f}",
-            f"{r.predicted_row:.2f}, {r.predicted_col:.2f}",
-            f"{r.dipe_px:.3f}",
-            f"{r.dipe_mm:.4f}",
+    checks = load_checks(check) if check is not None else None
+    check_image = None
+    if checks is not None and checks.image is not None:
+        check_image = read_image(checks.image)
+    with progress("accuracy", show=show) as update:
+        report = assess(
+            frame,
+            points,
+            cfg,
+            calib,
+            n_restarts=restarts,
+            checks=checks,
+            check_image=check_image,
+            on_step=lambda stage, done, total: update(done, total, stage),
         )
-    con.print(p)
-    con.print(
-        f"DIPE mean {calib.dipe_px:.3f} px = {calib.dipe_mm:.4f} mm, max {calib.dipe_max_px:.3f}"
-        f" px = {calib.dipe_max_mm:.4f} mm (paper: 0.735214 mm); {calib.evaluations} "
-        f"evaluations in {calib.elapsed_s:.2f} s"
-    )
-    from ovis.services.cli.analysis import print_accuracy
+    return msgspec.structs.replace(calib, accuracy=report)
 
-    print_accuracy(calib, con)
-    con.print(f"wrote {out}" + (f" and {plot}" if plot else ""))
+
+def write_calibration_plots(
+    frame,
+    calib,
+    cfg,
+    *,
+    residuals: Path | None = None,
+    error_map: Path | None = None,
+    arena: Any = None,
+) -> list[str]:
+    """Write the residual-vector and world-error plots asked for; one line each."""
+    lines = []
+    if residuals is not None:
+        from ovis.common.analysis.plots import plot_residuals
+
+        m = plot_residuals(frame, calib, residuals)
+        lines.append(f"wrote {residuals} (residual vectors, magnified {m:g}x)")
+    if error_map is not None:
+        from ovis.common.analysis.plots import plot_error_map
+
+        if type(cfg.camera) is not type(calib.camera):
+            raise UserError(
+                "--error-map needs a reference camera of the same model as the calibration"
+            )
+        mean, worst = plot_error_map(calib, cfg.camera, error_map, arena=arena)
+        where = "arena" if arena is not None else "view"
+        lines.append(
+            f"wrote {error_map} (floor error against the configuration's camera: mean "
+            f"{mean:.3f} cm, max {worst:.3f} cm over the {where})"
+        )
+    return lines
 
 
 def detect(
@@ -356,6 +285,7 @@ def detect(
     """
     from ovis.common.calibration.file import load_calibration
     from ovis.common.world.detection import Detector
+    from ovis.services.cli.reports import print_detection
 
     calib = load_calibration(calibration)
     goal_xy = _numbers(goal, 2, "--goal") if goal is not None else None
@@ -376,53 +306,10 @@ def detect(
             save_png(target, draw_detections(frame, det))
     if json:
         payload = [{"image": str(p), **msgspec.to_builtins(d)} for p, _, d in results]
-        _emit_json(payload[0] if len(payload) == 1 else payload)
+        emit_json(payload[0] if len(payload) == 1 else payload)
         return
     for path, _, det in results:
-        _print_detection(path, det)
-
-
-def _print_detection(path: Path, det) -> None:
-    from rich.table import Table
-
-    con = _console()
-    t = Table(title=f"{path}: {len(det.objects)} object(s)", title_justify="left")
-    for col in (
-        "id",
-        "kind",
-        "row",
-        "col",
-        "area px",
-        "perim px",
-        "compact.",
-        "X cm",
-        "Y cm",
-        "r cm",
-    ):
-        t.add_column(col, justify="right")
-    for o in det.objects:
-        t.add_row(
-            str(o.id),
-            o.kind,
-            f"{o.row:.2f}",
-            f"{o.col:.2f}",
-            f"{o.area_px:.0f}",
-            f"{o.perimeter_px:.1f}",
-            f"{o.compactness:.3f}",
-            f"{o.x_cm:.2f}",
-            f"{o.y_cm:.2f}",
-            f"{o.radius_cm:.2f}",
-        )
-    con.print(t)
-    if det.planner:
-        p = Table(title="motion planner inputs", title_justify="left")
-        for col in ("obstacle", "distance cm", "angle deg"):
-            p.add_column(col, justify="right")
-        for e in det.planner:
-            p.add_row(str(e.obstacle_id), f"{e.distance_cm:.3f}", f"{e.angle_deg:.3f}")
-        con.print(p)
-    elif not any(o.kind == "robot" for o in det.objects):
-        con.print("no robot found: no planner inputs (check pose.robot_* in the calibration)")
+        print_detection(path, det)
 
 
 def plan(
@@ -458,13 +345,9 @@ def plan(
         for d, a in zip(res.distance_cm, res.angle_deg, strict=True)
     ]
     if json:
-        _emit_json(rows)
+        emit_json(rows)
         return
-    from rich.table import Table
-
-    t = Table(title="motion planner inputs", title_justify="left")
-    for col in ("obstacle", "X,Y,R cm", "distance cm", "angle deg"):
-        t.add_column(col, justify="right")
+    t = table("motion planner inputs", ("obstacle", "X,Y,R cm", "distance cm", "angle deg"))
     for i, (o, row) in enumerate(zip(obs, rows, strict=True), start=1):
         t.add_row(
             str(i),
@@ -472,7 +355,7 @@ def plan(
             f"{row['distance_cm']:.3f}",
             f"{row['angle_deg']:.3f}",
         )
-    _console().print(t)
+    console().print(t)
 
 
 config_app = typer.Typer(help="Show configurations.", no_args_is_help=True, rich_markup_mode=None)
@@ -498,29 +381,10 @@ def config_show(
         sys.stdout.write(preset_text(preset))
 
 
-def _pinhole_rows(cam) -> list[tuple[str, str]]:
-    """Parameter rows of a pinhole camera (OpenCV: x = column, y = row)."""
-    return [
-        ("fx (columns)", f"{cam.fx:.3f} px"),
-        ("fy (rows)", f"{cam.fy:.3f} px"),
-        ("cx (column)", f"{cam.cx:.3f} px"),
-        ("cy (row)", f"{cam.cy:.3f} px"),
-        *((n, f"{getattr(cam, n):.5g}") for n in ("k1", "k2", "p1", "p2", "k3")),
-        ("rvec", ", ".join(f"{v:.5f}" for v in cam.rvec) + " rad"),
-        ("tvec", ", ".join(f"{v:.3f}" for v in cam.tvec_cm) + " cm"),
-    ]
-
-
 def register(app: typer.Typer) -> None:
     """Add the offline commands to the `ovis` app."""
     app.command()(simulate)
     app.command()(calibrate)
     app.command()(detect)
     app.command()(plan)
-    from ovis.services.cli.export import export
-
-    app.command()(export)
     app.add_typer(config_app, name="config")
-    from ovis.services.cli.demo import demo
-
-    app.command()(demo)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import threading
 import time
@@ -13,21 +12,25 @@ import msgspec
 import numpy as np
 import zenoh
 
-from ovis.common.analysis.evaluation import match_objects
+from ovis.common.analysis.live import LiveScore, RunSummary
 from ovis.common.messages import (
     MessageError,
     ObstacleFrame,
     ServiceStatus,
+    StreamHealth,
     Topics,
     TruthFrame,
     decode,
 )
+from ovis.services.cli.ui import table
 
 __all__ = [
     "LiveView",
     "RunSummary",
     "collect_status",
+    "format_health",
     "format_obstacles",
+    "query_statuses",
     "status_table",
     "summary_table",
 ]
@@ -56,6 +59,13 @@ def format_obstacles(msg: ObstacleFrame) -> str:
     return "\n".join(lines)
 
 
+def format_health(msg: StreamHealth) -> str:
+    """A health message that is not "ok", as one line: no data, and since when."""
+    since = msg.seconds_since_frame
+    ago = f"the last frame ({msg.last_seq}) came {since:.1f} s ago" if since else "no frame yet"
+    return f"NO DATA: frames {msg.state}; {ago}"
+
+
 class ServiceReport(msgspec.Struct):
     """One service in `ovis status`: alive per liveliness, and its last status."""
 
@@ -73,11 +83,10 @@ def alive_services(session: zenoh.Session, topics: Topics, timeout: float = 1.5)
     return alive
 
 
-def collect_status(
+def query_statuses(
     session: zenoh.Session, topics: Topics, timeout: float = 1.5
-) -> list[ServiceReport]:
-    """Liveliness tokens and status replies of every service of the arena."""
-    alive = alive_services(session, topics, timeout)
+) -> dict[str, ServiceStatus]:
+    """The status replies of the arena's services, by name (a bad reply is skipped)."""
     statuses: dict[str, ServiceStatus] = {}
     for reply in session.get(topics.status_all, timeout=timeout):
         if reply.ok is None:
@@ -87,27 +96,26 @@ def collect_status(
         except MessageError:
             continue
         statuses[st.service] = st
+    return statuses
+
+
+def collect_status(
+    session: zenoh.Session, topics: Topics, timeout: float = 1.5
+) -> list[ServiceReport]:
+    """Liveliness tokens and status replies of every service of the arena."""
+    alive = alive_services(session, topics, timeout)
+    statuses = query_statuses(session, topics, timeout)
     names = list(STAGES) + sorted((alive | set(statuses)) - set(STAGES))
     return [ServiceReport(n, n in alive, statuses.get(n) if n in alive else None) for n in names]
 
 
 def status_table(report: list[ServiceReport], topics: Topics):
-    from rich.table import Table
-
-    t = Table(title=f"ovis services of arena {topics.arena}", title_justify="left")
-    for col in (
-        "service",
-        "alive",
-        "state",
-        "fps",
-        "in",
-        "out",
-        "dropped",
-        "errors",
-        "calib",
-        "pid@host",
-    ):
-        t.add_column(col, justify="right" if col in ("fps", "in", "out", "dropped") else "left")
+    columns = ("service", "alive", "state", "fps", "in", "out", "dropped", "errors", "calib")
+    t = table(
+        f"ovis services of arena {topics.arena}",
+        (*columns, "pid@host"),
+        left={"service", "alive", "state", "errors", "calib", "pid@host"},
+    )
     for r in report:
         s = r.status
         if s is None:
@@ -140,82 +148,27 @@ def status_table(report: list[ServiceReport], topics: Topics):
     return t
 
 
-class RunSummary(msgspec.Struct):
-    """The end-of-run summary of `ovis up`."""
-
-    duration_s: float
-    frames_captured: int
-    frames_processed: int
-    latency_ms_p50: float | None
-    latency_ms_p99: float | None
-    latency_ms_max: float | None
-    objects_matched: int
-    objects_missed: int
-    objects_spurious: int
-    position_error_cm_mean: float | None
-    position_error_cm_max: float | None
-    calibration_version: int
-    dropped: dict[str, int]
-    errors: dict[str, dict[str, int]]
-    exit_codes: dict[str, int]
-    restarts: dict[str, int] = {}
-
-
 class LiveView:
-    """Subscribes to obstacles (and the simulator's truth) and keeps the numbers."""
+    """Subscribes to obstacles (and the simulator's truth) and shows the newest frame;
+    the numbers are kept by :class:`~ovis.common.analysis.live.LiveScore`."""
 
     def __init__(self, topics: Topics, config: Any) -> None:
         self.topics = topics
         self.config = config
-        self.latest: ObstacleFrame | None = None
-        self.latency_ms: list[float] = []
-        self.truth: collections.OrderedDict[int, TruthFrame] = collections.OrderedDict()
-        self.pending: collections.OrderedDict[int, ObstacleFrame] = collections.OrderedDict()
-        self.pos_err: list[float] = []
-        self.matched = self.missed = self.spurious = 0
-        self.frames = 0
-        self._lock = threading.Lock()
+        self.score = LiveScore()
 
     def attach(self, session: zenoh.Session) -> None:
         session.declare_subscriber(self.topics.obstacles, self._on_obstacles)
         session.declare_subscriber(self.topics.truth, self._on_truth)
 
     def _on_truth(self, sample: zenoh.Sample) -> None:
-        try:
-            t = decode(sample.payload.to_bytes(), TruthFrame)
-        except MessageError:
-            return
-        with self._lock:
-            self.truth[t.seq] = t
-            while len(self.truth) > 512:
-                self.truth.popitem(last=False)
-            self._score()
+        with contextlib.suppress(MessageError):
+            self.score.add_truth(decode(sample.payload.to_bytes(), TruthFrame))
 
     def _on_obstacles(self, sample: zenoh.Sample) -> None:
         now = time.time_ns()
-        try:
-            msg = decode(sample.payload.to_bytes(), ObstacleFrame)
-        except MessageError:
-            return
-        with self._lock:
-            self.latency_ms.append((now - msg.stamp_ns) / 1e6)
-            self.latest = msg
-            self.frames += 1
-            self.pending[msg.seq] = msg
-            while len(self.pending) > 512:
-                self.pending.popitem(last=False)
-            self._score()
-
-    def _score(self) -> None:
-        for seq in [s for s in self.pending if s in self.truth]:
-            msg = self.pending.pop(seq)
-            truth = self.truth[seq]
-            objs = ([msg.robot] if msg.robot else []) + msg.obstacles
-            acc = match_objects(objs, truth.objects)
-            self.pos_err.extend(acc.position_error_cm.tolist())
-            self.matched += acc.truth_index.size
-            self.missed += acc.missed
-            self.spurious += acc.spurious
+        with contextlib.suppress(MessageError):
+            self.score.add_obstacles(decode(sample.payload.to_bytes(), ObstacleFrame), now)
 
     def run(
         self,
@@ -235,14 +188,12 @@ class LiveView:
         console = Console(highlight=False, stderr=quiet)
 
         def render() -> Text:
-            with self._lock:
-                msg = self.latest
-                lat = self.latency_ms[-200:]
+            msg, lat = self.score.recent()
             if msg is None:
                 return Text("waiting for the first obstacle message …")
             p50 = np.median(lat) if lat else float("nan")
             return Text(
-                format_obstacles(msg) + f"\n  {self.frames} frames, latency p50 {p50:.1f} ms"
+                format_obstacles(msg) + f"\n  {self.score.frames} frames, latency p50 {p50:.1f} ms"
             )
 
         ctx = Live(render(), console=console, refresh_per_second=4) if live else None
@@ -255,7 +206,7 @@ class LiveView:
                     console.print(f"[yellow]{event}[/]")
                 if ctx is not None:
                     ctx.update(render())
-                elif not quiet and time.monotonic() - last_print > 5.0 and self.latest:
+                elif not quiet and time.monotonic() - last_print > 5.0 and self.score.latest:
                     last_print = time.monotonic()
                     console.print(render(), highlight=False)
                 stop.wait(0.25)
@@ -263,46 +214,9 @@ class LiveView:
     def poll_status(self, session: zenoh.Session) -> dict[str, ServiceStatus]:
         return {r.service: r.status for r in collect_status(session, self.topics) if r.status}
 
-    def summary(
-        self,
-        statuses: dict[str, ServiceStatus],
-        codes: dict[str, int],
-        duration: float,
-        restarts: dict[str, int] | None = None,
-    ) -> RunSummary:
-        with self._lock:
-            lat = np.asarray(self.latency_ms)
-            err = np.asarray(self.pos_err)
-        capture = statuses.get("capture")
-        versions = [s.calibration_version for s in statuses.values()]
-        return RunSummary(
-            duration_s=round(duration, 2),
-            frames_captured=capture.frames_out if capture else 0,
-            frames_processed=self.frames,
-            latency_ms_p50=float(np.percentile(lat, 50)) if lat.size else None,
-            latency_ms_p99=float(np.percentile(lat, 99)) if lat.size else None,
-            latency_ms_max=float(lat.max()) if lat.size else None,
-            objects_matched=self.matched,
-            objects_missed=self.missed,
-            objects_spurious=self.spurious,
-            position_error_cm_mean=float(err.mean()) if err.size else None,
-            position_error_cm_max=float(err.max()) if err.size else None,
-            calibration_version=(
-                self.latest.calibration_version if self.latest else max(versions, default=-1)
-            ),
-            dropped={n: s.dropped for n, s in statuses.items()},
-            errors={n: s.errors for n, s in statuses.items() if s.errors},
-            exit_codes=codes,
-            restarts={n: r for n, r in (restarts or {}).items() if r},
-        )
-
 
 def summary_table(s: RunSummary):
-    from rich.table import Table
-
-    t = Table(title="ovis up: summary", title_justify="left")
-    t.add_column("measure")
-    t.add_column("value", justify="right")
+    t = table("ovis up: summary", ("measure", "value"), left={"measure"})
 
     def fmt(v: float | None, unit: str, digits: int = 2) -> str:
         return "-" if v is None else f"{v:.{digits}f} {unit}"

@@ -1,0 +1,8 @@
+"""What a running stage computes and keeps, without the bus: the per-message steps of
+the frame path (``stages``), a stage's counters and status (``counters``), the stream's
+health (``health``), the capture's pacing (``pacing``), the calibrator's kept frames and
+replies (``recalibration``) and the supervisor's restart rule (``restarts``). The
+services in ``ovis.services`` wire these to Zenoh.
+May import: ``config``, ``atomic``, ``camera``, ``vision``, ``world``, ``calibration``,
+``sim``, ``capture``, ``messages``.
+"""

@@ -1,0 +1,124 @@
+"""A stage's counters: frames in and out, frames lost upstream (gaps in sequence
+numbers), the recent input rate and errors by kind; and the process's memory. They make
+the :class:`~ovis.common.messages.ServiceStatus` a stage answers with."""
+
+from __future__ import annotations
+
+import collections
+import os
+import resource
+import socket
+import threading
+import time
+
+from ovis.common.messages import ServiceStatus
+
+__all__ = ["RATE_WINDOW_S", "StageCounters", "rss_mb", "worth_logging"]
+
+#: The input rate is over the frames of the last this many seconds.
+RATE_WINDOW_S = 5.0
+
+
+def rss_mb() -> float:
+    """Current resident set size (VmRSS), MB; the peak if /proc is unavailable."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def worth_logging(n: int) -> bool:
+    """Log the ``n``-th error of a kind? The first 5, then every 100th (a flood of bad
+    input must not flood the log)."""
+    return n <= 5 or n % 100 == 0
+
+
+class StageCounters:
+    """What one stage counts; safe to update from Zenoh's threads and the loop."""
+
+    def __init__(self) -> None:
+        self.frames_in = 0
+        self.frames_out = 0
+        self.errors: collections.Counter[str] = collections.Counter()
+        self.last_error = ""
+        self.last_frame_ns: int | None = None  # the last frame's capture stamp
+        self.last_receipt_ns: int | None = None  # our clock, when the last frame came in
+        self.last_seq: int | None = None
+        self.seq_gaps = 0
+        self._arrivals: collections.deque[float] = collections.deque(maxlen=64)
+        self._lock = threading.Lock()
+
+    def saw_frame(self, seq: int, stamp_ns: int) -> None:
+        """Count an input frame; a gap in sequence numbers counts as dropped upstream
+        (a late, older frame neither counts as a gap nor moves the last one back)."""
+        with self._lock:
+            self.frames_in += 1
+            if self.last_seq is not None and seq > self.last_seq + 1:
+                self.seq_gaps += seq - self.last_seq - 1
+            if self.last_seq is None or seq > self.last_seq:
+                self.last_seq = seq
+            self.last_frame_ns = stamp_ns
+            self.last_receipt_ns = time.time_ns()
+            self._arrivals.append(time.monotonic())
+
+    def sent(self) -> None:
+        with self._lock:
+            self.frames_out += 1
+
+    def error(self, kind: str, message: str) -> int:
+        """Count an error of ``kind`` (``message`` becomes the last error); its count."""
+        with self._lock:
+            self.errors[kind] += 1
+            self.last_error = message
+            return self.errors[kind]
+
+    def fps(self) -> float:
+        """Input frames per second over the last :data:`RATE_WINDOW_S`."""
+        now = time.monotonic()
+        with self._lock:
+            recent = [t for t in self._arrivals if now - t <= RATE_WINDOW_S]
+        return (len(recent) - 1) / (recent[-1] - recent[0]) if len(recent) > 1 else 0.0
+
+    def seconds_since_frame(self) -> float | None:
+        """Seconds since the last input frame came in (None: none yet)."""
+        if self.last_receipt_ns is None:
+            return None
+        return (time.time_ns() - self.last_receipt_ns) / 1e9
+
+    def status(
+        self,
+        service: str,
+        *,
+        started_ns: int,
+        state: str,
+        dropped_here: int,
+        calibration_version: int,
+    ) -> ServiceStatus:
+        """The status message: these counts, plus what only the service knows (its name,
+        state, the frames its inboxes dropped, its calibration)."""
+        fps = self.fps()
+        with self._lock:
+            age = None
+            if self.last_frame_ns is not None:
+                age = (time.time_ns() - self.last_frame_ns) / 1e9
+            return ServiceStatus(
+                service=service,
+                pid=os.getpid(),
+                host=socket.gethostname(),
+                started_ns=started_ns,
+                state=state,
+                frames_in=self.frames_in,
+                frames_out=self.frames_out,
+                fps=round(fps, 2),
+                dropped=self.seq_gaps + dropped_here,
+                errors=dict(self.errors),
+                last_error=self.last_error,
+                calibration_version=calibration_version,
+                last_frame_age_s=age,
+                rss_mb=rss_mb(),
+                restarts=int(os.environ.get("OVIS_RESTARTS", "0") or 0),
+            )

@@ -1,0 +1,132 @@
+"""The per-message steps of the frame path, each one function from the message a stage
+receives (and its calibration) to the message it publishes: preprocess (paper §3:
+median, binarization), label (labeling, size filter, perimeter, the back-projection
+maps) and pose (robot, obstacles, planner inputs, §5.2); with the checks that refuse a
+frame before it is processed."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from ovis.common.calibration.file import Calibration
+from ovis.common.config import CameraModel
+from ovis.common.messages import BinaryFrame, BlobList, FloorMaps, Frame, ObstacleFrame, PlaneMap
+from ovis.common.vision.preprocess import GrayImage, binarize, smooth
+from ovis.common.world.detection import Detector, measure_blobs_and_maps, size_filter_px
+
+__all__ = [
+    "MAX_CLOCK_SKEW_S",
+    "SizeFilter",
+    "binary_frame",
+    "blob_list",
+    "clock_skew",
+    "obstacle_frame",
+    "wrong_size",
+]
+
+#: Frames stamped further than this from the local clock are refused (a broken clock or
+#: a forged frame would otherwise give nonsense ages and velocities downstream).
+MAX_CLOCK_SKEW_S = 3600.0
+
+
+class _Sized(Protocol):
+    seq: int
+    rows: int
+    cols: int
+
+
+def clock_skew(frame: Frame, now_ns: int) -> str | None:
+    """Why a frame's capture stamp is refused (too far from ``now_ns``), or None."""
+    skew = abs(now_ns - frame.stamp_ns) / 1e9
+    if skew <= MAX_CLOCK_SKEW_S:
+        return None
+    return (
+        f"frame {frame.seq} is stamped {skew:.0f} s away from this machine's clock; "
+        "check the capture host's clock (NTP)"
+    )
+
+
+def wrong_size(frame: _Sized, camera: CameraModel, kind: str) -> str | None:
+    """Why a frame (or binary frame) does not have the calibrated camera's size, or None."""
+    if (frame.rows, frame.cols) == (camera.rows, camera.cols):
+        return None
+    return (
+        f"{kind} {frame.seq} is {frame.cols}x{frame.rows}, the camera is configured for "
+        f"{camera.cols}x{camera.rows}"
+    )
+
+
+def binary_frame(frame: Frame, gray: GrayImage, calib: Calibration) -> BinaryFrame:
+    """The preprocessing stage: the median step and binarization (§3) of ``gray`` (the
+    frame's grey image) with the calibration's threshold and polarity, packed."""
+    params = calib.image
+    binary = binarize(smooth(gray, params.median), params.threshold, params.polarity)
+    return BinaryFrame(
+        seq=frame.seq,
+        stamp_ns=frame.stamp_ns,
+        rows=frame.rows,
+        cols=frame.cols,
+        bits=np.packbits(binary).tobytes(),
+        threshold=params.threshold,
+        calibration_version=calib.version,
+    )
+
+
+class SizeFilter:
+    """The smallest blob worth measuring (A^f on the obstacles' plane, in px), computed
+    once per calibration version."""
+
+    def __init__(self) -> None:
+        self._version: int | None = None
+        self._px = 0.0
+
+    def min_area_px(self, calib: Calibration) -> float:
+        if calib.version != self._version:
+            plane = calib.pose.obstacle_height_cm
+            self._px = size_filter_px(calib.image, calib.camera, plane)
+            self._version = calib.version
+        return self._px
+
+
+def blob_list(frame: BinaryFrame, calib: Calibration, min_area_px: float) -> BlobList:
+    """The labeling stage: the blobs of a binary frame (labeling, size filter,
+    perimeter, compactness) and where back-projection puts them on the obstacles' and
+    the robot's top planes (so that the pose stage needs none)."""
+    planes = (calib.pose.obstacle_height_cm, calib.pose.robot_height_cm)
+    blobs, (floor, top) = measure_blobs_and_maps(
+        frame.mask(), calib.image, calib.camera, planes, min_area_px=min_area_px
+    )
+    return BlobList(
+        seq=frame.seq,
+        stamp_ns=frame.stamp_ns,
+        rows=frame.rows,
+        cols=frame.cols,
+        calibration_version=calib.version,
+        blobs=BlobList.measures(blobs),
+        maps=FloorMaps(obstacle=PlaneMap.of(floor), robot=PlaneMap.of(top)),
+    )
+
+
+def obstacle_frame(
+    msg: BlobList, detector: Detector, calibration_version: int, arena: str, now_ns: int
+) -> ObstacleFrame:
+    """The pose stage: robot, obstacles (identities kept by ``detector``) and planner
+    inputs of one frame's blobs. The blobs' maps are used only when they were made with
+    the detector's calibration (``calibration_version``)."""
+    floor = top = None
+    if msg.maps is not None and msg.calibration_version == calibration_version:
+        floor, top = msg.maps.obstacle.jacobian(), msg.maps.robot.jacobian()
+    det = detector.from_blobs(msg.to_blobs(), floor=floor, top=top, stamp_s=msg.stamp_ns / 1e9)
+    return ObstacleFrame(
+        seq=msg.seq,
+        stamp_ns=msg.stamp_ns,
+        published_ns=now_ns,
+        frame_age_ms=(now_ns - msg.stamp_ns) / 1e6,
+        calibration_version=calibration_version,
+        robot=next((o for o in det.objects if o.kind == "robot"), None),
+        obstacles=[o for o in det.objects if o.kind == "obstacle"],
+        planner=det.planner,
+        arena=arena,
+    )

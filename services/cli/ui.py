@@ -1,0 +1,100 @@
+"""What every command shows the same way: the console, JSON on stdout, and progress
+bars for long work (on stderr, so that stdout stays clean for --json)."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Collection, Iterable, Iterator
+from contextlib import contextmanager
+from typing import Annotated, Any
+
+import msgspec
+import typer
+
+__all__ = ["JsonOpt", "calibrate_with_progress", "console", "emit_json", "progress", "table"]
+
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")]
+
+
+def console():
+    """The console commands print to (stdout, no highlighting of numbers)."""
+    from rich.console import Console
+
+    return Console(highlight=False)
+
+
+def table(title: str, columns: Iterable[str], *, left: Collection[str] = ()):
+    """A table titled on the left; numbers (every column not in ``left``) on the right."""
+    from rich.table import Table
+
+    t = Table(title=title, title_justify="left")
+    for col in columns:
+        t.add_column(col, justify="left" if col in left else "right")
+    return t
+
+
+def emit_json(data: Any) -> None:
+    """``data`` (Structs, dicts, lists) as indented JSON on stdout."""
+    sys.stdout.write(msgspec.json.format(msgspec.json.encode(data), indent=2).decode() + "\n")
+
+
+@contextmanager
+def progress(what: str, *, show: bool = True) -> Iterator[Callable[[int, int, str], None]]:
+    """A progress bar on stderr for ``what``; yields ``update(done, total, label)`` (which
+    does nothing when not ``show``)."""
+    if not show:
+        yield lambda done, total, label: None
+        return
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    bar = Progress(
+        TextColumn(f"[bold]{what}[/]"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[label]}"),
+        TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
+        console=Console(stderr=True, highlight=False),
+    )
+    with bar:
+        task = bar.add_task(what, total=None, label="")
+
+        def update(done: int, total: int, label: str) -> None:
+            bar.update(task, completed=done, total=total, label=label)
+
+        yield update
+
+
+def calibrate_with_progress(frame, points, cfg, *, source: str, show: bool = True, con=None):
+    """Run the GA calibration, with a progress bar showing the best DIPE so far."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from ovis.common.calibration.problem import calibrate as run_calibration
+
+    if not show:
+        return run_calibration(frame, points, cfg, source=source)[0]
+    bar = Progress(
+        TextColumn("[bold]GA[/]"),
+        BarColumn(),
+        TextColumn("gen {task.completed}/{task.total}"),
+        TextColumn("best DIPE {task.fields[best]}"),
+        TimeElapsedColumn(),
+        console=con or console(),
+    )
+    task = bar.add_task("ga", total=cfg.ga.generations, best="-")
+
+    def on_generation(stats) -> None:
+        best = f"{stats.best_so_far:.3f} px" if stats.best_so_far < 1e6 else "infeasible"
+        bar.update(task, completed=stats.generation, best=best)
+
+    with bar:
+        return run_calibration(frame, points, cfg, on_generation=on_generation, source=source)[0]

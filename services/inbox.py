@@ -1,0 +1,37 @@
+"""The newest-wins queue between Zenoh's callbacks and a service's loop: Zenoh's thread
+only drops a sample in and returns, so a slow stage drops old frames (counted) instead
+of queueing them in the network stack."""
+
+from __future__ import annotations
+
+import collections
+import threading
+from typing import Any
+
+__all__ = ["Inbox"]
+
+
+class Inbox:
+    """A bounded queue where the newest item wins: when full, the oldest is dropped
+    (and counted). Zenoh callbacks put; the service loop gets with a timeout."""
+
+    def __init__(self, depth: int = 2) -> None:
+        self._items: collections.deque[Any] = collections.deque(maxlen=depth)
+        self._cond = threading.Condition()
+        self.dropped = 0
+
+    def put(self, item: Any) -> None:
+        with self._cond:
+            if len(self._items) == self._items.maxlen:
+                self.dropped += 1
+            self._items.append(item)
+            self._cond.notify()
+
+    def get(self, timeout: float) -> Any | None:
+        with self._cond:
+            if not self._items and timeout > 0:
+                self._cond.wait(timeout)
+            return self._items.popleft() if self._items else None
+
+    def __len__(self) -> int:
+        return len(self._items)
