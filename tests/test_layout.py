@@ -26,6 +26,7 @@ LAYERS: dict[str, set[str]] = {
     "sim": {"config", "atomic", "camera"},
     "capture": {"config", "atomic", "camera", "sim"},
     "messages": {"config", "camera", "vision", "world", "calibration", "sim"},
+    "view": {"config", "camera", "calibration", "messages"},
     "analysis": {
         "config",
         "atomic",

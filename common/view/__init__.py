@@ -3,5 +3,5 @@ JPEG-encoded with what was detected drawn on it (``picture``), the objects of an
 obstacle message and the camera's footprint on the floor (``scene``), and the health of
 every stage (``health``). The server that sends them to browsers is in
 ``ovis.services.view``.
-May import: ``config``, ``camera``, ``world``, ``calibration``, ``messages``.
+May import: ``config``, ``camera``, ``calibration``, ``messages``.
 """
