@@ -329,6 +329,7 @@ function buildRecalibration(operator) {
     <label>operator token <input type="password" id="token" autocomplete="off"></label>
     <label>population <input type="number" id="population" min="2" max="10000" placeholder="configured"></label>
     <label>generations <input type="number" id="generations" min="1" max="10000" placeholder="configured"></label>
+    <label>seed <input type="number" id="seed" min="0" placeholder="configured"></label>
     <button id="recalibrate" type="button">Recalibrate</button>
     <output id="recal-status" data-state="idle" aria-live="polite"></output></form>`;
   $("token").value = fromUrl;
@@ -336,7 +337,7 @@ function buildRecalibration(operator) {
     const token = $("token").value;
     sessionStorage.setItem("ovis-token", token);
     const req = { type: "recalibrate", token };
-    for (const k of ["population", "generations"]) {
+    for (const k of ["population", "generations", "seed"]) {
       const v = parseInt($(k).value, 10);
       if (Number.isFinite(v)) req[k] = v;
     }
