@@ -111,29 +111,27 @@ def view_rows(quick: bool, log=print) -> list[Row]:
                     bench.fleet.stop("view")
                 p50[with_view].append(step.latency.p50)
                 p99[with_view].append(step.latency.p99)
-    with_p50, without_p50 = float(np.median(p50[True])), float(np.median(p50[False]))
-    with_p99, without_p99 = float(np.median(p99[True])), float(np.median(p99[False]))
     shown = float(np.median(pictures_per_s)) if pictures_per_s else 0.0
-    r = ratio(with_p50, without_p50)
-    return [
-        Row(
-            name=f"Live view: capture → obstacle latency p50 at {LATENCY_FPS:g} frames/s with "
-            f"`ovis view` and {CLIENTS} browsers taking its pictures ({shown:.1f} pictures/s "
-            f"each), floor: without the view, same run ({repeats} alternating phases of "
-            f"{phase_s:g} s each)",
-            unit="ms",
-            value=with_p50,
-            floor=without_p50,
-            ratio=r,
-            target="ratio ≤ 1.05",
-            met=None if r is None else bool(r <= 1.05),
-        ),
-        Row(
-            name=f"Live view: capture → obstacle latency p99 at {LATENCY_FPS:g} frames/s with "
-            "the view and browsers (floor: without, same run)",
-            unit="ms",
-            value=with_p99,
-            floor=without_p99,
-            ratio=ratio(with_p99, without_p99),
-        ),
-    ]
+    setup = (
+        f"`ovis view` and {CLIENTS} browsers taking its pictures ({shown:.1f} pictures/s "
+        f"each), floor: without the view, same run ({repeats} alternating phases of "
+        f"{phase_s:g} s each)"
+    )
+    rows = []
+    for which, samples in (("p50", p50), ("p99", p99)):
+        value, floor = float(np.median(samples[True])), float(np.median(samples[False]))
+        r = ratio(value, floor)
+        judged = which == "p50"  # the target is on the median; p99 is reported
+        rows.append(
+            Row(
+                name=f"Live view: capture → obstacle latency {which} at {LATENCY_FPS:g} "
+                f"frames/s with {setup}",
+                unit="ms",
+                value=value,
+                floor=floor,
+                ratio=r,
+                target="ratio ≤ 1.05" if judged else None,
+                met=bool(r <= 1.05) if judged and r is not None else None,
+            )
+        )
+    return rows

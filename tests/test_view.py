@@ -130,6 +130,8 @@ def system(tmp_path_factory: pytest.TempPathFactory):
             s.up.wait(30)
         except subprocess.TimeoutExpired:
             s.up.kill()
+    # The view stops cleanly with the stages (the killed one was restarted by `ovis up`).
+    assert s.up.returncode == 0, s.err.read_text()[-3000:]
     for log in (
         tmp / "lonely.log",
         Path(s.log_dir) / "view.log" if hasattr(s, "log_dir") else None,

@@ -236,3 +236,17 @@ def test_picture_wire_format() -> None:
     header = json.loads(data[4 : 4 + n])
     assert header["seq"] == 7 and header["kind"] == "camera" and header["jpeg"] == ""
     assert data[4 + n :] == b"\xff\xd8jpeg"
+
+
+def test_a_slow_browser_gets_the_newest_update_not_a_queue() -> None:
+    """Updates not yet sent are replaced by newer ones of the same kind: what waits
+    for a browser is bounded by the number of kinds, whatever the rate."""
+    from ovis.services.view.server import Viewer
+
+    viewer = Viewer(ws=None, arena="default")  # type: ignore[arg-type]  (never sent here)
+    for i in range(1000):
+        viewer.offer("picture", bytes([i % 256]) * 1000)
+        viewer.offer("health", f"health {i}")
+    assert list(viewer.slots) == ["picture", "health"]
+    assert viewer.slots["health"] == "health 999" and viewer.replaced == 2 * 999
+    assert viewer.wake.is_set()
