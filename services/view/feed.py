@@ -14,7 +14,7 @@ import contextlib
 import logging
 import threading
 import time
-from typing import Any
+from typing import Annotated, Any
 
 import msgspec
 import zenoh
@@ -41,6 +41,12 @@ log = logging.getLogger("ovis.view")
 
 #: Recent messages kept per arena to pair a frame with its detections.
 KEEP = 8
+
+
+class _Seq(msgspec.Struct):
+    """The sequence number of any frame-like message (the rest is skipped)."""
+
+    seq: Annotated[int, msgspec.Meta(ge=0)]
 
 
 def _newest(store: collections.OrderedDict[int, Any], seq: int, item: Any) -> None:
@@ -137,9 +143,6 @@ class ArenaFeed:
                 self.footprint = footprint
 
     def _keeper(self, store: collections.OrderedDict[int, bytes], what: str):
-        class _Seq(msgspec.Struct):
-            seq: int
-
         def on_sample(sample: zenoh.Sample) -> None:
             payload = sample.payload.to_bytes()
             try:  # only the sequence number now; the rest when a picture is made
