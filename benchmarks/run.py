@@ -41,9 +41,10 @@ GROUPS = {
     "scaling": "Scaling",
     "calibration": "GA calibration",
     "e2e": "End to end",
+    "view": "Live view",
     "memory": "Memory",
 }
-DEFAULT = ("pipeline", "scaling", "calibration", "e2e")
+DEFAULT = ("pipeline", "scaling", "calibration", "e2e", "view")
 
 
 def log(message: str) -> None:
@@ -76,6 +77,10 @@ def run_groups(names: list[str], quick: bool, memory_s: float) -> list[Row]:
             from benchmarks.bus import e2e_rows
 
             rows += e2e_rows(quick, log)
+        elif name == "view":
+            from benchmarks.view import view_rows
+
+            rows += view_rows(quick, log)
         elif name == "memory":
             from benchmarks.bus import memory_rows
 

@@ -41,6 +41,7 @@ LAYERS: dict[str, set[str]] = {
     "messages": {"config", "camera", "vision", "world", "calibration", "sim"},
     "pipeline": FOUNDATION,
     "analysis": FOUNDATION,
+    "view": {"config", "camera", "calibration", "messages"},
 }
 
 

@@ -31,12 +31,13 @@ app = typer.Typer(
 )
 
 # One module per command group; each registers its commands.
-from ovis.services.cli import analysis, export, launcher, offline  # noqa: E402
+from ovis.services.cli import analysis, export, launcher, offline, view  # noqa: E402
 
 offline.register(app)
 launcher.register(app)
 analysis.register(app)
 export.register(app)
+view.register(app)
 
 
 def main() -> None:

@@ -182,6 +182,14 @@ def up(
             "(any core: most frames per second on many cores), or e.g. '1' or '2,3'."
         ),
     ] = "auto",
+    view: Annotated[
+        bool,
+        typer.Option(
+            help="Also start the live web view (`ovis view`) and print its URL; it listens "
+            "on OVIS_VIEW_LISTEN (default 127.0.0.1:8080) and offers recalibration when "
+            "OVIS_OPERATOR_TOKEN is set."
+        ),
+    ] = False,
 ) -> None:
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
@@ -219,6 +227,12 @@ def up(
     )
     fleet.start("router", ["router", "--listen", listen])
     time.sleep(0.5)
+    if view:
+        from ovis.services.cli.view import DEFAULT_LISTEN
+
+        fleet.start("view", ["view", "--connect", listen, "--arena", topics.arena])
+        where = os.environ.get("OVIS_VIEW_LISTEN", DEFAULT_LISTEN)
+        print(f"ovis up: live view on http://{where}/ (log: {log_dir / 'view.log'})", file=out)
 
     def start(stage: str) -> None:
         fleet.start(stage, ["run", stage, "--config", str(cfg_path), *cpus_option(stage, cpus)])

@@ -1,0 +1,178 @@
+"""The health panel: every stage alive or not with its rates, drops and errors, the
+capture → obstacle latency percentiles, the stream's state and the last calibration
+(DIPE px and mm, eq. 14; held-out error; age)."""
+
+from __future__ import annotations
+
+import collections
+import time
+from collections.abc import Iterable, Mapping
+from datetime import datetime
+
+import msgspec
+import numpy as np
+
+from ovis.common.calibration.file import Calibration
+from ovis.common.messages import ServiceStatus, StreamHealth
+
+__all__ = [
+    "STAGES",
+    "CalibrationSummary",
+    "HealthSummary",
+    "LatencyWindow",
+    "StageHealth",
+    "summarize",
+    "summarize_calibration",
+]
+
+#: The stages of an arena, in frame order, then the calibrator.
+STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
+
+
+class StageHealth(msgspec.Struct, kw_only=True):
+    """One stage: alive (its liveliness token is up) and its last status, if any."""
+
+    name: str
+    alive: bool
+    state: str = "not running"
+    fps: float | None = None
+    frames_in: int | None = None
+    frames_out: int | None = None
+    dropped: int | None = None
+    errors: int = 0
+    errors_by_kind: dict[str, int] = {}
+    last_error: str = ""
+    calibration_version: int | None = None
+    where: str = ""
+    restarts: int = 0
+
+
+class CalibrationSummary(msgspec.Struct, kw_only=True):
+    """The calibration in use: version, DIPE, held-out error and age."""
+
+    version: int
+    dipe_px: float
+    dipe_mm: float
+    dipe_max_px: float
+    held_out_px: float | None = None
+    held_out_cm: float | None = None
+    held_out_method: str = ""
+    created: str = ""
+    age_s: float | None = None
+    source: str = ""
+
+
+class HealthSummary(msgspec.Struct, kw_only=True):
+    """What the health panel shows for one arena."""
+
+    arena: str
+    stages: list[StageHealth]
+    stream: str  # "waiting", "ok", "stalled", or "no pose service" (no health message)
+    latency_p50_ms: float | None = None
+    latency_p99_ms: float | None = None
+    latency_samples: int = 0
+    calibration: CalibrationSummary | None = None
+
+
+class LatencyWindow:
+    """Capture → obstacle latencies of the last ``window_s`` seconds (at most ``limit``
+    kept: bounded memory at any frame rate)."""
+
+    def __init__(self, window_s: float = 10.0, limit: int = 4096) -> None:
+        self.window_s = window_s
+        self._items: collections.deque[tuple[float, float]] = collections.deque(maxlen=limit)
+
+    def add(self, latency_ms: float, now_s: float | None = None) -> None:
+        if np.isfinite(latency_ms):
+            self._items.append((time.monotonic() if now_s is None else now_s, latency_ms))
+
+    def percentiles(self, now_s: float | None = None) -> tuple[float | None, float | None, int]:
+        """(p50, p99, samples) over the window; Nones when it is empty."""
+        now = time.monotonic() if now_s is None else now_s
+        while self._items and now - self._items[0][0] > self.window_s:
+            self._items.popleft()
+        if not self._items:
+            return None, None, 0
+        lat = np.fromiter((v for _, v in self._items), float, len(self._items))
+        p50, p99 = np.percentile(lat, [50, 99])
+        return float(p50), float(p99), int(lat.size)
+
+
+def _age_s(created: str, now: datetime | None) -> float | None:
+    try:
+        made = datetime.fromisoformat(created)
+    except ValueError:
+        return None
+    if made.tzinfo is None:
+        return None
+    now = now or datetime.now(made.tzinfo)
+    return max(0.0, (now - made).total_seconds())
+
+
+def summarize_calibration(calib: Calibration, now: datetime | None = None) -> CalibrationSummary:
+    """The calibration's quality for the panel: DIPE, the held-out error (check points
+    if it has them, else leave-one-out) and how long ago it was made."""
+    held = None
+    if calib.accuracy is not None:
+        held = calib.accuracy.check or calib.accuracy.leave_one_out
+    return CalibrationSummary(
+        version=calib.version,
+        dipe_px=calib.dipe_px,
+        dipe_mm=calib.dipe_mm,
+        dipe_max_px=calib.dipe_max_px,
+        held_out_px=held.mean_px if held else None,
+        held_out_cm=held.mean_cm if held else None,
+        held_out_method=held.method if held else "",
+        created=calib.created,
+        age_s=_age_s(calib.created, now) if calib.created else None,
+        source=calib.source_image,
+    )
+
+
+def _stage(name: str, alive: bool, st: ServiceStatus | None) -> StageHealth:
+    if not alive or st is None:
+        return StageHealth(name=name, alive=alive, state="starting" if alive else "not running")
+    return StageHealth(
+        name=name,
+        alive=True,
+        state=st.state,
+        fps=st.fps,
+        frames_in=st.frames_in,
+        frames_out=st.frames_out,
+        dropped=st.dropped,
+        errors=sum(st.errors.values()),
+        errors_by_kind=dict(st.errors),
+        last_error=st.last_error,
+        calibration_version=st.calibration_version,
+        where=f"{st.pid}@{st.host}",
+        restarts=st.restarts,
+    )
+
+
+def summarize(
+    arena: str,
+    alive: Iterable[str],
+    statuses: Mapping[str, ServiceStatus],
+    latency: LatencyWindow,
+    stream: StreamHealth | None,
+    calibration: Calibration | None,
+) -> HealthSummary:
+    """The health of one arena: the five stages (and any other service that is alive
+    or answered), latency over the window, the stream's state and the calibration. A
+    stage that is not alive shows no status, even if an old one is known."""
+    alive = set(alive)
+    names = list(STAGES) + sorted((alive | set(statuses)) - set(STAGES))
+    p50, p99, n = latency.percentiles()
+    return HealthSummary(
+        arena=arena,
+        stages=[_stage(n_, n_ in alive, statuses.get(n_)) for n_ in names],
+        stream=stream.state if stream is not None else "no pose service",
+        latency_p50_ms=p50,
+        latency_p99_ms=p99,
+        latency_samples=n,
+        calibration=(
+            summarize_calibration(calibration)
+            if calibration is not None and calibration.version > 0
+            else None
+        ),
+    )

@@ -1,0 +1,129 @@
+"""`ovis view`: the live web view (a page that shows the frame with what was detected,
+the arena from above and the health of every stage)."""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ovis.services.cli.errors import UserError
+
+__all__ = ["DEFAULT_LISTEN", "register", "view"]
+
+DEFAULT_LISTEN = "127.0.0.1:8080"
+
+
+def view(
+    listen: Annotated[
+        str,
+        typer.Option(
+            envvar="OVIS_VIEW_LISTEN",
+            help="HOST:PORT to serve the page on (port 0: any free port). Use 0.0.0.0:PORT "
+            "to let other machines see it.",
+        ),
+    ] = DEFAULT_LISTEN,
+    arena: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Arena to show (repeatable: the page gets a selector). Default: the "
+            "configured arena, and every arena found alive on the bus."
+        ),
+    ] = None,
+    connect: Annotated[
+        list[str] | None,
+        typer.Option(help="Zenoh endpoint to connect to (repeatable); default tcp/127.0.0.1:7447."),
+    ] = None,
+    config: Annotated[
+        Path | None,
+        typer.Option(
+            "--config", "-c", help="TOML configuration ([zenoh], [service] arena).", dir_okay=False
+        ),
+    ] = None,
+    max_fps: Annotated[
+        float, typer.Option(help="Pictures per second sent to each browser, at most (≤ 30).")
+    ] = 10.0,
+    max_side: Annotated[
+        int, typer.Option(help="Longer side of the pictures, pixels (frames are only shrunk).")
+    ] = 640,
+    quality: Annotated[int, typer.Option(help="JPEG quality, 10-100.")] = 80,
+    max_clients: Annotated[
+        int, typer.Option(help="Browsers served at once; more are asked to come back later.")
+    ] = 32,
+    operator_token: Annotated[
+        str | None,
+        typer.Option(
+            envvar="OVIS_OPERATOR_TOKEN",
+            help="Secret (8+ characters) that lets the page recalibrate: the button appears "
+            "and asks for it, and the server checks it on every request. Without it the "
+            "page is read-only. Prefer the environment variable (not in `ps`).",
+            show_default=False,
+        ),
+    ] = None,
+) -> None:
+    """Serve a live web page of what ovis sees: the camera frame with blobs, ids, robot
+    headings and control points drawn on it (or the binarised frame), the arena from
+    above in cm (objects, planner lines, the camera's footprint), the health of every
+    stage (alive, frames/s, latency p50/p99, drops, errors, last calibration) and, with
+    --operator-token, a recalibration button.
+
+    It joins the bus like any subscriber (it may run on a laptop far from the cameras)
+    and takes frames from the bus only while a browser watches, so the frame path does
+    not pay for it. Stop it with Ctrl-C.
+    """
+    from ovis.common.messages import Topics
+    from ovis.common.view.settings import parse_listen, view_settings
+    from ovis.services.bus import open_session
+    from ovis.services.cli.launcher import _config
+    from ovis.services.view.feed import Bus
+    from ovis.services.view.server import bind, serve, url_of
+
+    try:
+        host, port = parse_listen(listen)
+        cfg = _config(config, connect=connect)
+        arenas = list(arena or [cfg.service.arena])
+        for name in arenas:
+            Topics(name)  # a bad name is refused here
+        settings = view_settings(
+            host=host,
+            port=port,
+            arenas=list(arena or []),
+            discover=not arena,
+            max_fps=max_fps,
+            max_side=max_side,
+            jpeg_quality=quality,
+            max_clients=max_clients,
+            operator_token=operator_token or None,
+        )
+        sock = bind(host, port)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    logging.basicConfig(
+        level=os.environ.get("OVIS_LOG", "INFO").upper(),
+        format="%(asctime)s %(name)s %(levelname)s %(message)s",
+    )
+    with open_session(cfg.zenoh) as session:
+        bus = Bus(session, arenas, discover=settings.discover)
+        mode = (
+            "operator mode: the page asks for the token to recalibrate"
+            if settings.operator_token
+            else "read-only"
+        )
+        print(
+            f"ovis view: {url_of(sock)} (arena {', '.join(arenas)}; {mode}; up to "
+            f"{settings.max_fps:g} pictures/s per browser)",
+            flush=True,
+        )
+        try:
+            serve(bus, settings, sock)
+        finally:
+            bus.close()
+    sys.stdout.flush()
+
+
+def register(app: typer.Typer) -> None:
+    app.command()(view)

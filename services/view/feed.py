@@ -1,0 +1,309 @@
+"""The view's side of the bus: what it knows of each arena, kept up to date by Zenoh
+callbacks (liveliness, obstacles, stream health, calibration; frames, binary frames
+and blobs only while a browser watches the arena), and the recalibration query.
+
+Callbacks only validate and store the newest items (bounded), never encode or draw:
+that is done by the server at the browser's rate. A message that fails validation is
+counted and dropped.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import logging
+import threading
+import time
+from typing import Annotated, Any
+
+import msgspec
+import zenoh
+
+from ovis.common.calibration.file import Calibration
+from ovis.common.messages import (
+    CalibrateReply,
+    CalibrateRequest,
+    CalibrationUpdate,
+    MessageError,
+    ObstacleFrame,
+    ServiceStatus,
+    StreamHealth,
+    Topics,
+    decode,
+    encode,
+)
+from ovis.common.view.health import HealthSummary, LatencyWindow, summarize
+from ovis.common.view.scene import camera_footprint
+
+__all__ = ["ArenaFeed", "Bus"]
+
+log = logging.getLogger("ovis.view")
+
+#: Recent messages kept per arena to pair a frame with its detections.
+KEEP = 8
+
+
+class _Seq(msgspec.Struct):
+    """The sequence number of any frame-like message (the rest is skipped)."""
+
+    seq: Annotated[int, msgspec.Meta(ge=0)]
+
+
+def _newest(store: collections.OrderedDict[int, Any], seq: int, item: Any) -> None:
+    store[seq] = item
+    store.move_to_end(seq)
+    while len(store) > KEEP:
+        store.popitem(last=False)
+
+
+class ArenaFeed:
+    """One arena as the view sees it."""
+
+    def __init__(self, session: zenoh.Session, arena: str) -> None:
+        self.session = session
+        self.topics = Topics(arena)
+        self.arena = arena
+        self.lock = threading.Lock()
+        self.alive: set[str] = set()
+        self.statuses: dict[str, ServiceStatus] = {}
+        self.latency = LatencyWindow()
+        self.stream: StreamHealth | None = None
+        self.calibration: Calibration | None = None
+        self.footprint: list[tuple[float, float]] = []
+        self.obstacles: collections.OrderedDict[int, dict[str, Any]] = collections.OrderedDict()
+        self.obstacle_messages = 0
+        self.frames: collections.OrderedDict[int, bytes] = collections.OrderedDict()
+        self.binaries: collections.OrderedDict[int, bytes] = collections.OrderedDict()
+        self.blobs: collections.OrderedDict[int, bytes] = collections.OrderedDict()
+        self.refused: collections.Counter[str] = collections.Counter()
+        self.frames_seen = 0
+        self._watchers = 0
+        self._frame_subs: list[zenoh.Subscriber] = []
+        t = self.topics
+        self._subs = [
+            session.declare_subscriber(t.obstacles, self._on_obstacles),
+            session.declare_subscriber(t.health, self._on_health),
+            session.declare_subscriber(t.calibration, self._on_calibration),
+            session.liveliness().declare_subscriber(t.alive_all, self._on_alive, history=True),
+        ]
+
+    # --- callbacks (Zenoh threads) --------------------------------------------------
+    def refuse(self, what: str, exc: MessageError) -> None:
+        with self.lock:
+            self.refused[what] += 1
+            n = self.refused[what]
+        if n <= 3 or n % 100 == 0:
+            log.warning("arena %s: refused a %s message: %s (#%d)", self.arena, what, exc, n)
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self.lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.alive.add(name)
+            else:
+                self.alive.discard(name)
+                self.statuses.pop(name, None)
+
+    def _on_obstacles(self, sample: zenoh.Sample) -> None:
+        now = time.time_ns()
+        payload = sample.payload.to_bytes()
+        try:
+            msg = decode(payload, ObstacleFrame)  # validates; the page gets every field
+        except MessageError as exc:
+            self.refuse("obstacles", exc)
+            return
+        generic = msgspec.msgpack.decode(payload)
+        with self.lock:
+            _newest(self.obstacles, msg.seq, generic)
+            self.obstacle_messages += 1
+            self.latency.add((now - msg.stamp_ns) / 1e6)
+
+    def _on_health(self, sample: zenoh.Sample) -> None:
+        try:
+            msg = decode(sample.payload.to_bytes(), StreamHealth)
+        except MessageError as exc:
+            self.refuse("health", exc)
+            return
+        with self.lock:
+            self.stream = msg
+
+    def _on_calibration(self, sample: zenoh.Sample) -> None:
+        self.accept_calibration(sample.payload.to_bytes())
+
+    def accept_calibration(self, payload: bytes) -> None:
+        try:
+            calib = decode(payload, CalibrationUpdate).calibration
+            footprint = camera_footprint(calib.camera)
+        except (MessageError, ValueError) as exc:
+            self.refuse("calibration", MessageError(str(exc)))
+            return
+        with self.lock:
+            if self.calibration is None or calib.version >= self.calibration.version:
+                self.calibration = calib
+                self.footprint = footprint
+
+    def _keeper(self, store: collections.OrderedDict[int, bytes], what: str):
+        def on_sample(sample: zenoh.Sample) -> None:
+            payload = sample.payload.to_bytes()
+            try:  # only the sequence number now; the rest when a picture is made
+                seq = msgspec.msgpack.decode(payload, type=_Seq).seq
+            except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+                self.refuse(what, MessageError(str(exc)))
+                return
+            with self.lock:
+                _newest(store, seq, payload)
+                if what == "frame":
+                    self.frames_seen += 1
+
+        return on_sample
+
+    # --- watching: frames flow to this process only while a browser looks -----------
+    def watch(self) -> None:
+        with self.lock:
+            self._watchers += 1
+            if self._watchers > 1:
+                return
+            t = self.topics
+            self._frame_subs = [
+                self.session.declare_subscriber(t.frames, self._keeper(self.frames, "frame")),
+                self.session.declare_subscriber(t.binary, self._keeper(self.binaries, "binary")),
+                self.session.declare_subscriber(t.blobs, self._keeper(self.blobs, "blobs")),
+            ]
+
+    def unwatch(self) -> None:
+        with self.lock:
+            self._watchers = max(0, self._watchers - 1)
+            if self._watchers:
+                return
+            subs, self._frame_subs = self._frame_subs, []
+            self.frames.clear()
+            self.binaries.clear()
+            self.blobs.clear()
+        for sub in subs:
+            sub.undeclare()
+
+    # --- polling (the bus thread) -----------------------------------------------------
+    def poll(self, timeout: float) -> None:
+        """Ask every service of the arena for its status, and the calibrator for the
+        calibration while none is known."""
+        statuses: dict[str, ServiceStatus] = {}
+        for reply in self.session.get(self.topics.status_all, timeout=timeout):
+            if reply.ok is None:
+                continue
+            try:
+                st = decode(reply.ok.payload.to_bytes(), ServiceStatus)
+            except MessageError as exc:
+                self.refuse("status", exc)
+                continue
+            statuses[st.service] = st
+        with self.lock:
+            self.statuses = {n: s for n, s in statuses.items() if n in self.alive}
+            need_calibration = self.calibration is None
+        if need_calibration:
+            for reply in self.session.get(self.topics.calibration, timeout=timeout):
+                if reply.ok is not None:
+                    self.accept_calibration(reply.ok.payload.to_bytes())
+
+    def health(self) -> HealthSummary:
+        with self.lock:
+            return summarize(
+                self.arena, self.alive, self.statuses, self.latency, self.stream, self.calibration
+            )
+
+    def recalibrate(self, request: CalibrateRequest, timeout: float) -> CalibrateReply:
+        """Send the recalibration query (as `ovis recalibrate` does) and wait for the
+        calibrator's reply; failures come back as a reply with ``ok`` False."""
+        replies = list(
+            self.session.get(self.topics.calibrate, payload=encode(request), timeout=timeout)
+        )
+        if not replies:
+            return CalibrateReply(
+                ok=False,
+                error=f"no calibrator answered on {self.topics.calibrate} within {timeout:g} s",
+            )
+        reply = replies[0]
+        if reply.ok is None:
+            why = reply.err.payload.to_bytes().decode(errors="replace")
+            return CalibrateReply(ok=False, error=f"the calibrator failed: {why}")
+        try:
+            return decode(reply.ok.payload.to_bytes(), CalibrateReply)
+        except MessageError as exc:
+            return CalibrateReply(ok=False, error=f"the calibrator's reply is not valid: {exc}")
+
+    def close(self) -> None:
+        for sub in [*self._subs, *self._frame_subs]:
+            with contextlib.suppress(zenoh.ZError):
+                sub.undeclare()
+
+
+class Bus:
+    """The view's Zenoh session: the arenas it follows (named, or found by liveliness
+    when none is named) and a thread that polls their status every ``period_s``."""
+
+    def __init__(
+        self, session: zenoh.Session, arenas: list[str], *, discover: bool, period_s: float = 1.0
+    ) -> None:
+        self.session = session
+        self.period_s = period_s
+        self.lock = threading.Lock()
+        self.feeds: dict[str, ArenaFeed] = {}
+        self.found: set[str] = set()  # arenas seen alive, followed from the next poll
+        self.stop = threading.Event()
+        for arena in arenas:
+            self.feed(arena)
+        self._discover = None
+        if discover:
+            self._discover = session.liveliness().declare_subscriber(
+                "ovis/*/alive/*", self._on_any_alive, history=True
+            )
+        self._thread = threading.Thread(target=self._poll, name="view-poll", daemon=True)
+        self._thread.start()
+
+    def _on_any_alive(self, sample: zenoh.Sample) -> None:
+        parts = str(sample.key_expr).split("/")
+        if sample.kind == zenoh.SampleKind.PUT and len(parts) == 4:
+            with self.lock:
+                self.found.add(parts[1])
+
+    def feed(self, arena: str) -> ArenaFeed:
+        """The feed of ``arena`` (started on first use; ValueError for a bad name)."""
+        with self.lock:
+            feed = self.feeds.get(arena)
+            if feed is None:
+                feed = self.feeds[arena] = ArenaFeed(self.session, arena)
+                log.info("following arena %s", arena)
+            return feed
+
+    def arenas(self) -> list[str]:
+        with self.lock:
+            return sorted(self.feeds)
+
+    def _poll(self) -> None:
+        while not self.stop.is_set():
+            t0 = time.monotonic()
+            with self.lock:
+                found, self.found = self.found - set(self.feeds), set()
+            for arena in found:
+                try:
+                    self.feed(arena)
+                except ValueError:
+                    log.warning("ignored an arena with an invalid name: %r", arena)
+            with self.lock:
+                feeds = list(self.feeds.values())
+            for feed in feeds:
+                try:
+                    feed.poll(timeout=min(1.0, self.period_s))
+                except zenoh.ZError:
+                    if self.stop.is_set():
+                        return
+            self.stop.wait(max(0.05, self.period_s - (time.monotonic() - t0)))
+
+    def close(self) -> None:
+        self.stop.set()
+        self._thread.join(timeout=3.0)
+        if self._discover is not None:
+            self._discover.undeclare()
+        with self.lock:
+            feeds = list(self.feeds.values())
+        for feed in feeds:
+            feed.close()

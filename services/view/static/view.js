@@ -1,0 +1,372 @@
+// ovis live view: one WebSocket, plain DOM/SVG. Every object drawn on the map is a
+// <g> with data-id, data-kind, data-x-cm, data-y-cm (and data-heading-deg for robots).
+"use strict";
+
+const SVGNS = "http://www.w3.org/2000/svg";
+const TRAIL = 60; // positions kept per robot
+const $ = (id) => document.getElementById(id);
+
+const view = {
+  ws: null, arena: null, operator: false, fatal: false, pictures: 0, pictureUrl: null,
+  footprint: [], bounds: null, trails: new Map(), selected: "", lastMessage: null,
+  alive: new Set(), received: 0, health: null,
+};
+
+function fmt(v, digits = 1) {
+  return v === null || v === undefined || !Number.isFinite(v) ? "–" : v.toFixed(digits);
+}
+
+function send(obj) {
+  if (view.ws && view.ws.readyState === WebSocket.OPEN) view.ws.send(JSON.stringify(obj));
+}
+
+function showError(text) {
+  const el = $("error");
+  el.textContent = text; el.hidden = !text;
+}
+
+function setConnection(state, text) {
+  const el = $("connection");
+  el.dataset.state = state; el.textContent = text;
+}
+
+function connect() {
+  const proto = location.protocol === "https:" ? "wss" : "ws";
+  const ws = new WebSocket(`${proto}://${location.host}/ws`);
+  ws.binaryType = "arraybuffer";
+  view.ws = ws;
+  setConnection("connecting", "connecting…");
+  ws.onopen = () => setConnection("open", "live");
+  ws.onclose = () => {
+    setConnection("closed", "disconnected");
+    if (!view.fatal) {
+      $("notice").textContent = "lost the connection to the view server; reconnecting…";
+      setTimeout(connect, 2000);
+    }
+  };
+  ws.onmessage = (ev) => {
+    if (ev.data instanceof ArrayBuffer) onPicture(ev.data);
+    else onText(ev.data);
+  };
+}
+
+function onText(text) {
+  let msg;
+  try { msg = JSON.parse(text); } catch (e) { return; }
+  switch (msg.type) {
+    case "hello": onHello(msg); break;
+    case "health": onHealth(msg); break;
+    case "obstacles": onObstacles(msg); break;
+    case "recalibration": onRecalibration(msg); break;
+    case "error":
+      showError(msg.message);
+      if (msg.fatal) { view.fatal = true; $("notice").textContent = msg.message; }
+      break;
+  }
+}
+
+function onHello(msg) {
+  if (view.arena !== msg.arena) resetArena();
+  view.arena = msg.arena; view.operator = msg.operator;
+  $("arena-name").textContent = `arena ${msg.arena}`;
+  setArenas(msg.arenas || []);
+  buildRecalibration(msg.operator);
+  send({ type: "show", kind: $("show-binary").checked ? "binary" : "camera" });
+}
+
+function resetArena() {
+  view.footprint = []; view.bounds = null; view.trails.clear(); view.lastMessage = null;
+  view.received = 0;
+  for (const id of ["footprint-layer", "planner-layer", "trail-layer", "object-layer"]) $(id).replaceChildren();
+  $("picture").hidden = true; $("picture-info").textContent = "no picture yet";
+}
+
+function setArenas(arenas) {
+  const sel = $("arena-select");
+  const names = [...new Set([...arenas, view.arena].filter(Boolean))].sort();
+  $("arena-label").hidden = names.length < 2;
+  if ([...sel.options].map((o) => o.value).join() !== names.join()) {
+    sel.replaceChildren(...names.map((n) => new Option(n, n)));
+  }
+  sel.value = view.arena;
+}
+
+// --- pictures --------------------------------------------------------------------
+function onPicture(buf) {
+  const n = new DataView(buf).getUint32(0);
+  const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
+  if (header.arena !== view.arena) return;
+  const url = URL.createObjectURL(new Blob([new Uint8Array(buf, 4 + n)], { type: "image/jpeg" }));
+  const img = $("picture");
+  const old = view.pictureUrl;
+  img.onload = () => { if (old) URL.revokeObjectURL(old); };
+  img.src = url; img.hidden = false; view.pictureUrl = url;
+  img.dataset.seq = header.seq; img.dataset.kind = header.kind;
+  view.pictures += 1;
+  setCount("count-pictures", view.pictures);
+  $("picture-info").textContent =
+    `${header.kind} frame ${header.seq}, ${header.width}×${header.height}` +
+    (header.kind === "camera" ? `, ${header.objects} objects drawn` : "");
+}
+
+function setCount(id, value) {
+  const el = $(id); el.dataset.value = value; el.textContent = value;
+}
+
+// --- map -------------------------------------------------------------------------
+function robotsOf(m) {
+  if (Array.isArray(m.robots)) return m.robots;
+  return m.robot ? [m.robot] : [];
+}
+
+function grow(b, x, y, margin) {
+  if (!b) return { x0: x - margin, x1: x + margin, y0: y - margin, y1: y + margin };
+  return { x0: Math.min(b.x0, x - margin), x1: Math.max(b.x1, x + margin),
+           y0: Math.min(b.y0, y - margin), y1: Math.max(b.y1, y + margin) };
+}
+
+function applyBounds() {
+  const b = view.bounds; if (!b) return;
+  // World y points up: the SVG draws (x, -y).
+  $("map").setAttribute("viewBox", `${b.x0} ${-b.y1} ${b.x1 - b.x0} ${b.y1 - b.y0}`);
+}
+
+function el(tag, attrs = {}, text) {
+  const e = document.createElementNS(SVGNS, tag);
+  for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+  if (text !== undefined) e.textContent = text;
+  return e;
+}
+
+function label(obj) {
+  const kind = obj.kind || "obstacle";
+  return obj.name || `${kind === "robot" ? "R" : "O"}${obj.id}`;
+}
+
+function objectKey(obj) { return `${obj.kind || "obstacle"}-${obj.id}`; }
+
+function drawMap(m) {
+  const robots = robotsOf(m).map((r) => ({ kind: "robot", ...r }));
+  const obstacles = (m.obstacles || []).map((o) => ({ kind: "obstacle", ...o }));
+  const objects = [...robots, ...obstacles].filter((o) => Number.isFinite(o.x_cm) && Number.isFinite(o.y_cm));
+  for (const o of objects) view.bounds = grow(view.bounds, o.x_cm, o.y_cm, (o.radius_cm || 0) + 10);
+  applyBounds();
+  const map = $("map");
+  map.dataset.seq = m.seq; map.dataset.calibrationVersion = m.calibration_version;
+  // trails
+  for (const r of robots) {
+    const key = objectKey(r);
+    const t = view.trails.get(key) || [];
+    t.push([r.x_cm, r.y_cm]); if (t.length > TRAIL) t.shift();
+    view.trails.set(key, t);
+  }
+  const trails = [];
+  for (const [key, pts] of view.trails) {
+    trails.push(el("polyline", { class: "trail", "data-robot": key,
+      points: pts.map(([x, y]) => `${x},${-y}`).join(" ") }));
+  }
+  $("trail-layer").replaceChildren(...trails);
+  // objects
+  const groups = objects.map((o) => {
+    const g = el("g", { class: `obj ${o.kind}`, "data-id": o.id, "data-kind": o.kind,
+      "data-x-cm": o.x_cm.toFixed(3), "data-y-cm": o.y_cm.toFixed(3),
+      "data-radius-cm": fmt(o.radius_cm || 0, 3), tabindex: 0 });
+    if (o.kind === "robot") {
+      g.dataset.headingDeg = Number.isFinite(o.heading_deg) ? o.heading_deg.toFixed(1) : "";
+      if (objectKey(o) === view.selected) g.classList.add("selected");
+      g.addEventListener("click", () => selectRobot(objectKey(o)));
+    }
+    g.append(el("title", {}, `${label(o)} ${o.kind} at (${fmt(o.x_cm)}, ${fmt(o.y_cm)}) cm, radius ${fmt(o.radius_cm)} cm` +
+      (o.kind === "robot" && Number.isFinite(o.heading_deg) ? `, heading ${fmt(o.heading_deg)}°` : "")));
+    g.append(el("circle", { cx: o.x_cm, cy: -o.y_cm, r: Math.max(o.radius_cm || 0, 1) }));
+    if (o.kind === "robot" && Number.isFinite(o.heading_deg)) {
+      const h = (o.heading_deg * Math.PI) / 180, L = Math.max(o.radius_cm || 0, 4) * 1.6;
+      g.append(el("line", { class: "heading", x1: o.x_cm, y1: -o.y_cm,
+        x2: o.x_cm + L * Math.cos(h), y2: -(o.y_cm + L * Math.sin(h)) }));
+    }
+    g.append(el("text", { x: o.x_cm + (o.radius_cm || 1) + 1, y: -o.y_cm }, label(o)));
+    return g;
+  });
+  $("object-layer").replaceChildren(...groups);
+  drawPlanner(m, robots, obstacles);
+  fillRobotSelect(robots);
+  fillObjectTable(objects);
+  setCount("count-objects", objects.length);
+  $("map-info").textContent = `frame ${m.seq}, calibration v${m.calibration_version}, ` +
+    `age ${fmt(m.frame_age_ms)} ms`;
+}
+
+function drawPlanner(m, robots, obstacles) {
+  const robot = robots.find((r) => objectKey(r) === view.selected);
+  const layer = $("planner-layer");
+  if (!robot) { layer.replaceChildren(); return; }
+  const byId = new Map(obstacles.map((o) => [o.id, o]));
+  const entries = (robot.planner || m.planner || []).filter(
+    (e) => e.robot_id === undefined || e.robot_id === robot.id);
+  layer.replaceChildren(...entries.filter((e) => byId.has(e.obstacle_id)).map((e) => {
+    const o = byId.get(e.obstacle_id);
+    const g = el("g", { class: "planner", "data-obstacle-id": e.obstacle_id,
+      "data-distance-cm": fmt(e.distance_cm, 2), "data-angle-deg": fmt(e.angle_deg, 1) });
+    g.append(el("line", { x1: robot.x_cm, y1: -robot.y_cm, x2: o.x_cm, y2: -o.y_cm }));
+    g.append(el("text", { x: (robot.x_cm + o.x_cm) / 2, y: -(robot.y_cm + o.y_cm) / 2 },
+      `${fmt(e.distance_cm)} cm ${e.angle_deg >= 0 ? "+" : ""}${fmt(e.angle_deg)}°`));
+    return g;
+  }));
+}
+
+function selectRobot(key) {
+  view.selected = key;
+  $("robot-select").value = key;
+  if (view.lastMessage) drawMap(view.lastMessage);
+}
+
+function fillRobotSelect(robots) {
+  const sel = $("robot-select");
+  const keys = robots.map(objectKey);
+  if (!view.selected && keys.length) view.selected = keys[0];
+  const want = ["", ...keys].join();
+  if ([...sel.options].map((o) => o.value).join() !== want) {
+    sel.replaceChildren(new Option("no robot", ""), ...robots.map((r) => new Option(label(r), objectKey(r))));
+  }
+  sel.value = view.selected;
+}
+
+function fillObjectTable(objects) {
+  const rows = objects.map((o) => {
+    const tr = document.createElement("tr");
+    for (const v of [`${label(o)} (${o.kind})`, fmt(o.x_cm, 2), fmt(o.y_cm, 2), fmt(o.radius_cm, 2),
+      o.kind === "robot" ? fmt(o.heading_deg) : ""]) {
+      const td = document.createElement("td"); td.textContent = v; tr.append(td);
+    }
+    return tr;
+  });
+  document.querySelector("#objects tbody").replaceChildren(...rows);
+}
+
+function drawFootprint(points) {
+  view.footprint = points;
+  for (const [x, y] of points) view.bounds = grow(view.bounds, x, y, 5);
+  applyBounds();
+  const layer = $("footprint-layer");
+  if (points.length < 3) { layer.replaceChildren(); return; }
+  const poly = el("polygon", { class: "footprint", "data-kind": "footprint",
+    points: points.map(([x, y]) => `${x},${-y}`).join(" ") });
+  poly.append(el("title", {}, "what the camera sees of the floor (its footprint)"));
+  layer.replaceChildren(poly);
+}
+
+function onObstacles(msg) {
+  if (msg.arena !== view.arena || !msg.message) return;
+  view.received = msg.received;
+  setCount("count-messages", msg.received);
+  view.lastMessage = msg.message;
+  drawMap(msg.message);
+}
+
+// --- health ----------------------------------------------------------------------
+function onHealth(msg) {
+  if (msg.arena !== view.arena) return;
+  view.health = msg;
+  setArenas(msg.arenas || []);
+  const s = msg.summary;
+  const rows = s.stages.map((st) => {
+    const tr = document.createElement("tr");
+    tr.dataset.stage = st.name; tr.dataset.alive = st.alive;
+    tr.className = st.alive ? "alive" : "dead";
+    const errors = st.errors ? `${st.errors} (${Object.entries(st.errors_by_kind).map(([k, v]) => `${k} ${v}`).join(", ")})` : "0";
+    const cells = [st.name, st.alive ? "yes" : "NO", st.state, fmt(st.fps), st.frames_in ?? "–",
+      st.frames_out ?? "–", st.dropped ?? "–", errors, st.where || "–"];
+    cells.forEach((v, i) => {
+      const td = document.createElement("td"); td.textContent = v;
+      if (i === 7 && st.last_error) td.title = st.last_error;
+      tr.append(td);
+    });
+    return tr;
+  });
+  document.querySelector("#stages tbody").replaceChildren(...rows);
+  $("latency-p50").textContent = s.latency_p50_ms == null ? "–" : `${fmt(s.latency_p50_ms, 2)} ms`;
+  $("latency-p99").textContent = s.latency_p99_ms == null ? "–" : `${fmt(s.latency_p99_ms, 2)} ms`;
+  $("stream").textContent = s.stream; $("stream").dataset.state = s.stream;
+  $("viewers").textContent = msg.viewers;
+  const c = s.calibration, cal = $("calibration");
+  cal.dataset.version = c ? c.version : 0;
+  cal.textContent = c
+    ? `v${c.version}: DIPE ${fmt(c.dipe_px, 3)} px = ${fmt(c.dipe_mm, 4)} mm (max ${fmt(c.dipe_max_px, 3)} px)` +
+      (c.held_out_px != null ? `; held-out (${c.held_out_method}) ${fmt(c.held_out_px, 3)} px` +
+        (c.held_out_cm != null ? ` = ${fmt(c.held_out_cm, 3)} cm` : "") : "; no held-out error") +
+      (c.age_s != null ? `; made ${ago(c.age_s)} ago` : "") + (c.source ? ` on ${c.source}` : "")
+    : "no calibration yet (the calibrator has not published one)";
+  if (msg.footprint && msg.footprint.length !== view.footprint.length) drawFootprint(msg.footprint);
+  else if (msg.footprint && msg.footprint.length && view.footprint[0] && msg.footprint[0][0] !== view.footprint[0][0]) drawFootprint(msg.footprint);
+  if (msg.recalibration && view.operator) onRecalibration({ arena: msg.arena, ...msg.recalibration }, true);
+  $("notice").textContent = notice(s, msg);
+}
+
+function ago(s) {
+  if (s < 120) return `${Math.round(s)} s`;
+  if (s < 7200) return `${Math.round(s / 60)} min`;
+  if (s < 172800) return `${Math.round(s / 3600)} h`;
+  return `${Math.round(s / 86400)} days`;
+}
+
+function notice(s, msg) {
+  const alive = s.stages.filter((st) => st.alive).map((st) => st.name);
+  const dead = s.stages.filter((st) => !st.alive).map((st) => st.name);
+  if (!alive.length) return `arena ${msg.arena}: no stage is running (waiting for ovis up / ovis run)`;
+  if (!view.received) return `arena ${msg.arena}: waiting for the first obstacle message` + (dead.length ? ` (not running: ${dead.join(", ")})` : "");
+  if (s.stream === "stalled") return `arena ${msg.arena}: NO DATA, frames have stopped` + (dead.length ? ` (not running: ${dead.join(", ")})` : "");
+  if (dead.length) return `arena ${msg.arena}: not running: ${dead.join(", ")}`;
+  return `arena ${msg.arena}: all stages running`;
+}
+
+// --- recalibration ---------------------------------------------------------------
+function buildRecalibration(operator) {
+  const panel = $("recalibration-panel");
+  if (!operator) { panel.replaceChildren(); return; }
+  if ($("recalibrate")) return;
+  const fromUrl = new URLSearchParams(location.hash.slice(1)).get("token") || sessionStorage.getItem("ovis-token") || "";
+  panel.innerHTML = `<form id="recal-form" onsubmit="return false">
+    <label>operator token <input type="password" id="token" autocomplete="off"></label>
+    <label>population <input type="number" id="population" min="2" max="10000" placeholder="configured"></label>
+    <label>generations <input type="number" id="generations" min="1" max="10000" placeholder="configured"></label>
+    <label>seed <input type="number" id="seed" min="0" placeholder="configured"></label>
+    <button id="recalibrate" type="button">Recalibrate</button>
+    <output id="recal-status" data-state="idle" aria-live="polite"></output></form>`;
+  $("token").value = fromUrl;
+  $("recalibrate").addEventListener("click", () => {
+    const token = $("token").value;
+    sessionStorage.setItem("ovis-token", token);
+    const req = { type: "recalibrate", token };
+    for (const k of ["population", "generations", "seed"]) {
+      const v = parseInt($(k).value, 10);
+      if (Number.isFinite(v)) req[k] = v;
+    }
+    $("recal-status").dataset.state = "sent"; $("recal-status").textContent = "sent…";
+    send(req);
+  });
+}
+
+let recalTimer = null;
+function onRecalibration(msg, fromHealth = false) {
+  if (msg.arena !== view.arena) return;
+  const out = $("recal-status"), btn = $("recalibrate");
+  if (!out) return;
+  if (fromHealth && msg.state !== "running" && out.dataset.state !== "running") return;
+  out.dataset.state = msg.state;
+  clearInterval(recalTimer);
+  if (msg.state === "running") {
+    btn.disabled = true;
+    const t0 = msg.started_ns / 1e6;
+    const tick = () => { out.textContent = `running… ${Math.max(0, (Date.now() - t0) / 1000).toFixed(0)} s (${msg.message})`; };
+    tick(); recalTimer = setInterval(tick, 1000);
+  } else {
+    btn.disabled = false;
+    out.textContent = msg.message;
+    if (msg.reply) out.dataset.version = msg.reply.version;
+  }
+}
+
+$("show-binary").addEventListener("change", (e) => send({ type: "show", kind: e.target.checked ? "binary" : "camera" }));
+$("arena-select").addEventListener("change", (e) => send({ type: "select", arena: e.target.value }));
+$("robot-select").addEventListener("change", (e) => selectRobot(e.target.value));
+connect();
