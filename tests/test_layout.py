@@ -26,6 +26,16 @@ LAYERS: dict[str, set[str]] = {
     "sim": {"config", "atomic", "camera"},
     "capture": {"config", "atomic", "camera", "sim"},
     "messages": {"config", "camera", "vision", "world", "calibration", "sim"},
+    "recording": {
+        "config",
+        "atomic",
+        "camera",
+        "vision",
+        "world",
+        "calibration",
+        "sim",
+        "messages",
+    },
     "analysis": {
         "config",
         "atomic",
