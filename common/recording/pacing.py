@@ -103,24 +103,27 @@ class Restamp:
 
     The first pass sends them as recorded (bit-exact payloads) unless ``shift_ns`` moves
     every stamp (a recording older than the services accept). Each later pass of
-    ``--loop`` adds the recording's length to the stamps and its frame count to the
-    sequence numbers, so both keep growing for the services downstream.
+    ``--loop`` comes after the previous one (its length plus one frame period) with
+    sequence numbers after its last, so both keep growing for the services downstream.
+    ``last`` is the (seq, stamp_ns) of the last frame as sent.
     """
 
     def __init__(self, shift_ns: int = 0) -> None:
         self.shift_ns = int(shift_ns)
         self.seq_offset = 0
-        self._first: int | None = None
-        self._last: int | None = None
+        self.last: tuple[int, int] | None = None
+        self._stamps: list[int] = []  # first and last recorded stamp of this pass
+        self._frames = 0
         self._max_seq = -1
 
-    def next_pass(self, period_ns: int) -> None:
-        """Move on to the next loop: later by the pass's length plus one frame period."""
-        if self._first is not None and self._last is not None:
-            self.shift_ns += self._last - self._first + max(int(period_ns), 1)
+    def next_pass(self) -> None:
+        """Move on to the next pass of a loop."""
+        if self._frames:
+            first, last = self._stamps
+            period = (last - first) // (self._frames - 1) if self._frames > 1 else 10**9
+            self.shift_ns += last - first + max(period, 1)
         self.seq_offset += self._max_seq + 1
-        self._first = self._last = None
-        self._max_seq = -1
+        self._stamps, self._frames, self._max_seq = [], 0, -1
 
     def frame(self, payload: bytes) -> bytes:
         """A frame payload as it goes out (unchanged when nothing moves)."""
@@ -128,16 +131,13 @@ class Restamp:
             frame = decode(payload, Frame)
         except MessageError:
             return payload  # sent as recorded: the services refuse it as they would
-        self._first = frame.stamp_ns if self._first is None else self._first
-        self._last = frame.stamp_ns
+        self._stamps = [self._stamps[0] if self._stamps else frame.stamp_ns, frame.stamp_ns]
+        self._frames += 1
         self._max_seq = max(self._max_seq, frame.seq)
+        self.last = (frame.seq + self.seq_offset, frame.stamp_ns + self.shift_ns)
         if not self.shift_ns and not self.seq_offset:
             return payload
-        return encode(
-            msgspec.structs.replace(
-                frame, seq=frame.seq + self.seq_offset, stamp_ns=frame.stamp_ns + self.shift_ns
-            )
-        )
+        return encode(msgspec.structs.replace(frame, seq=self.last[0], stamp_ns=self.last[1]))
 
     def truth(self, payload: bytes) -> bytes:
         """A ground-truth payload as it goes out (its sequence number follows the frames)."""

@@ -30,11 +30,17 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
-from ovis.services.cli import analysis, launcher, offline  # noqa: E402  (they register commands)
+from ovis.services.cli import (  # noqa: E402  (they register commands)
+    analysis,
+    launcher,
+    offline,
+    recording,
+)
 
 offline.register(app)
 launcher.register(app)
 analysis.register(app)
+recording.register(app)
 
 
 def main() -> None:

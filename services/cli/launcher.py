@@ -174,7 +174,8 @@ def run(
 
 def up(
     source: Annotated[
-        str | None, typer.Option(help="'sim' (default), a folder, a video, 'camera:N'.")
+        str | None,
+        typer.Option(help="'sim' (default), a folder, a video, 'camera:N', a SESSION.mcap."),
     ] = None,
     listen: Annotated[str, typer.Option(help="Endpoint of the router.")] = DEFAULT_ENDPOINT,
     duration: Annotated[
@@ -215,6 +216,9 @@ def up(
     )
     topics = _topics(cfg)
     cpus = _cpus(pin) or []
+    from ovis.services.cli.recording import prepare_recorded_source
+
+    recorded = prepare_recorded_source(cfg)  # a session file: its calibration, or why not
     log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-"))
     cfg_path = log_dir / "config.toml"
     from ovis.common.config import dump_toml
@@ -235,6 +239,8 @@ def up(
         f"{','.join(map(str, cpus)) or 'any'}, logs in {log_dir}",
         file=out,
     )
+    if recorded:
+        print(f"ovis up: {recorded}", file=out)
     fleet.start("router", ["router", "--listen", listen])
     time.sleep(0.5)
 
