@@ -33,9 +33,15 @@ def topic_keys(topics: Topics, patterns: list[str] | None) -> list[str]:
     return [p if p.startswith("ovis/") else f"{topics.root}/{p.lstrip('/')}" for p in patterns]
 
 
-def _ntp64_ns(ntp: int) -> int:
-    """An NTP64 time (Zenoh's timestamps) in ns since the Unix epoch."""
-    return (ntp >> 32) * 1_000_000_000 + (((ntp & 0xFFFFFFFF) * 1_000_000_000) >> 32)
+def _stamp_ns(ts: zenoh.Timestamp | None, default: int) -> int:
+    """A Zenoh timestamp (set by a router on the way) in ns since the Unix epoch;
+    ``default`` without one."""
+    if ts is None:
+        return default
+    try:
+        return int(ts.get_time_as_ntp64().as_nanos())
+    except (ValueError, OverflowError, AttributeError):
+        return default
 
 
 @dataclass
@@ -79,8 +85,7 @@ class Recorder:
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         now = time.time_ns()
-        ts = sample.timestamp
-        published = _ntp64_ns(ts.get_time_as_ntp64()) if ts is not None else now
+        published = _stamp_ns(sample.timestamp, now)
         self._queue.put((str(sample.key_expr), sample.payload.to_bytes(), now, published))
 
     def record_current_calibration(self, timeout: float = 2.0) -> bool:

@@ -108,6 +108,7 @@ class SessionWriter:
         self._channels: dict[tuple[str, str, str], int] = {}
         self.stats: dict[str, TopicStats] = {}
         self.closed = False
+        self._size = 0
 
     def channel(
         self,
@@ -193,14 +194,16 @@ class SessionWriter:
         self._writer.add_metadata(name, values)
 
     def bytes_written(self) -> int:
-        return self._fh.tell()
+        """Bytes in the file so far (its size once closed)."""
+        return self._size if self.closed else self._fh.tell()
 
     def close(self) -> None:
         """Write the last chunk, the index and the summary; close the file."""
         if self.closed:
             return
-        self.closed = True
         self._writer.finish()
+        self._size = self._fh.tell()
+        self.closed = True
         if self._own:
             self._fh.close()
 

@@ -259,7 +259,7 @@ def replay(
     """
     from ovis.common.messages import Topics
     from ovis.common.recording.pacing import parse_speed
-    from ovis.common.recording.session import RecordingError
+    from ovis.common.recording.session import RecordingError, SessionReader
     from ovis.services.replay import Replayer
     from ovis.services.runtime import open_session
 
@@ -267,7 +267,8 @@ def replay(
         pace = parse_speed(speed)
         if arena is not None:
             Topics(arena)
-    except ValueError as exc:
+        SessionReader(session_file)  # not a session: say so before connecting
+    except ValueError as exc:  # RecordingError too
         raise UserError(str(exc)) from None
     cfg = _config(config, connect=connect)
     stop = _stop_on_signals()
