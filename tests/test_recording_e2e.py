@@ -10,6 +10,7 @@ repairs; a damaged file gives one line and exit code 2.
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import threading
@@ -26,7 +27,13 @@ from zenoh_helpers import client, free_port, ovis_cmd, spawn, stop, wait_for
 from ovis.common.messages import ENCODING, Frame, ObstacleFrame, decode, encode
 from ovis.common.recording.session import SessionReader
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "chessboard-9x6"
+#: Real photos (CI has ../shared beside the clone; OVIS_SHARED_DATA names another place).
+SHARED = Path(
+    os.environ.get(
+        "OVIS_SHARED_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"
+    )
+)
+DATA = SHARED / "chessboard-9x6"
 RECORD_S = 10.0
 
 
@@ -153,6 +160,7 @@ def test_a_fresh_pipeline_publishes_identical_obstacles(session_file, tmp_path: 
 def test_replay_publishes_every_message_bit_exact(session_file, tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")
+    wait_for(lambda: "listening" in (tmp_path / "router.log").read_text(), 30, "the router")
     expected = [
         (m.topic, m.payload())
         for m in SessionReader(session_file).bus_messages()
@@ -199,6 +207,7 @@ def test_a_killed_recorder_leaves_a_readable_file_that_recover_repairs(tmp_path:
     images = [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted(DATA.glob("*.jpg"))]
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")
+    wait_for(lambda: "listening" in (tmp_path / "router.log").read_text(), 30, "the router")
     cut = tmp_path / "cut.mcap"
     recorder = spawn(
         ovis_cmd("record", "--connect", endpoint, "--out", str(cut), "--topics", "frames"),
@@ -233,8 +242,10 @@ def _check_cut_file(cut: Path, sent: list[bytes], tmp_path: Path, endpoint: str)
     reader = SessionReader(cut)
     frames = [m.payload() for m in reader.bus_messages()]
     assert reader.cut is not None and "last complete chunk" in reader.cut
-    assert 10 <= len(frames) < len(sent)
-    assert frames == sent[: len(frames)]  # bit-exact, in order, up to the cut
+    # Bit-exact and in order up to the cut; what is lost is at most the chunk being
+    # filled (1 MiB: a few packed frames and their images).
+    assert frames == sent[: len(frames)]
+    assert len(sent) - 8 <= len(frames) <= len(sent)
     fixed = tmp_path / "fixed.mcap"
     done = subprocess.run(
         ovis_cmd("record", "--recover", str(cut), str(fixed)), capture_output=True, text=True
