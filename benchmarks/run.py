@@ -34,8 +34,9 @@ GROUPS = {
     "calibration": "GA calibration",
     "e2e": "End to end",
     "memory": "Memory",
+    "recording": "Recording",
 }
-DEFAULT = ("pipeline", "scaling", "calibration", "e2e")
+DEFAULT = ("pipeline", "scaling", "calibration", "e2e", "recording")
 
 
 def log(message: str) -> None:
@@ -68,6 +69,10 @@ def run_groups(names: list[str], quick: bool, memory_s: float) -> list[Row]:
             from benchmarks.bus import e2e_rows
 
             rows += e2e_rows(quick, log)
+        elif name == "recording":
+            from benchmarks.recording import recording_rows
+
+            rows += recording_rows(quick, log)
         elif name == "memory":
             from benchmarks.bus import memory_rows
 

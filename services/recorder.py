@@ -78,30 +78,42 @@ class Recorder:
         self.counts = RecorderCounts()
         self._queue: queue.SimpleQueue[tuple[str, bytes, int, int] | None] = queue.SimpleQueue()
         self._last_seq: int | None = None
+        self._closed = threading.Event()
+        self.calibration_recorded = False
         self._thread = threading.Thread(target=self._drain, name="recorder-writer", daemon=True)
         self._thread.start()
         self._subs = [session.declare_subscriber(k, self._on_sample) for k in keys]
         self.keys = keys
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if key == self.topics.calibration:
+            self.calibration_recorded = True
         now = time.time_ns()
-        published = _stamp_ns(sample.timestamp, now)
-        self._queue.put((str(sample.key_expr), sample.payload.to_bytes(), now, published))
+        self._queue.put((key, sample.payload.to_bytes(), now, _stamp_ns(sample.timestamp, now)))
 
-    def record_current_calibration(self, timeout: float = 2.0) -> bool:
-        """Ask the calibrator for the calibration in use and record it (a session then
-        carries the calibration its frames were processed with, even if it was published
-        before the recording started)."""
-        try:
-            replies = list(self.session.get(self.topics.calibration, timeout=timeout))
-        except zenoh.ZError:
-            return False
-        for reply in replies:
-            if reply.ok is not None:
-                now = time.time_ns()
-                self._queue.put((self.topics.calibration, reply.ok.payload.to_bytes(), now, now))
-                return True
-        return False
+    def follow_calibration(self, period_s: float = 1.0) -> None:
+        """Ask the calibrator for the calibration in use until it answers, and record it:
+        a session then carries the calibration its frames were processed with, even one
+        published before the recording started (later updates are recorded as they are
+        published). Runs in the background until answered or closed."""
+
+        def ask() -> None:
+            while not self._closed.is_set() and not self.calibration_recorded:
+                try:
+                    replies = list(self.session.get(self.topics.calibration, timeout=period_s))
+                except zenoh.ZError:  # the session is closing
+                    return
+                for reply in replies:
+                    if reply.ok is not None and not self._closed.is_set():
+                        now = time.time_ns()
+                        payload = reply.ok.payload.to_bytes()
+                        self._queue.put((self.topics.calibration, payload, now, now))
+                        self.calibration_recorded = True
+                        return
+                self._closed.wait(period_s)
+
+        threading.Thread(target=ask, name="recorder-calibration", daemon=True).start()
 
     def backlog(self) -> int:
         return self._queue.qsize()
@@ -113,12 +125,13 @@ class Recorder:
                 return
             self.counts.backlog_max = max(self.counts.backlog_max, self._queue.qsize())
             try:
-                self._write(*item)
+                self.write_sample(*item)
             except Exception as exc:  # a message that cannot be written must not stop the rest
                 self.counts.last_error = f"{type(exc).__name__}: {exc}"
                 log.warning("could not record a message on %s: %s", item[0], exc)
 
-    def _write(self, key: str, payload: bytes, log_ns: int, published_ns: int) -> None:
+    def write_sample(self, key: str, payload: bytes, log_ns: int, published_ns: int) -> None:
+        """Write one received sample (what the writer thread does with each)."""
         c = self.counts
         c.received += 1
         c.by_topic[key] = c.by_topic.get(key, 0) + 1
@@ -179,6 +192,7 @@ class Recorder:
 
     def close(self) -> None:
         """Stop listening, write what is queued, then the index; close the file."""
+        self._closed.set()
         for sub in self._subs:
             sub.undeclare()
         self._queue.put(None)

@@ -200,6 +200,14 @@ def up(
             "(any core: most frames per second on many cores), or e.g. '1' or '2,3'."
         ),
     ] = "auto",
+    record: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also record everything into this session file from the first frame "
+            "(ovis record; the capture starts once it listens).",
+            dir_okay=False,
+        ),
+    ] = None,
 ) -> None:
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
@@ -219,6 +227,8 @@ def up(
     from ovis.services.cli.recording import prepare_recorded_source
 
     recorded = prepare_recorded_source(cfg)  # a session file: its calibration, or why not
+    if record is not None and record.exists():
+        raise UserError(f"{record} exists; give --record another name (nothing was started)")
     log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-"))
     cfg_path = log_dir / "config.toml"
     from ovis.common.config import dump_toml
@@ -250,6 +260,10 @@ def up(
     downstream = ("calibrator", "pose", "label", "preprocess")
     for stage in downstream:
         start(stage)
+    if record is not None:
+        fleet.start("recorder", ["record", "--connect", listen, "--arena", topics.arena,
+                                 "--out", str(record)])  # fmt: skip
+        downstream = (*downstream, "recorder")
     from ovis.common.config import ZenohConfig
     from ovis.services.cli.watching import alive_services
     from ovis.services.runtime import open_session

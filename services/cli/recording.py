@@ -172,8 +172,10 @@ def record(
             + ("Ctrl-C stops" if duration is None else f"for {duration:g} s"),
             file=sys.stderr,
         )
-        if wants_calibration and not rec.record_current_calibration():
-            print("no calibrator answered: the session carries no calibration yet", file=sys.stderr)
+        if wants_calibration:
+            rec.follow_calibration()
+        # Alive once it listens: `ovis up --record` starts the capture after that.
+        session.liveliness().declare_token(bus.alive("recorder"))
         t0 = time.monotonic()
         progress = _Progress()
         try:
@@ -189,6 +191,8 @@ def record(
     notes = []
     if c.frames_missed:
         notes.append(f"{c.frames_missed} frames never reached the recorder (sequence gaps)")
+    if wants_calibration and not rec.calibration_recorded:
+        notes.append("no calibrator answered: the session carries no calibration")
     if c.view_errors:
         notes.append(f"{c.view_errors} messages had no Foxglove view ({c.last_error})")
     print(
