@@ -93,7 +93,7 @@ def session_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
     finally:
         proc.send_signal(signal.SIGTERM)
         summary, _ = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err.read_text()
+    assert proc.returncode == 0, (err.read_text(), summary)
     assert json.loads(summary)["exit_codes"]["recorder"] == 0
     log = (Path(up_log_dir(err)) / "recorder.log").read_text()
     assert "messages" in log and f"wrote {out}" in log  # progress lines, then the summary

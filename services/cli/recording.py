@@ -175,7 +175,7 @@ def record(
         if wants_calibration:
             rec.follow_calibration()
         # Alive once it listens: `ovis up --record` starts the capture after that.
-        session.liveliness().declare_token(bus.alive("recorder"))
+        alive = session.liveliness().declare_token(bus.alive("recorder"))
         t0 = time.monotonic()
         progress = _Progress()
         try:
@@ -184,6 +184,7 @@ def record(
                     break
                 progress.show(_status_line(rec, time.monotonic() - t0))
         finally:
+            alive.undeclare()
             rec.close()
             progress.show(_status_line(rec, time.monotonic() - t0), force=True)
             progress.done()
