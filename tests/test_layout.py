@@ -26,16 +26,6 @@ LAYERS: dict[str, set[str]] = {
     "sim": {"config", "atomic", "camera"},
     "capture": {"config", "atomic", "camera", "sim"},
     "messages": {"config", "camera", "vision", "world", "calibration", "sim"},
-    "recording": {
-        "config",
-        "atomic",
-        "camera",
-        "vision",
-        "world",
-        "calibration",
-        "sim",
-        "messages",
-    },
     "analysis": {
         "config",
         "atomic",
@@ -48,6 +38,9 @@ LAYERS: dict[str, set[str]] = {
         "messages",
     },
 }
+
+#: Recording stores and replays messages: what they may import, plus them and atomic files.
+LAYERS["recording"] = LAYERS["messages"] | {"messages", "atomic"}
 
 
 def part_of(path: Path) -> str:

@@ -8,7 +8,7 @@ encodes every frame the same way); any other is recorded as it came.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import msgspec
 import zstandard
@@ -39,6 +39,14 @@ class PackedFrame(msgspec.Struct, tag_field="type", tag="packed-frame", kw_only=
     pixels: bytes
 
 
+#: The fields a packed frame shares with a frame (all but the pixels).
+_HEADER = ("seq", "stamp_ns", "rows", "cols", "channels", "dtype", "source")
+
+
+def _header(message: Frame | PackedFrame) -> dict[str, Any]:
+    return {name: getattr(message, name) for name in _HEADER}
+
+
 def pack_frame(payload: bytes) -> bytes | None:
     """The packed form of a frame payload, or None when it cannot be rebuilt bit-exact
     (not a valid frame, or encoded otherwise than ovis encodes frames)."""
@@ -49,18 +57,7 @@ def pack_frame(payload: bytes) -> bytes | None:
     if encode(frame) != payload:
         return None
     pixels = zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(frame.data)
-    return encode(
-        PackedFrame(
-            seq=frame.seq,
-            stamp_ns=frame.stamp_ns,
-            rows=frame.rows,
-            cols=frame.cols,
-            channels=frame.channels,
-            dtype=frame.dtype,
-            source=frame.source,
-            pixels=pixels,
-        )
-    )
+    return encode(PackedFrame(**_header(frame), pixels=pixels))
 
 
 def unpack_frame(data: bytes) -> bytes:
@@ -76,16 +73,7 @@ def unpack_frame(data: bytes) -> bytes:
     except zstandard.ZstdError as exc:
         raise MessageError(f"packed frame {packed.seq}: pixels do not decompress: {exc}") from None
     try:
-        frame = Frame(
-            seq=packed.seq,
-            stamp_ns=packed.stamp_ns,
-            rows=packed.rows,
-            cols=packed.cols,
-            channels=packed.channels,
-            dtype=packed.dtype,
-            data=pixels,
-            source=packed.source,
-        )
+        frame = Frame(**_header(packed), data=pixels)
     except ValueError as exc:
         raise MessageError(f"packed frame {packed.seq}: {exc}") from None
     return encode(frame)
