@@ -43,8 +43,9 @@ GROUPS = {
     "e2e": "End to end",
     "view": "Live view",
     "memory": "Memory",
+    "recording": "Recording",
 }
-DEFAULT = ("pipeline", "scaling", "calibration", "e2e", "view")
+DEFAULT = ("pipeline", "scaling", "calibration", "e2e", "view", "recording")
 
 
 def log(message: str) -> None:
@@ -81,6 +82,10 @@ def run_groups(names: list[str], quick: bool, memory_s: float) -> list[Row]:
             from benchmarks.view import view_rows
 
             rows += view_rows(quick, log)
+        elif name == "recording":
+            from benchmarks.recording import recording_rows
+
+            rows += recording_rows(quick, log)
         elif name == "memory":
             from benchmarks.bus import memory_rows
 

@@ -9,6 +9,7 @@ import time
 from ovis.common.capture.sources import FrameSource, SourceError, open_source
 from ovis.common.messages import Frame, TruthFrame
 from ovis.common.pipeline.pacing import Pacer
+from ovis.services.replay import capture_from_recording, is_recording
 from ovis.services.service import Service
 
 RETRY_S = 2.0
@@ -16,6 +17,9 @@ RETRY_S = 2.0
 
 def main(service: Service) -> None:
     cfg = service.config.service
+    if is_recording(cfg.source):  # a session file: its frames bit-exact, recorded pace
+        capture_from_recording(service)
+        return
     publish_frame = service.publisher(service.topics.frames)
     publish_truth = service.publisher(service.topics.truth)
     pacer = Pacer(cfg.fps)

@@ -44,6 +44,9 @@ LAYERS: dict[str, set[str]] = {
     "view": {"config", "camera", "calibration", "messages"},
 }
 
+#: Recording stores and replays messages: what they may import, plus them and atomic files.
+LAYERS["recording"] = LAYERS["messages"] | {"messages", "atomic"}
+
 
 def part_of(path: Path) -> str:
     """The part of ``ovis.common`` a source file belongs to (subpackage or module)."""

@@ -31,13 +31,14 @@ app = typer.Typer(
 )
 
 # One module per command group; each registers its commands.
-from ovis.services.cli import analysis, export, launcher, offline, view  # noqa: E402
+from ovis.services.cli import analysis, export, launcher, offline, recording, view  # noqa: E402
 
 offline.register(app)
 launcher.register(app)
 analysis.register(app)
 export.register(app)
 view.register(app)
+recording.register(app)
 
 
 def main() -> None:

@@ -157,7 +157,8 @@ def run(
 
 def up(
     source: Annotated[
-        str | None, typer.Option(help="'sim' (default), a folder, a video, 'camera:N'.")
+        str | None,
+        typer.Option(help="'sim' (default), a folder, a video, 'camera:N', a SESSION.mcap."),
     ] = None,
     listen: Annotated[str, typer.Option(help="Endpoint of the router.")] = DEFAULT_ENDPOINT,
     duration: Annotated[
@@ -190,6 +191,14 @@ def up(
             "OVIS_OPERATOR_TOKEN is set."
         ),
     ] = False,
+    record: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also record everything into this session file from the first frame "
+            "(ovis record; the capture starts once it listens).",
+            dir_okay=False,
+        ),
+    ] = None,
 ) -> None:
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
@@ -206,6 +215,11 @@ def up(
     )
     topics = _topics(cfg)
     cpus = _cpus(pin) or []
+    from ovis.services.cli.recording import prepare_recorded_source
+
+    recorded = prepare_recorded_source(cfg)  # a session file: its calibration, or why not
+    if record is not None and record.exists():
+        raise UserError(f"{record} exists; give --record another name (nothing was started)")
     log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-"))
     cfg_path = log_dir / "config.toml"
     from ovis.common.config import dump_toml
@@ -225,6 +239,8 @@ def up(
         f"{','.join(map(str, cpus)) or 'any'}, logs in {log_dir}",
         file=out,
     )
+    if recorded:
+        print(f"ovis up: {recorded}", file=out)
     fleet.start("router", ["router", "--listen", listen])
     time.sleep(0.5)
     if view:
@@ -240,14 +256,18 @@ def up(
     downstream = ("calibrator", "pose", "label", "preprocess")
     for stage in downstream:
         start(stage)
+    if record is not None:
+        fleet.start("recorder", ["record", "--connect", listen, "--arena", topics.arena,
+                                 "--out", str(record)])  # fmt: skip
+        downstream = (*downstream, "recorder")
     from ovis.common.config import ZenohConfig
     from ovis.services.bus import open_session
 
-    view = LiveView(topics, cfg)
+    live_view = LiveView(topics, cfg)
     started = time.monotonic()
     try:
         with open_session(ZenohConfig(connect=[listen])) as session:
-            view.attach(session)
+            live_view.attach(session)
             # Frames only once every stage listens: none is captured and then missed.
             waiting = _wait_listening(fleet, session, topics, downstream, stop)
             if waiting and not stop.is_set():
@@ -258,17 +278,17 @@ def up(
                 )
             if not stop.is_set():
                 start("capture")
-            view.run(
+            live_view.run(
                 stop,
                 until=(started + duration) if duration is not None else None,
                 live=live and not json,
                 supervise=fleet.supervise,
                 quiet=json,
             )
-            statuses = view.poll_status(session)
+            statuses = live_view.poll_status(session)
     finally:
         codes = fleet.stop()
-    summary = view.score.summary(statuses, codes, time.monotonic() - started, fleet.restarts())
+    summary = live_view.score.summary(statuses, codes, time.monotonic() - started, fleet.restarts())
     if json:
         sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
     else:
