@@ -156,7 +156,7 @@ class PinholeParams(
     k3: _rng(-1e3, 1e3) = 0.0
     rvec: tuple[Length, Length, Length]  # Rodrigues vector, world → camera, rad
     tvec_cm: tuple[Length, Length, Length]  # translation, world → camera, cm
-    pixel_pitch_mm: Positive = 0.01
+    pixel_pitch_mm: Positive | None = None  # None: unknown, errors in px only
 
     def __post_init__(self) -> None:
         for name in ("fx", "fy"):
@@ -171,13 +171,13 @@ class PinholeParams(
 
     @property
     def d_x_mm(self) -> float:
-        """Pixel pitch along rows, mm (square pixels: ``pixel_pitch_mm``)."""
-        return self.pixel_pitch_mm
+        """Pixel pitch along rows, mm (square pixels: ``pixel_pitch_mm``; NaN: unknown)."""
+        return math.nan if self.pixel_pitch_mm is None else self.pixel_pitch_mm
 
     @property
     def d_y_mm(self) -> float:
-        """Pixel pitch along columns, mm (square pixels: ``pixel_pitch_mm``)."""
-        return self.pixel_pitch_mm
+        """Pixel pitch along columns, mm (square pixels: ``pixel_pitch_mm``; NaN: unknown)."""
+        return self.d_x_mm
 
 
 #: Either camera model; the ``model`` field of ``[camera]`` says which.

@@ -160,8 +160,11 @@ class CameraSource(_CaptureSource):
         )
 
 
-def open_source(spec: str, config: OvisConfig) -> FrameSource:
-    """Open ``spec``: "sim", "camera:N", a device path, a folder, or a video file."""
+def open_source(spec: str, config: OvisConfig, *, loop: bool | None = None) -> FrameSource:
+    """Open ``spec``: "sim", "camera:N", a device path, a folder, or a video file.
+
+    ``loop`` (default ``config.service.loop``): replay a folder or video when it ends."""
+    loop = config.service.loop if loop is None else loop
     if spec == "sim":
         return SimSource(config, config.service.seed)
     if spec.startswith("camera:"):
@@ -173,9 +176,9 @@ def open_source(spec: str, config: OvisConfig) -> FrameSource:
         return CameraSource(spec)
     path = Path(spec)
     if path.is_dir():
-        return FolderSource(path, config.service.loop)
+        return FolderSource(path, loop)
     if path.is_file():
-        return VideoSource(path, config.service.loop)
+        return VideoSource(path, loop)
     raise SourceError(
         f"source {spec!r} is not 'sim', 'camera:N', a device, a folder or a video file"
     )

@@ -30,11 +30,12 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
-from ovis.services.cli import analysis, launcher, offline  # noqa: E402  (they register commands)
+from ovis.services.cli import analysis, camera, launcher, offline  # noqa: E402  (they register commands)
 
 offline.register(app)
 launcher.register(app)
 analysis.register(app)
+camera.register(app)
 
 
 def main() -> None:

@@ -1,0 +1,238 @@
+"""Real-camera commands: `ovis intrinsics` (lens from board photos) and `ovis locate`
+(the floor position of pixels)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ovis.services.cli.errors import UserError
+
+__all__ = ["register"]
+
+BoardOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="The board: chessboard:COLSxROWS (inner corners, e.g. chessboard:9x6) or "
+        "charuco:COLSxROWS:DICT (squares, e.g. charuco:7x5:DICT_5X5_100)."
+    ),
+]
+SquareOpt = Annotated[
+    float, typer.Option("--square-cm", help="Side of one board square (cm).", min=1e-6)
+]
+MarkerOpt = Annotated[
+    float | None,
+    typer.Option("--marker-cm", help="ChArUco only: side of a marker (cm).", min=1e-6),
+]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")]
+
+
+def board_spec(board: str | None, square_cm: float, marker_cm: float | None):
+    """The parsed --board, or a one-line error saying the expected form."""
+    from ovis.common.vision.boards import BoardError, parse_board
+
+    if board is None:
+        raise UserError("give --board chessboard:COLSxROWS or charuco:COLSxROWS:DICT")
+    try:
+        return parse_board(board, square_cm, marker_cm)
+    except BoardError as exc:
+        raise UserError(str(exc)) from None
+
+
+def _image_files(paths: list[Path]) -> list[Path]:
+    """The image files named, a folder standing for the images in it (name order)."""
+    from ovis.common.capture.sources import IMAGE_SUFFIXES
+
+    files: list[Path] = []
+    for p in paths:
+        if p.is_dir():
+            inside = sorted(q for q in p.iterdir() if q.suffix.lower() in IMAGE_SUFFIXES)
+            if not inside:
+                raise UserError(f"folder {p} holds no images ({', '.join(IMAGE_SUFFIXES)})")
+            files += inside
+        else:
+            files.append(p)
+    return files
+
+
+def _stream_views(source: str, spec, max_views: int, max_frames: int, min_shift_px: float, con):
+    """Frames of a capture source, keeping up to ``max_views`` distinct views of the board."""
+    from ovis.common.capture.sources import SourceError, open_source
+    from ovis.common.config import load_config
+    from ovis.common.vision.boards import find_board
+    from ovis.common.vision.preprocess import as_gray
+
+    cfg = load_config()
+    try:
+        src = open_source(source, cfg, loop=False)
+    except SourceError as exc:
+        raise UserError(str(exc)) from None
+    kept, found, rejected = [], [], []
+    size = None
+    from ovis.common.calibration.intrinsics import RejectedView, _Found, distinct_view
+
+    try:
+        for i in range(max_frames):
+            try:
+                image, _ = src.read()
+            except SourceError:
+                break
+            gray = as_gray(image)
+            size = size or (gray.shape[1], gray.shape[0])
+            name = f"{source}#{i}"
+            view = find_board(gray, spec)
+            if view is None:
+                rejected.append(RejectedView(view=name, reason=f"{spec.describe()} not found"))
+            elif distinct_view(view, kept, min_shift_px):
+                kept.append(view)
+                found.append(_Found(name, view))
+                con.print(f"  kept view {len(found)}/{max_views} ({name})")
+                if len(found) >= max_views:
+                    break
+    finally:
+        src.close()
+    if size is None:
+        raise UserError(f"{source} delivered no frame")
+    return found, rejected, size
+
+
+def intrinsics(
+    images: Annotated[
+        list[Path] | None,
+        typer.Argument(help="Photos of the board (files or folders), one camera, one size."),
+    ] = None,
+    board: BoardOpt = None,
+    square_cm: SquareOpt = 1.0,
+    marker_cm: MarkerOpt = None,
+    out: Annotated[
+        Path | None, typer.Option(help="Where to write CAM.yaml (OpenCV calibration format).")
+    ] = None,
+    plot: Annotated[
+        Path | None, typer.Option(help="Write the corner coverage of the image (PNG).")
+    ] = None,
+    source: Annotated[
+        str | None,
+        typer.Option(
+            help="Take the views from a capture source instead: camera:N, a video, a "
+            "stream URL or a folder; distinct views of the board are kept."
+        ),
+    ] = None,
+    max_views: Annotated[int, typer.Option(min=3, help="--source: views to keep.")] = 20,
+    max_frames: Annotated[int, typer.Option(min=1, help="--source: frames to look at.")] = 600,
+    min_shift_px: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            help="--source: a view is kept when its corners moved this "
+            "far on average from every kept view.",
+        ),
+    ] = 40.0,
+    drop_outliers: Annotated[
+        bool, typer.Option(help="Calibrate again without the views flagged as outliers.")
+    ] = False,
+    json: JsonOpt = False,
+) -> None:
+    """Calibrate a lens (K and distortion) from photos of a printed board.
+
+    Uses OpenCV's detectors (findChessboardCorners + cornerSubPix, or CharucoDetector) and
+    calibrateCamera (five distortion coefficients). Reports the overall and per-view RMS
+    reprojection error (px), names the views where the board was not found, flags outlier
+    views (RMS above 3x the median view's) and shows how much of the image the corners
+    covered: uncovered image corners mean the distortion there is a guess. Writes CAM.yaml
+    in OpenCV's calibration format (cv2.FileStorage reads it; so do `ovis calibrate
+    --intrinsics` and `ovis export`).
+    """
+    from rich.console import Console
+
+    from ovis.common.calibration.intrinsics import (
+        IntrinsicsError,
+        calibrate_intrinsics,
+        detect_views,
+    )
+    from ovis.services.cli.offline import _emit_json, read_image
+
+    spec = board_spec(board, square_cm, marker_cm)
+    if out is None and not json:
+        raise UserError("give --out CAM.yaml (and/or --json)")
+    for target in (out, plot):
+        if target is not None and target.is_dir():
+            raise UserError(f"{target} is a folder; give a file name")
+    if bool(images) == bool(source):
+        raise UserError("give the board photos (IMAGE...) or --source, not both or neither")
+    con = Console(highlight=False, quiet=json)  # progress on stdout: errors alone on stderr
+    if source is not None:
+        views = _stream_views(source, spec, max_views, max_frames, min_shift_px, con)
+        backdrop = None
+    else:
+        files = _image_files(images or [])
+        frames = [(p.name, read_image(p)) for p in files]
+
+        def on_view(name: str, ok: bool) -> None:
+            con.print(f"  {name}: {'board found' if ok else 'no board'}")
+
+        views = detect_views(frames, spec, on_view=on_view)
+        backdrop = frames[0][1]
+    try:
+        report = calibrate_intrinsics(None, spec, views=views, drop_outliers=drop_outliers)
+    except IntrinsicsError as exc:
+        raise UserError(str(exc)) from None
+    if out is not None:
+        from ovis.common.camera.intrinsics import write_intrinsics
+
+        note = f"ovis intrinsics: {report.board}, {len(report.views_used)} views"
+        write_intrinsics(out, report.intrinsics(), note=note)
+    if plot is not None:
+        from ovis.common.analysis.coverage import plot_coverage
+        from ovis.common.vision.preprocess import as_gray
+
+        used = set(report.views_used)
+        corners = [f.view.image_xy for f in views[0] if f.name in used]
+        plot_coverage(plot, report, corners, None if backdrop is None else as_gray(backdrop))
+    if json:
+        _emit_json(report)
+        return
+    _print_intrinsics(report, out, plot)
+
+
+def _print_intrinsics(report, out: Path | None, plot: Path | None) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console(highlight=False)
+    (fx, _, cx), (_, fy, cy), _ = report.camera_matrix
+    t = Table(title=f"views ({report.board})", title_justify="left")
+    for col in ("view", "corners", "RMS px", "flag"):
+        t.add_column(col, justify="right")
+    for v in report.per_view:
+        t.add_row(v.view, str(v.corners), f"{v.rms_px:.3f}", "OUTLIER" if v.outlier else "")
+    con.print(t)
+    for r in report.views_rejected:
+        con.print(f"rejected {r.view}: {r.reason}")
+    con.print(
+        f"RMS {report.rms_px:.4f} px over {len(report.views_used)} views; fx {fx:.2f} fy "
+        f"{fy:.2f} cx {cx:.2f} cy {cy:.2f} px; k1, k2, p1, p2, k3 = "
+        + ", ".join(f"{v:.4g}" for v in report.dist)
+    )
+    cov = report.coverage
+    con.print(
+        f"coverage: {cov.fraction:.0%} of a {cov.grid_cols}x{cov.grid_rows} grid, "
+        f"{cov.image_corners_covered}/4 image corners"
+        + (
+            ""
+            if cov.image_corners_covered == 4
+            else " - take photos with the board in the corners of the image"
+        )
+    )
+    if report.outliers:
+        what = "dropped" if report.outliers_dropped else "kept (use --drop-outliers to drop)"
+        con.print(f"outlier views {', '.join(report.outliers)}: {what}")
+    wrote = [str(p) for p in (out, plot) if p is not None]
+    if wrote:
+        con.print("wrote " + " and ".join(wrote))
+
+
+def register(app: typer.Typer) -> None:
+    """Add the real-camera commands to the `ovis` app."""
+    app.command()(intrinsics)
