@@ -20,6 +20,7 @@ from typing import Any
 import msgspec
 import zenoh
 
+from ovis.common.calibration.file import dipe_text
 from ovis.common.calibration.problem import InfeasibleCalibrationError, calibrate
 from ovis.common.calibration.store import CalibrationStore
 from ovis.common.camera.projection import camera_parameters
@@ -192,11 +193,10 @@ def main(service: Service) -> None:
         publish(CalibrationUpdate(calibration=calib))
         service.sent()
         service.log.info(
-            "calibration v%d on frame %d: DIPE %.3f px (%.4f mm) in %.2f s",
+            "calibration v%d on frame %d: DIPE %s in %.2f s",
             calib.version,
             seq,
-            calib.dipe_px,
-            calib.dipe_mm,
+            dipe_text(calib.dipe_px, calib.dipe_mm),
             calib.elapsed_s,
         )
         params = camera_parameters(calib.camera)

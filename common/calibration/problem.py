@@ -24,7 +24,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.calibration.dipe import match_points, pixel_error_mm
-from ovis.common.calibration.file import Calibration, GenerationRecord, PointResidual, now_iso
+from ovis.common.calibration.file import (
+    Calibration,
+    GenerationRecord,
+    PointResidual,
+    mm_or_none,
+    now_iso,
+)
 from ovis.common.calibration.ga import GAResult, GenerationStats, run_ga
 from ovis.common.camera.projection import pixel_footprint_cm2, project
 from ovis.common.config import (
@@ -351,20 +357,20 @@ def build_calibration(
                 predicted_row=float(pred.row[i]),
                 predicted_col=float(pred.col[i]),
                 dipe_px=float(ev.dipe_px[0, i]),
-                dipe_mm=float(pixel_error_mm(d_row, d_col, cam.d_x_mm, cam.d_y_mm)),
+                dipe_mm=mm_or_none(pixel_error_mm(d_row, d_col, cam.d_x_mm, cam.d_y_mm)),
             )
         )
     dipe_px = np.array([r.dipe_px for r in residuals])
-    dipe_mm = np.array([r.dipe_mm for r in residuals])
+    dipe_mm = np.array([np.nan if r.dipe_mm is None else r.dipe_mm for r in residuals])
     image = msgspec.structs.replace(
         config.image, threshold=int(np.rint(best[0])), size_filter_cm2=float(best[1])
     )
     return Calibration(
         created=now_iso(),
         dipe_px=float(dipe_px.mean()),
-        dipe_mm=float(dipe_mm.mean()),
+        dipe_mm=mm_or_none(dipe_mm.mean()),
         dipe_max_px=float(dipe_px.max()),
-        dipe_max_mm=float(dipe_mm.max()),
+        dipe_max_mm=mm_or_none(dipe_mm.max()),
         camera=cam,
         image=image,
         pose=config.pose,

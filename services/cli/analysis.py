@@ -313,6 +313,8 @@ def _num(v: float) -> str:
 
 def print_accuracy(calib, con=None) -> None:
     """Print a calibration's accuracy report (if it has one)."""
+    from ovis.common.calibration.file import dipe_text
+
     rep = calib.accuracy
     if rep is None:
         return
@@ -327,9 +329,9 @@ def print_accuracy(calib, con=None) -> None:
         else:
             which = "the polish does not lower the DIPE here: the GA's camera is kept"
         con.print(
-            f"GA alone: DIPE {calib.ga_dipe_px:.3f} px = {calib.ga_dipe_mm:.4f} mm; with the "
-            f"least-squares polish: {calib.polish_dipe_px:.3f} px = {calib.polish_dipe_mm:.4f} "
-            f"mm ({which})"
+            f"GA alone: DIPE {dipe_text(calib.ga_dipe_px, calib.ga_dipe_mm)}; with the "
+            f"least-squares polish: {dipe_text(calib.polish_dipe_px, calib.polish_dipe_mm)} "
+            f"({which})"
         )
     for held in (rep.leave_one_out, rep.check):
         if held is None:

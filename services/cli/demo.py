@@ -37,7 +37,7 @@ def demo(
 
     from ovis.common.analysis.evaluation import match_objects
     from ovis.common.analysis.plots import draw_detections, plot_convergence, save_png
-    from ovis.common.calibration.file import save_calibration
+    from ovis.common.calibration.file import dipe_text, save_calibration
     from ovis.common.sim.arena import Arena, control_points
     from ovis.common.world.detection import Detector
     from ovis.services.cli.offline import calibrate_with_progress, resolve_config
@@ -58,7 +58,7 @@ def demo(
     save_calibration(out / "calib.json", calib)
     plot_convergence(calib, out / "convergence.png")
     con.print(
-        f"   DIPE {calib.dipe_px:.3f} px = {calib.dipe_mm:.4f} mm (paper 0.735 mm), "
+        f"   DIPE {dipe_text(calib.dipe_px, calib.dipe_mm)} (paper 0.735 mm), "
         f"threshold {calib.image.threshold}, A^f {calib.image.size_filter_cm2:.1f} cm², "
         f"{calib.elapsed_s:.2f} s"
     )

@@ -362,6 +362,7 @@ def recalibrate(
 
     Shows the new calibration's DIPE, parameters and version.
     """
+    from ovis.common.calibration.file import dipe_text
     from ovis.common.messages import CalibrateReply, CalibrateRequest, decode, encode
     from ovis.services.runtime import open_session
 
@@ -391,7 +392,7 @@ def recalibrate(
     if not json:
         print(
             f"calibration v{answer.version} on frame {answer.frame_seq}: DIPE "
-            f"{answer.dipe_px:.3f} px = {answer.dipe_mm:.4f} mm (max {answer.dipe_max_px:.3f} px)"
+            f"{dipe_text(answer.dipe_px, answer.dipe_mm)} (max {answer.dipe_max_px:.3f} px)"
             f" in {answer.elapsed_s:.2f} s; saved to {answer.saved_to}"
         )
         for name, value in answer.parameters.items():

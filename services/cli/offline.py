@@ -313,12 +313,15 @@ def _print_residuals(calib, out: Path, plot: Path | None) -> None:
             f"{r.detected_row:.2f}, {r.detected_col:.2f}",
             f"{r.predicted_row:.2f}, {r.predicted_col:.2f}",
             f"{r.dipe_px:.3f}",
-            f"{r.dipe_mm:.4f}",
+            "-" if r.dipe_mm is None else f"{r.dipe_mm:.4f}",
         )
     con.print(p)
+    from ovis.common.calibration.file import dipe_text
+
+    paper = " (paper: 0.735214 mm)" if calib.dipe_mm is not None else " (mm: pixel pitch unknown)"
     con.print(
-        f"DIPE mean {calib.dipe_px:.3f} px = {calib.dipe_mm:.4f} mm, max {calib.dipe_max_px:.3f}"
-        f" px = {calib.dipe_max_mm:.4f} mm (paper: 0.735214 mm); {calib.evaluations} "
+        f"DIPE mean {dipe_text(calib.dipe_px, calib.dipe_mm)}, max "
+        f"{dipe_text(calib.dipe_max_px, calib.dipe_max_mm)}{paper}; {calib.evaluations} "
         f"evaluations in {calib.elapsed_s:.2f} s"
     )
     from ovis.services.cli.analysis import print_accuracy
