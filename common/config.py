@@ -413,12 +413,24 @@ class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
 
 class ControlPoint(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """A named calibration point (the centre of an object's top face), world cm."""
+    """A named calibration point, world cm: the centre of an object's top face (a blob,
+    matched by predicted position), or a point whose pixel position ``row``, ``col`` is
+    known (a board corner, a marker, a clicked point: no blob matching)."""
 
     name: str
     x_cm: Length
     y_cm: Length
-    z_cm: Length
+    z_cm: Length = 0.0
+    row: Length | None = None  # pixel row (px), with col
+    col: Length | None = None
+
+    def __post_init__(self) -> None:
+        if (self.row is None) != (self.col is None):
+            raise ValueError(f"control point {self.name!r}: give both row and col, or neither")
+
+    @property
+    def pixel_known(self) -> bool:
+        return self.row is not None
 
 
 class PointsFile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -499,7 +511,8 @@ def load_points(path: Path | str) -> PointsFile:
         points = msgspec.convert(data, PointsFile)
     except msgspec.ValidationError as exc:
         raise ConfigError(
-            f"points file {path}: {exc}. Expected [[points]] tables with name, x_cm, y_cm, z_cm"
+            f"points file {path}: {exc}. Expected [[points]] tables with name, x_cm, y_cm, "
+            "z_cm (default 0) and, for points whose pixel is known, row and col (px)"
         ) from None
     if points.config is not None:
         config_from_dict(points.config, f"points file {path}, [config]")

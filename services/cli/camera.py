@@ -3,9 +3,11 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from ovis.services.cli.errors import UserError
@@ -236,3 +238,209 @@ def _print_intrinsics(report, out: Path | None, plot: Path | None) -> None:
 def register(app: typer.Typer) -> None:
     """Add the real-camera commands to the `ovis` app."""
     app.command()(intrinsics)
+    app.command()(locate)
+
+
+def refuse_implausible(calib, force: bool) -> list[str]:
+    """Stop (exit 3, nothing written) on an implausible calibration unless ``force``;
+    with ``force``, return the reasons to print as a warning."""
+    from ovis.common.calibration.plausibility import implausible_reasons
+
+    reasons = implausible_reasons(calib)
+    if reasons and not force:
+        raise UserError(
+            "implausible calibration, not saved: " + "; ".join(reasons) + " (check the "
+            "control points and ranges; --force saves it anyway)",
+            3,
+        )
+    return reasons
+
+
+def _known_lens_points(gray, intr, points, board, square_cm, marker_cm, markers):
+    """Pixel-known control points from --points, --board or --markers."""
+    from ovis.common.calibration.floor import board_points, load_markers, marker_points
+    from ovis.common.config import load_points
+    from ovis.common.vision.boards import find_markers
+
+    given = [x is not None for x in (points, board, markers)]
+    if sum(given) != 1:
+        raise UserError("give one of --points, --board or --markers")
+    if board is not None:
+        return board_points(gray, board_spec(board, square_cm, marker_cm)), None
+    if markers is not None:
+        survey = load_markers(markers)
+        try:
+            found = find_markers(gray, survey.dictionary)
+        except ValueError as exc:
+            raise UserError(f"markers file {markers}: {exc}") from None
+        return marker_points(found, survey), None
+    pts = load_points(points)
+    return pts.points, pts
+
+
+def calibrate_known_lens(
+    image: Path,
+    *,
+    intrinsics: Path | None,
+    points: Path | None,
+    board: str | None,
+    square_cm: float,
+    marker_cm: float | None,
+    markers: Path | None,
+    config: Path | None,
+    preset: str | None,
+    out: Path,
+    json: bool,
+    force: bool,
+    quiet: bool,
+) -> None:
+    """`ovis calibrate --intrinsics`: the floor pose with the lens fixed (see
+    :mod:`ovis.common.calibration.floor`); blob points go to the GA with the lens fixed."""
+    import msgspec
+
+    from ovis.common.calibration.file import save_calibration
+    from ovis.common.calibration.floor import (
+        FloorPoseError,
+        check_image_size,
+        known_lens_config,
+        solve_floor_pose,
+    )
+    from ovis.common.camera.intrinsics import IntrinsicsFileError, read_intrinsics
+    from ovis.common.vision.preprocess import as_gray
+    from ovis.services.cli.offline import _emit_json, read_image, resolve_config
+
+    if intrinsics is None:
+        raise UserError("--board and --markers need --intrinsics CAM.yaml (from `ovis intrinsics`)")
+    if out.is_dir():
+        raise UserError(f"{out} is a folder; give a file name")
+    try:
+        intr = read_intrinsics(intrinsics)
+    except IntrinsicsFileError as exc:
+        raise UserError(str(exc)) from None
+    gray = as_gray(read_image(image))
+    try:
+        check_image_size(intr, gray.shape[1], gray.shape[0], f"image {image}")
+        pts, pts_file = _known_lens_points(gray, intr, points, board, square_cm, marker_cm, markers)
+        cfg = resolve_config(config, preset, pts_file.config if pts_file else None)
+        pitch = (
+            getattr(cfg.camera, "pixel_pitch_mm", None) if cfg.camera.model == "pinhole" else None
+        )
+        if all(p.pixel_known for p in pts):
+            calib = solve_floor_pose(
+                intr,
+                pts,
+                image_size=(gray.shape[1], gray.shape[0]),
+                image=cfg.image,
+                pose=cfg.pose,
+                pixel_pitch_mm=pitch,
+                source=str(image),
+            )
+        else:
+            from ovis.services.cli.offline import calibrate_with_progress
+
+            cfg = known_lens_config(cfg, intr)
+            calib = calibrate_with_progress(
+                gray, pts, cfg, source=str(image), show=not quiet and not json
+            )
+    except FloorPoseError as exc:
+        raise UserError(str(exc)) from None
+    calib = msgspec.structs.replace(calib, source_image=str(image))
+    warnings = refuse_implausible(calib, force)
+    save_calibration(out, calib)
+    if json:
+        _emit_json(calib)
+        return
+    _print_floor_pose(calib, out, warnings)
+
+
+def _print_floor_pose(calib, out: Path, warnings: list[str]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    from ovis.common.calibration.file import dipe_text
+    from ovis.common.camera.projection import camera_centre_cm
+    from ovis.services.cli.analysis import print_accuracy
+
+    con = Console(highlight=False)
+    cam = calib.camera
+    cx, cy, cz = camera_centre_cm(cam)
+    con.print(
+        f"camera centre ({cx:.2f}, {cy:.2f}, {cz:.2f}) cm in the floor's frame; lens fx "
+        f"{cam.fx:.2f} fy {cam.fy:.2f} cx {cam.cx:.2f} cy {cam.cy:.2f} px (fixed)"
+    )
+    if len(calib.points) <= 12:
+        t = Table(title="control points", title_justify="left")
+        for col in ("point", "X,Y,Z cm", "pixel row,col", "predicted row,col", "px"):
+            t.add_column(col, justify="right")
+        for r in calib.points:
+            t.add_row(
+                r.name,
+                f"{r.x_cm:g}, {r.y_cm:g}, {r.z_cm:g}",
+                f"{r.detected_row:.2f}, {r.detected_col:.2f}",
+                f"{r.predicted_row:.2f}, {r.predicted_col:.2f}",
+                f"{r.dipe_px:.3f}",
+            )
+        con.print(t)
+    con.print(
+        f"{len(calib.points)} control points: DIPE mean {dipe_text(calib.dipe_px, calib.dipe_mm)}"
+        f", max {dipe_text(calib.dipe_max_px, calib.dipe_max_mm)}"
+    )
+    for w in warnings:
+        con.print(f"WARNING (forced): {w}")
+    print_accuracy(calib, con)
+    con.print(f"wrote {out}")
+
+
+def _pixel(text: str) -> tuple[float, float]:
+    parts = text.split(",")
+    try:
+        row, col = (float(p) for p in parts)
+    except ValueError:
+        raise UserError(f"--pixel must be ROW,COL in pixels, got {text!r}") from None
+    if not all(map(math.isfinite, (row, col))):
+        raise UserError(f"--pixel must be finite, got {text!r}")
+    return row, col
+
+
+def locate(
+    calibration: Annotated[Path, typer.Argument(help="Calibration JSON (`ovis calibrate`).")],
+    pixel: Annotated[list[str], typer.Option(help="A pixel ROW,COL (px); repeat for several.")],
+    z_cm: Annotated[
+        float, typer.Option("--z-cm", help="Height of the plane the pixels lie on (cm).")
+    ] = 0.0,
+    json: JsonOpt = False,
+) -> None:
+    """The floor position (cm) of pixels: the back-projection the pose stage uses.
+
+    Works for any calibration (the paper's model or a pinhole). A pixel outside the
+    image, or one whose ray does not meet the plane, is an error.
+    """
+    from ovis.common.calibration.file import load_calibration
+    from ovis.common.camera.projection import back_project
+    from ovis.services.cli.offline import _emit_json
+
+    if not math.isfinite(z_cm):
+        raise UserError("--z-cm must be a finite height in cm")
+    calib = load_calibration(calibration)
+    cam = calib.camera
+    pixels = [_pixel(p) for p in pixel]
+    for row, col in pixels:
+        if not (0 <= row <= cam.rows - 1 and 0 <= col <= cam.cols - 1):
+            raise UserError(
+                f"pixel ({row:g}, {col:g}) is outside the {cam.cols}x{cam.rows} image of "
+                f"{calibration} (row 0..{cam.rows - 1}, col 0..{cam.cols - 1})"
+            )
+    rows, cols = (np.array(v, dtype=np.float64) for v in zip(*pixels, strict=True))
+    b = back_project(rows, cols, cam, z_cm)
+    if not b.valid.all():
+        bad = [f"({r:g}, {c:g})" for (r, c), ok in zip(pixels, b.valid, strict=True) if not ok]
+        raise UserError(f"pixel(s) {', '.join(bad)} do not see the plane z = {z_cm:g} cm")
+    found = [
+        {"row": r, "col": c, "x_cm": float(x), "y_cm": float(y)}
+        for (r, c), x, y in zip(pixels, b.x_cm, b.y_cm, strict=True)
+    ]
+    if json:
+        _emit_json(found)
+        return
+    for f in found:
+        print(f"row {f['row']:g}, col {f['col']:g} -> x {f['x_cm']:.3f} cm, y {f['y_cm']:.3f} cm")

@@ -123,11 +123,44 @@ def simulate(
 
 def calibrate(
     image: Annotated[Path, typer.Argument(help="Calibration frame (one object per point).")],
-    points: Annotated[
-        Path,
-        typer.Option(help="Control points TOML: [[points]] name, x_cm, y_cm, z_cm."),
-    ],
     out: Annotated[Path, typer.Option(help="Where to write the calibration JSON.")],
+    points: Annotated[
+        Path | None,
+        typer.Option(
+            help="Control points TOML: [[points]] name, x_cm, y_cm, z_cm; with row, col (px) "
+            "for points whose pixel is known (then give --intrinsics)."
+        ),
+    ] = None,
+    intrinsics: Annotated[
+        Path | None,
+        typer.Option(
+            help="CAM.yaml from `ovis intrinsics`: keep the lens fixed and solve the camera's "
+            "pose over the floor (solvePnP) from pixel-known points, --board or --markers."
+        ),
+    ] = None,
+    board: Annotated[
+        str | None,
+        typer.Option(
+            help="With --intrinsics: a board lying on the floor, chessboard:COLSxROWS or "
+            "charuco:COLSxROWS:DICT; its first inner corner is the origin, x along its first row."
+        ),
+    ] = None,
+    square_cm: Annotated[
+        float, typer.Option("--square-cm", min=1e-6, help="--board: side of a square (cm).")
+    ] = 1.0,
+    marker_cm: Annotated[
+        float | None, typer.Option("--marker-cm", min=1e-6, help="--board charuco: marker side.")
+    ] = None,
+    markers: Annotated[
+        Path | None,
+        typer.Option(
+            help="With --intrinsics: ArUco markers TOML (dictionary; [[markers]] id, x_cm, "
+            "y_cm, side_cm[, angle_deg]) taped at surveyed floor positions."
+        ),
+    ] = None,
+    force: Annotated[
+        bool, typer.Option(help="Save a calibration flagged implausible (exit 0).")
+    ] = False,
     config: ConfigOpt = None,
     preset: PresetOpt = None,
     seed: Annotated[int | None, typer.Option(min=0, help="GA seed (default: config).")] = None,
@@ -187,7 +220,17 @@ def calibrate(
     """
     from ovis.common.calibration.file import save_calibration
     from ovis.common.config import load_points
+    from ovis.services.cli.camera import calibrate_known_lens, refuse_implausible
 
+    if intrinsics is not None or board is not None or markers is not None:
+        calibrate_known_lens(
+            image, intrinsics=intrinsics, points=points, board=board, square_cm=square_cm,
+            marker_cm=marker_cm, markers=markers, config=config, preset=preset, out=out,
+            json=json, force=force, quiet=quiet,
+        )  # fmt: skip
+        return
+    if points is None:
+        raise UserError("give --points FILE (or --intrinsics CAM.yaml with --board/--markers)")
     pts = load_points(points)
     cfg = resolve_config(config, preset, pts.config)
     overrides = {
@@ -213,6 +256,7 @@ def calibrate(
     calib = add_accuracy(
         frame, pts.points, cfg, calib, check=check, restarts=restarts, show=not quiet and not json
     )
+    warnings = refuse_implausible(calib, force)
     save_calibration(out, calib)
     if plot is not None:
         from ovis.common.analysis.plots import plot_convergence
@@ -227,7 +271,7 @@ def calibrate(
         _emit_json(calib)
         return
     _print_calibration(calib, out, plot)
-    for line in wrote:
+    for line in wrote + [f"WARNING (forced): {w}" for w in warnings]:
         _console().print(line)
 
 
