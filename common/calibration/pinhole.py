@@ -121,7 +121,7 @@ class PinholeCalibrationProblem(CalibrationProblem):
             pair = getattr(ranges, name)
             cam_bounds.append((value, value) if pair is None else tuple(pair))
         self.bounds = np.array(
-            [config.calibration.threshold, config.calibration.size_filter_cm2, *cam_bounds],
+            [self.threshold_bounds(), config.calibration.size_filter_cm2, *cam_bounds],
             dtype=np.float64,
         )
         self.variables = ("threshold", "size_filter_cm2", *PINHOLE_VARIABLES)

@@ -9,7 +9,9 @@ no real camera. Three signs are checked:
   one), never by tens;
 * a calibrated camera parameter at an end of its search range (within
   :data:`EDGE_FRACTION` of the range): the optimum was cut off by the range, so the
-  true camera lies outside it;
+  true camera may lie outside it. With a mean DIPE above :data:`LIMIT_DIPE_PX` this
+  makes the calibration implausible; below, the points are still fitted well (a
+  parameter the data hardly determine often ends at a limit) and it is a warning;
 * the camera not above the control points (z up): floor axes given left-handed.
 """
 
@@ -19,10 +21,12 @@ from ovis.common.calibration.file import Calibration
 from ovis.common.camera.projection import camera_centre_cm
 from ovis.common.config import PINHOLE_VARIABLES, PinholeParams
 
-__all__ = ["EDGE_FRACTION", "MAX_MEAN_DIPE_PX", "implausible_reasons"]
+__all__ = ["EDGE_FRACTION", "MAX_MEAN_DIPE_PX", "implausible_reasons", "plausibility"]
 
 #: Largest believable mean DIPE, px.
 MAX_MEAN_DIPE_PX = 3.0
+#: A parameter at a range limit makes a calibration implausible above this mean DIPE, px.
+LIMIT_DIPE_PX = 1.0
 #: A parameter this close to an end of its range (fraction of the range) is "at the limit".
 EDGE_FRACTION = 1e-3
 #: The paper model's geometric parameters checked against their ranges (the distortion
@@ -62,6 +66,11 @@ def _at_limits(calib: Calibration) -> list[str]:
 
 def implausible_reasons(calib: Calibration) -> list[str]:
     """Why ``calib`` is not believable (empty: nothing found)."""
+    return plausibility(calib)[0]
+
+
+def plausibility(calib: Calibration) -> tuple[list[str], list[str]]:
+    """(why ``calib`` is not believable, what is only suspicious) — see the module docstring."""
     reasons = []
     top = max((p.z_cm for p in calib.points), default=0.0)
     height = camera_centre_cm(calib.camera)[2]
@@ -75,4 +84,7 @@ def implausible_reasons(calib: Calibration) -> list[str]:
             f"mean DIPE {calib.dipe_px:.3g} px is above {MAX_MEAN_DIPE_PX:g} px: the camera "
             "does not explain the control points"
         )
-    return reasons + _at_limits(calib)
+    limits = _at_limits(calib)
+    if calib.dipe_px > LIMIT_DIPE_PX:
+        return reasons + limits, []
+    return reasons, limits

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -244,15 +245,17 @@ def register(app: typer.Typer) -> None:
 def refuse_implausible(calib, force: bool) -> list[str]:
     """Stop (exit 3, nothing written) on an implausible calibration unless ``force``;
     with ``force``, return the reasons to print as a warning."""
-    from ovis.common.calibration.plausibility import implausible_reasons
+    from ovis.common.calibration.plausibility import plausibility
 
-    reasons = implausible_reasons(calib)
+    reasons, suspicious = plausibility(calib)
     if reasons and not force:
         raise UserError(
             "implausible calibration, not saved: " + "; ".join(reasons) + " (check the "
             "control points and ranges; --force saves it anyway)",
             3,
         )
+    for text in suspicious:
+        print(f"warning: {text}", file=sys.stderr)
     return reasons
 
 
@@ -444,3 +447,169 @@ def locate(
         return
     for f in found:
         print(f"row {f['row']:g}, col {f['col']:g} -> x {f['x_cm']:.3f} cm, y {f['y_cm']:.3f} cm")
+
+
+def hand_over_calibration(path: Path, cfg) -> str:
+    """`ovis up --calibration`: check the file (and, for a folder or video source, that
+    its frames are the calibration's size), store it as the newest version in the state
+    folder, and say so."""
+    from ovis.common.calibration.file import load_calibration
+    from ovis.common.calibration.store import CalibrationStore
+
+    calib = load_calibration(path)
+    size = _source_size(cfg)
+    cam = calib.camera
+    if size is not None and size != (cam.cols, cam.rows):
+        raise UserError(
+            f"{cfg.service.source} delivers {size[0]}x{size[1]} frames but {path} is for "
+            f"{cam.cols}x{cam.rows}; calibrate on a frame of this source"
+        )
+    saved = CalibrationStore(cfg.service.state_dir).save(calib)
+    return (
+        f"ovis up: calibration {path} stored as version {saved.version} in {cfg.service.state_dir}"
+    )
+
+
+def _source_size(cfg) -> tuple[int, int] | None:
+    """(width, height) of a folder's or video's first frame (None for live sources)."""
+    source = cfg.service.source
+    if source == "sim" or not Path(source).exists():
+        return None
+    from ovis.common.capture.sources import SourceError, open_source
+
+    try:
+        src = open_source(source, cfg, loop=False)
+        try:
+            image, _ = src.read()
+        finally:
+            src.close()
+    except SourceError as exc:
+        raise UserError(str(exc)) from None
+    return image.shape[1], image.shape[0]
+
+
+def nothing_processed(summary, log_dir: Path) -> str:
+    """Why `ovis up` must fail when frames arrived and none came out ('' when fine)."""
+    if summary.frames_captured == 0 or summary.frames_processed > 0:
+        return ""
+    errors = "; ".join(
+        f"{svc}: {', '.join(f'{k} x{n}' for k, n in errs.items())}"
+        for svc, errs in summary.errors.items()
+    )
+    why = errors or (
+        "no calibration (version 0): give --calibration CALIB.json or a points file"
+        if summary.calibration_version < 1
+        else "no stage reported an error"
+    )
+    return (
+        f"{summary.frames_captured} frames captured, none processed: {why}; see the logs in "
+        f"{log_dir}"
+    )
+
+
+def with_image_flags(
+    params,
+    *,
+    threshold: str | None = None,
+    size_filter: float | None = None,
+    max_size: float | None = None,
+    block_px: int | None = None,
+    polarity: str | None = None,
+    background: Path | None = None,
+    roi: Path | None = None,
+):
+    """ImageParams with `ovis detect`'s flags applied (sizes in cm²: with a calibration)."""
+    import msgspec
+
+    from ovis.common.vision.preprocess import parse_threshold
+
+    fields: dict = {}
+    if threshold is not None:
+        try:
+            fields |= parse_threshold(threshold)
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+    if polarity is not None:
+        if polarity not in ("bright", "dark"):
+            raise UserError(f"--polarity must be 'bright' or 'dark', got {polarity!r}")
+        fields["polarity"] = polarity
+    for name, path in (("background", background), ("roi", roi)):
+        if path is not None:
+            if not path.is_file():
+                raise UserError(f"--{name} {path} does not exist")
+            fields[name] = str(path)
+    if block_px is not None:
+        fields["block_px"] = block_px | 1
+    if size_filter is not None:
+        fields["size_filter_cm2"] = size_filter
+    if max_size is not None:
+        fields["max_size_cm2"] = max_size
+    return msgspec.structs.replace(params, **fields)
+
+
+def detect_without_calibration(images: list[Path], flags: dict, *, json: bool, overlay) -> None:
+    """`ovis detect` with no calibration: blobs in pixels (sizes in px), automatic
+    threshold unless --threshold."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from ovis.common.config import ImageParams
+    from ovis.common.world.pixels import default_min_area_px, detect_pixels
+    from ovis.services.cli.offline import _emit_json, read_image
+
+    size_filter, max_size = flags.pop("size_filter"), flags.pop("max_size")
+    params = with_image_flags(ImageParams(median="ordinary", threshold_mode="auto"), **flags)
+    results = []
+    for i, path in enumerate(images):
+        frame = read_image(path)
+        found = detect_pixels(frame, params, min_area_px=size_filter, max_area_px=max_size)
+        results.append({"image": str(path), "objects": found})
+        if overlay is not None:
+            _draw_pixel_objects(frame, found, overlay, i, len(images))
+    if json:
+        _emit_json(results[0] if len(results) == 1 else results)
+        return
+    con = Console(highlight=False)
+    for r, path in zip(results, images, strict=True):
+        lo = size_filter if size_filter is not None else default_min_area_px(read_image(path).shape)
+        t = Table(
+            title=f"{path}: {len(r['objects'])} object(s), pixels only (no calibration; "
+            f"threshold {params.threshold_mode}, smallest {lo:.0f} px)",
+            title_justify="left",
+        )
+        for col in ("id", "row", "col", "area px", "perim px", "compact."):
+            t.add_column(col, justify="right")
+        for o in r["objects"]:
+            t.add_row(
+                str(o.id),
+                f"{o.row:.2f}",
+                f"{o.col:.2f}",
+                f"{o.area_px:.0f}",
+                f"{o.perimeter_px:.1f}",
+                f"{o.compactness:.3f}",
+            )
+        con.print(t)
+
+
+def _draw_pixel_objects(frame, found, overlay: Path, index: int, count: int) -> None:
+    import cv2
+
+    from ovis.common.analysis.plots import save_png
+
+    canvas = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR) if frame.ndim == 2 else frame.copy()
+    for o in found:
+        centre = (round(o.col), round(o.row))
+        cv2.drawMarker(canvas, centre, (40, 140, 255), cv2.MARKER_CROSS, 12, 2)
+        cv2.putText(
+            canvas,
+            str(o.id),
+            (centre[0] + 6, centre[1] - 6),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.45,
+            (40, 140, 255),
+            1,
+        )
+    target = overlay
+    if count > 1:
+        target = overlay.with_name(f"{overlay.stem}_{index:04d}{overlay.suffix or '.png'}")
+    save_png(target, canvas)

@@ -191,6 +191,14 @@ def up(
     max_restarts: Annotated[
         int, typer.Option(min=0, help="Restarts allowed per process within a minute.")
     ] = 5,
+    calibration: Annotated[
+        Path | None,
+        typer.Option(
+            help="Calibration JSON (`ovis calibrate`) for the live services: stored as the "
+            "newest version in the state folder before they start.",
+            dir_okay=False,
+        ),
+    ] = None,
     pin: Annotated[
         str,
         typer.Option(
@@ -215,6 +223,10 @@ def up(
     )
     topics = _topics(cfg)
     cpus = _cpus(pin) or []
+    if calibration is not None:
+        from ovis.services.cli.camera import hand_over_calibration
+
+        print(hand_over_calibration(calibration, cfg), file=sys.stderr if json else sys.stdout)
     log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-"))
     cfg_path = log_dir / "config.toml"
     from ovis.common.config import dump_toml
@@ -287,6 +299,11 @@ def up(
         from rich.console import Console
 
         Console(highlight=False).print(summary_table(summary))
+    from ovis.services.cli.camera import nothing_processed
+
+    idle = nothing_processed(summary, log_dir)
+    if idle:
+        raise UserError(idle, 1)
     bad = [n for n, c in codes.items() if c not in (0, -signal.SIGTERM)]
     if bad or fleet.gave_up():
         reasons = "; ".join(fleet.gave_up()) or f"process(es) {', '.join(bad)} exited abnormally"

@@ -224,10 +224,20 @@ def calibrate(
 
     if intrinsics is not None or board is not None or markers is not None:
         calibrate_known_lens(
-            image, intrinsics=intrinsics, points=points, board=board, square_cm=square_cm,
-            marker_cm=marker_cm, markers=markers, config=config, preset=preset, out=out,
-            json=json, force=force, quiet=quiet,
-        )  # fmt: skip
+            image,
+            intrinsics=intrinsics,
+            points=points,
+            board=board,
+            square_cm=square_cm,
+            marker_cm=marker_cm,
+            markers=markers,
+            config=config,
+            preset=preset,
+            out=out,
+            json=json,
+            force=force,
+            quiet=quiet,
+        )
         return
     if points is None:
         raise UserError("give --points FILE (or --intrinsics CAM.yaml with --board/--markers)")
@@ -248,6 +258,7 @@ def calibrate(
     if overrides:
         cfg = msgspec.structs.replace(cfg, ga=msgspec.structs.replace(cfg.ga, **overrides))
     frame = read_image(image)
+    cfg = _sized_to(cfg, frame)
     calib = calibrate_with_progress(
         frame, pts.points, cfg, source=str(image), show=not quiet and not json
     )
@@ -273,6 +284,17 @@ def calibrate(
     _print_calibration(calib, out, plot)
     for line in wrote + [f"WARNING (forced): {w}" for w in warnings]:
         _console().print(line)
+
+
+def _sized_to(cfg, frame):
+    """The configuration with the camera sized to the frame (the size comes from the image)."""
+    from ovis.common.camera.projection import camera_for_image_size
+
+    try:
+        camera = camera_for_image_size(cfg.camera, frame.shape[0], frame.shape[1])
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    return msgspec.structs.replace(cfg, camera=camera)
 
 
 def calibrate_with_progress(frame, points, cfg, *, source: str, show: bool = True, con=None):
@@ -378,7 +400,40 @@ def detect(
     images: Annotated[
         list[Path], typer.Argument(help="Frame(s); several frames keep obstacle ids.")
     ],
-    calibration: Annotated[Path, typer.Option(help="Calibration JSON from `ovis calibrate`.")],
+    calibration: Annotated[
+        Path | None,
+        typer.Option(
+            help="Calibration JSON from `ovis calibrate`; without it, blobs in pixels only "
+            "(automatic threshold unless --threshold)."
+        ),
+    ] = None,
+    threshold: Annotated[
+        str | None,
+        typer.Option(
+            help="Threshold: a level 0..255, 'otsu', 'auto' (Otsu on the local contrast) or "
+            "'adaptive:LEVEL' (LEVEL on the local contrast, 128 = the surroundings)."
+        ),
+    ] = None,
+    size_filter: Annotated[
+        float | None,
+        typer.Option(min=0.0, help="Smallest object: cm² with a calibration, px without."),
+    ] = None,
+    max_size: Annotated[
+        float | None,
+        typer.Option(min=0.0, help="Largest object: cm² with a calibration, px without."),
+    ] = None,
+    block_px: Annotated[
+        int | None, typer.Option(min=3, help="Local-contrast window (px) for auto/adaptive.")
+    ] = None,
+    polarity: Annotated[
+        str | None, typer.Option(help="'bright' objects on a dark floor, or 'dark'.")
+    ] = None,
+    background: Annotated[
+        Path | None, typer.Option(help="Image of the empty floor, subtracted first.")
+    ] = None,
+    roi: Annotated[
+        Path | None, typer.Option(help="Region-of-interest mask image (non-zero: look there).")
+    ] = None,
     goal: Annotated[
         str | None, typer.Option(help="Goal point X,Y (cm); default: the calibration's.")
     ] = None,
@@ -403,8 +458,22 @@ def detect(
     """
     from ovis.common.calibration.file import load_calibration
     from ovis.common.world.detection import Detector
+    from ovis.services.cli.camera import detect_without_calibration, with_image_flags
 
+    flags = dict(
+        threshold=threshold,
+        size_filter=size_filter,
+        max_size=max_size,
+        block_px=block_px,
+        polarity=polarity,
+        background=background,
+        roi=roi,
+    )
+    if calibration is None:
+        detect_without_calibration(images, flags, json=json, overlay=overlay)
+        return
     calib = load_calibration(calibration)
+    calib = msgspec.structs.replace(calib, image=with_image_flags(calib.image, **flags))
     goal_xy = _numbers(goal, 2, "--goal") if goal is not None else None
     if goal_angle is not None and not np.isfinite(goal_angle):
         raise UserError("--goal-angle must be a finite number of degrees")

@@ -159,6 +159,8 @@ class RunSummary(msgspec.Struct):
     errors: dict[str, dict[str, int]]
     exit_codes: dict[str, int]
     restarts: dict[str, int] = {}
+    #: frames with ground truth seen (the simulator's); 0: nothing to match against
+    truth_frames: int = 0
 
 
 class LiveView:
@@ -170,6 +172,7 @@ class LiveView:
         self.latest: ObstacleFrame | None = None
         self.latency_ms: list[float] = []
         self.truth: collections.OrderedDict[int, TruthFrame] = collections.OrderedDict()
+        self.truth_frames = 0
         self.pending: collections.OrderedDict[int, ObstacleFrame] = collections.OrderedDict()
         self.pos_err: list[float] = []
         self.matched = self.missed = self.spurious = 0
@@ -186,6 +189,7 @@ class LiveView:
         except MessageError:
             return
         with self._lock:
+            self.truth_frames = self.truth_frames + 1
             self.truth[t.seq] = t
             while len(self.truth) > 512:
                 self.truth.popitem(last=False)
@@ -294,6 +298,7 @@ class LiveView:
             errors={n: s.errors for n, s in statuses.items() if s.errors},
             exit_codes=codes,
             restarts={n: r for n, r in (restarts or {}).items() if r},
+            truth_frames=self.truth_frames,
         )
 
 
@@ -313,14 +318,15 @@ def summary_table(s: RunSummary):
         "latency capture → obstacles p50 / p99",
         f"{fmt(s.latency_ms_p50, 'ms')} / {fmt(s.latency_ms_p99, 'ms')}",
     )
-    t.add_row(
-        "objects matched to truth",
-        f"{s.objects_matched} ({s.objects_missed} missed, {s.objects_spurious} spurious)",
-    )
-    t.add_row(
-        "position error mean / max",
-        f"{fmt(s.position_error_cm_mean, 'cm', 3)} / {fmt(s.position_error_cm_max, 'cm', 3)}",
-    )
+    if s.truth_frames:  # no truth lines for data that has no truth
+        t.add_row(
+            "objects matched to truth",
+            f"{s.objects_matched} ({s.objects_missed} missed, {s.objects_spurious} spurious)",
+        )
+        t.add_row(
+            "position error mean / max",
+            f"{fmt(s.position_error_cm_mean, 'cm', 3)} / {fmt(s.position_error_cm_max, 'cm', 3)}",
+        )
     t.add_row("calibration version", str(s.calibration_version))
     t.add_row("dropped frames", ", ".join(f"{k} {v}" for k, v in s.dropped.items()) or "0")
     errs = "; ".join(f"{k}: {v}" for k, v in s.errors.items())
