@@ -385,9 +385,17 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Settings of the running services (``ovis run``/``ovis up``)."""
 
     arena: str = "default"
-    #: "sim" (the simulated arena), a folder of images, a video file, or a camera:
-    #: "camera:0" (OpenCV index) or a device path such as "/dev/video0".
+    #: "sim" (the simulated arena), a folder of images, a video file, a camera:
+    #: "camera:0" (OpenCV index) or a device path such as "/dev/video0", or a stream
+    #: URL (rtsp://, http://, https://) opened by OpenCV.
     source: str = "sim"
+    #: camera and stream settings asked of the device (OpenCV capture properties; a
+    #: device may refuse them: the frames' real size is what counts)
+    camera_width: Annotated[int, msgspec.Meta(ge=1, le=20000)] | None = None
+    camera_height: Annotated[int, msgspec.Meta(ge=1, le=20000)] | None = None
+    camera_fps: Annotated[float, msgspec.Meta(gt=0.0, le=10000.0)] | None = None
+    #: exposure in the driver's unit (V4L2: 100 µs steps); None leaves it automatic
+    camera_exposure: Annotated[float, msgspec.Meta(ge=-1e6, le=1e6)] | None = None
     fps: Annotated[float, msgspec.Meta(ge=0.0, le=10000.0)] = 30.0  # 0: as fast as possible
     loop: bool = True  # replay a folder or video from the start when it ends
     seed: Annotated[int, msgspec.Meta(ge=0)] = 0  # simulated arena seed
