@@ -139,3 +139,38 @@ def test_roi_and_size_flags(coins, tmp_path: Path) -> None:
         proc = ovis("detect", str(path), *args, check=False)
         assert_one_line_error(proc, needle)
         assert proc.returncode == 2
+
+
+def test_ga_tunes_the_threshold_on_the_local_contrast(tmp_path: Path) -> None:
+    """`threshold_mode = "adaptive"`: the GA's threshold gene ranges over the local-contrast
+    level, and the calibration keeps the mode for detection."""
+    data_dir = tmp_path / "sim"
+    ovis("simulate", "--out", str(data_dir), "--frames", "1")
+    cfg = tmp_path / "adaptive.toml"
+    cfg.write_text(
+        'preset = "default"\n[image]\nthreshold_mode = "adaptive"\n'
+        "[calibration]\nthreshold = [135.0, 250.0]\n"
+    )
+    out = tmp_path / "calib.json"
+    calib = json.loads(
+        ovis(
+            "calibrate",
+            str(data_dir / "frame_0000.png"),
+            "--points",
+            str(data_dir / "points.toml"),
+            "--config",
+            str(cfg),
+            "--out",
+            str(out),
+            "--quiet",
+            "--restarts",
+            "0",
+            "--json",
+        ).stdout
+    )
+    assert calib["image"]["threshold_mode"] == "adaptive"
+    assert 135 <= calib["image"]["threshold"] <= 250 and calib["dipe_px"] < 1.0
+    found = json.loads(
+        ovis("detect", str(data_dir / "frame_0000.png"), "--calibration", str(out), "--json").stdout
+    )
+    assert len(found["objects"]) == len(calib["points"])
