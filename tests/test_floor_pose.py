@@ -89,25 +89,19 @@ def test_four_corners_locate_the_other_fifty_on_every_photo(views) -> None:
     assert all(worst < MAX_SQUARES for _, _, worst, _ in table), table
 
 
+def floor_calibration(photo: Path, cam: Path, out: Path, *how: str) -> dict:
+    """`ovis calibrate PHOTO --intrinsics CAM --out OUT --json` with the points given by ``how``."""
+    args = ["calibrate", str(photo), "--intrinsics", str(cam), *how, "--out", str(out), "--json"]
+    return json.loads(ovis(*args).stdout)
+
+
 def test_cli_intrinsics_calibrate_locate_on_a_held_out_photo(tmp_path: Path) -> None:
     photos = photo_paths()
     cam, calib, points = tmp_path / "CAM.yaml", tmp_path / "calib.json", tmp_path / "pts.toml"
     ovis("intrinsics", *map(str, photos[1:]), "--board", "chessboard:9x6", "--out", str(cam))
     corners = opencv_corners(photos[0]).astype(np.float64)
     write_points(points, corners, OUTER)
-    out = json.loads(
-        ovis(
-            "calibrate",
-            str(photos[0]),
-            "--intrinsics",
-            str(cam),
-            "--points",
-            str(points),
-            "--out",
-            str(calib),
-            "--json",
-        ).stdout
-    )
+    out = floor_calibration(photos[0], cam, calib, "--points", str(points))
     assert out["camera"]["model"] == "pinhole" and out["dipe_mm"] is None
     assert out["dipe_px"] < 0.3
     rest = np.setdiff1d(np.arange(54), OUTER)
@@ -125,20 +119,8 @@ def test_board_on_the_floor_matches_opencvs_pose_with_held_out_error(tmp_path: P
     photos = photo_paths()
     cam, calib = tmp_path / "CAM.yaml", tmp_path / "calib.json"
     ovis("intrinsics", *map(str, photos[1:]), "--board", "chessboard:9x6", "--out", str(cam))
-    out = json.loads(
-        ovis(
-            "calibrate",
-            str(photos[0]),
-            "--intrinsics",
-            str(cam),
-            "--board",
-            "chessboard:9x6",
-            "--square-cm",
-            "2.5",
-            "--out",
-            str(calib),
-            "--json",
-        ).stdout
+    out = floor_calibration(
+        photos[0], cam, calib, "--board", "chessboard:9x6", "--square-cm", "2.5"
     )
     assert len(out["points"]) == 54
     # OpenCV's own pose of the board (its frame: y along the columns, z away from the
@@ -191,19 +173,7 @@ def test_markers_on_the_floor(tmp_path: Path) -> None:
             for i, (x, y) in centres.items()
         )
     )
-    out = json.loads(
-        ovis(
-            "calibrate",
-            str(image),
-            "--intrinsics",
-            str(cam),
-            "--markers",
-            str(markers),
-            "--out",
-            str(tmp_path / "calib.json"),
-            "--json",
-        ).stdout
-    )
+    out = floor_calibration(image, cam, tmp_path / "calib.json", "--markers", str(markers))
     assert len(out["points"]) == 16 and out["dipe_px"] < 0.5
     assert np.allclose(out["camera"]["tvec_cm"], tvec, atol=1.0)
     assert np.allclose(out["camera"]["rvec"], rvec, atol=0.01)

@@ -43,21 +43,17 @@ def test_image_size_comes_from_the_image(tmp_path: Path) -> None:
     assert proc.returncode == 3 and "640x480" not in proc.stderr and not out.exists()
 
 
+def sim_calibration(data: Path, calib: Path) -> Path:
+    """`ovis calibrate` on the first frame of an `ovis simulate` folder."""
+    frame, points = str(data / "frame_0000.png"), str(data / "points.toml")
+    ovis("calibrate", frame, "--points", points, "--out", str(calib), "--quiet", "--restarts", "0")
+    return calib
+
+
 def test_detect_refuses_a_calibration_of_another_size(tmp_path: Path) -> None:
     data = tmp_path / "sim"
     ovis("simulate", "--out", str(data), "--frames", "1")
-    calib = tmp_path / "calib.json"
-    ovis(
-        "calibrate",
-        str(data / "frame_0000.png"),
-        "--points",
-        str(data / "points.toml"),
-        "--out",
-        str(calib),
-        "--quiet",
-        "--restarts",
-        "0",
-    )
+    calib = sim_calibration(data, tmp_path / "calib.json")
     proc = ovis("detect", str(photo_paths()[0]), "--calibration", str(calib), check=False)
     assert_one_line_error(proc, "640x512", "640x480")
     assert proc.returncode == 2
@@ -111,18 +107,7 @@ def test_up_fails_when_frames_arrive_and_none_is_processed(tmp_path: Path) -> No
 def test_up_with_a_calibration_processes_a_folder_without_truth(tmp_path: Path) -> None:
     data = tmp_path / "sim"
     ovis("simulate", "--out", str(data), "--frames", "3")
-    calib = tmp_path / "calib.json"
-    ovis(
-        "calibrate",
-        str(data / "frame_0000.png"),
-        "--points",
-        str(data / "points.toml"),
-        "--out",
-        str(calib),
-        "--quiet",
-        "--restarts",
-        "0",
-    )
+    calib = sim_calibration(data, tmp_path / "calib.json")
     frames = tmp_path / "frames"
     frames.mkdir()
     for f in data.glob("frame_*.png"):

@@ -137,19 +137,26 @@ def _camera(intr: CameraIntrinsics, rvec, tvec, pitch: float | None) -> PinholeP
     return with_pose(intr, tuple(rvec), tuple(tvec), pixel_pitch_mm=pitch)
 
 
+def _point_fields(p: ControlPoint, predicted_row: float, predicted_col: float) -> dict:
+    """The fields a residual record shares: where the point is, seen and predicted."""
+    return {
+        "name": p.name,
+        "x_cm": p.x_cm,
+        "y_cm": p.y_cm,
+        "z_cm": p.z_cm,
+        "detected_row": float(p.row),  # type: ignore[arg-type]
+        "detected_col": float(p.col),  # type: ignore[arg-type]
+        "predicted_row": float(predicted_row),
+        "predicted_col": float(predicted_col),
+    }
+
+
 def _held_out_point(p: ControlPoint, cam: PinholeParams, in_sample: float | None) -> HeldOutPoint:
     pred = project(p.x_cm, p.y_cm, p.z_cm, cam)
     b = back_project(p.row, p.col, cam, p.z_cm)
     cm = float(np.hypot(float(b.x_cm) - p.x_cm, float(b.y_cm) - p.y_cm)) if b.valid else None
     return HeldOutPoint(
-        name=p.name,
-        x_cm=p.x_cm,
-        y_cm=p.y_cm,
-        z_cm=p.z_cm,
-        detected_row=float(p.row),  # type: ignore[arg-type]
-        detected_col=float(p.col),  # type: ignore[arg-type]
-        predicted_row=float(pred.row),
-        predicted_col=float(pred.col),
+        **_point_fields(p, float(pred.row), float(pred.col)),
         error_px=float(np.hypot(float(pred.row) - p.row, float(pred.col) - p.col)),
         error_cm=cm,
         in_sample_px=in_sample,
@@ -214,14 +221,7 @@ def solve_floor_pose(
     pitch = cam.d_x_mm
     residuals = [
         PointResidual(
-            name=p.name,
-            x_cm=p.x_cm,
-            y_cm=p.y_cm,
-            z_cm=p.z_cm,
-            detected_row=float(p.row),  # type: ignore[arg-type]
-            detected_col=float(p.col),  # type: ignore[arg-type]
-            predicted_row=float(pred.row[i]),
-            predicted_col=float(pred.col[i]),
+            **_point_fields(p, pred.row[i], pred.col[i]),
             dipe_px=float(px[i]),
             dipe_mm=mm_or_none(px[i] * pitch),
         )
