@@ -226,6 +226,23 @@ def test_bad_floor_input_is_one_line_exit_2_nothing_written(
     assert proc.returncode == 2 and not out.exists()
 
 
+def test_pixel_points_need_the_intrinsics(tmp_path: Path) -> None:
+    photo = photo_paths()[0]
+    write_points(tmp_path / "pts.toml", opencv_corners(photo), OUTER)
+    out = tmp_path / "calib.json"
+    proc = ovis(
+        "calibrate",
+        str(photo),
+        "--points",
+        str(tmp_path / "pts.toml"),
+        "--out",
+        str(out),
+        check=False,
+    )
+    assert_one_line_error(proc, "add --intrinsics")
+    assert proc.returncode == 2 and not out.exists()
+
+
 def test_locate_refuses_pixels_outside_the_image(tmp_path: Path, lens_file: Path) -> None:
     photo = photo_paths()[0]
     calib = tmp_path / "calib.json"

@@ -156,3 +156,29 @@ def test_charuco_board_found_at_its_true_corners() -> None:
     src = view.board_xyz[:, :2] + 40 - 0.5
     truth = cv2.perspectiveTransform(src.reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
     assert np.abs(view.image_xy - truth).max() < 0.3
+
+
+def test_intrinsics_from_a_source_keeps_distinct_views(tmp_path: Path) -> None:
+    """--source reads frames (here a folder of the photos, each twice: a camera repeats
+    itself) and keeps only views that differ: OpenCV's 14-view result again."""
+    for p in photo_paths():
+        for copy in ("a", "b"):
+            shutil.copy(p, tmp_path / f"{p.stem}{copy}.jpg")
+    out = json.loads(
+        ovis(
+            "intrinsics",
+            "--source",
+            str(tmp_path),
+            "--board",
+            "chessboard:9x6",
+            "--max-views",
+            "30",
+            "--min-shift-px",
+            "5",
+            "--json",
+        ).stdout
+    )
+    assert len(out["views_used"]) == 14
+    rms, K, _ = opencv_calibration(photo_paths())
+    assert out["rms_px"] == pytest.approx(rms, rel=1e-3)
+    assert np.allclose(np.array(out["camera_matrix"]), K, rtol=1e-3)

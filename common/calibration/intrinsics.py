@@ -31,6 +31,7 @@ from ovis.common.vision.preprocess import as_gray
 __all__ = [
     "COVERAGE_GRID",
     "Coverage",
+    "FoundView",
     "IntrinsicsError",
     "IntrinsicsReport",
     "RejectedView",
@@ -103,7 +104,9 @@ class IntrinsicsReport(msgspec.Struct, kw_only=True):
         )
 
 
-class _Found(NamedTuple):
+class FoundView(NamedTuple):
+    """A view with the board: its name and corners."""
+
     name: str
     view: BoardView
 
@@ -113,12 +116,12 @@ def detect_views(
     spec: BoardSpec,
     *,
     on_view: Callable[[str, bool], None] | None = None,
-) -> tuple[list[_Found], list[RejectedView], tuple[int, int]]:
+) -> tuple[list[FoundView], list[RejectedView], tuple[int, int]]:
     """Find the board in each (name, image); all images must share the first one's size.
 
     Returns the views with the board, the rejected ones (why) and the size (width, height).
     """
-    found: list[_Found] = []
+    found: list[FoundView] = []
     rejected: list[RejectedView] = []
     size: tuple[int, int] | None = None
     for name, image in images:
@@ -137,7 +140,7 @@ def detect_views(
             reason = f"{spec.describe()} not found"
             rejected.append(RejectedView(view=name, reason=reason))
         else:
-            found.append(_Found(name, view))
+            found.append(FoundView(name, view))
         if on_view:
             on_view(name, view is not None)
     if size is None:
@@ -179,7 +182,7 @@ def corner_coverage(
     )
 
 
-def _calibrate(views: list[_Found], size: tuple[int, int]):
+def _calibrate(views: list[FoundView], size: tuple[int, int]):
     obj = [f.view.board_xyz for f in views]
     img = [f.view.image_xy.reshape(-1, 1, 2) for f in views]
     rms, K, D, _, _, _, _, per_view = cv2.calibrateCameraExtended(obj, img, size, None, None)
@@ -190,7 +193,7 @@ def calibrate_intrinsics(
     images: Iterable[tuple[str, NDArray[np.uint8]]] | None,
     spec: BoardSpec,
     *,
-    views: tuple[list[_Found], list[RejectedView], tuple[int, int]] | None = None,
+    views: tuple[list[FoundView], list[RejectedView], tuple[int, int]] | None = None,
     drop_outliers: bool = False,
     on_view: Callable[[str, bool], None] | None = None,
 ) -> IntrinsicsReport:

@@ -74,7 +74,7 @@ def _stream_views(source: str, spec, max_views: int, max_frames: int, min_shift_
         raise UserError(str(exc)) from None
     kept, found, rejected = [], [], []
     size = None
-    from ovis.common.calibration.intrinsics import RejectedView, _Found, distinct_view
+    from ovis.common.calibration.intrinsics import FoundView, RejectedView, distinct_view
 
     try:
         for i in range(max_frames):
@@ -90,7 +90,7 @@ def _stream_views(source: str, spec, max_views: int, max_frames: int, min_shift_
                 rejected.append(RejectedView(view=name, reason=f"{spec.describe()} not found"))
             elif distinct_view(view, kept, min_shift_px):
                 kept.append(view)
-                found.append(_Found(name, view))
+                found.append(FoundView(name, view))
                 con.print(f"  kept view {len(found)}/{max_views} ({name})")
                 if len(found) >= max_views:
                     break

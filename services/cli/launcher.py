@@ -174,7 +174,8 @@ def run(
 
 def up(
     source: Annotated[
-        str | None, typer.Option(help="'sim' (default), a folder, a video, 'camera:N'.")
+        str | None,
+        typer.Option(help="'sim' (default), a folder, a video, 'camera:N', a stream URL."),
     ] = None,
     listen: Annotated[str, typer.Option(help="Endpoint of the router.")] = DEFAULT_ENDPOINT,
     duration: Annotated[

@@ -242,6 +242,8 @@ def calibrate(
     if points is None:
         raise UserError("give --points FILE (or --intrinsics CAM.yaml with --board/--markers)")
     pts = load_points(points)
+    if any(p.pixel_known for p in pts.points):
+        raise UserError(f"{points} gives pixels (row, col): add --intrinsics CAM.yaml")
     cfg = resolve_config(config, preset, pts.config)
     overrides = {
         k: v
