@@ -160,7 +160,7 @@ class PinholeParams(
     k3: _rng(-1e3, 1e3) = 0.0
     rvec: tuple[Length, Length, Length]  # Rodrigues vector, world → camera, rad
     tvec_cm: tuple[Length, Length, Length]  # translation, world → camera, cm
-    pixel_pitch_mm: Positive = 0.01
+    pixel_pitch_mm: Positive | None = None  # None: unknown, errors in px only
 
     def __post_init__(self) -> None:
         for name in ("fx", "fy"):
@@ -175,13 +175,13 @@ class PinholeParams(
 
     @property
     def d_x_mm(self) -> float:
-        """Pixel pitch along rows, mm (square pixels: ``pixel_pitch_mm``)."""
-        return self.pixel_pitch_mm
+        """Pixel pitch along rows, mm (square pixels: ``pixel_pitch_mm``; NaN: unknown)."""
+        return math.nan if self.pixel_pitch_mm is None else self.pixel_pitch_mm
 
     @property
     def d_y_mm(self) -> float:
-        """Pixel pitch along columns, mm (square pixels: ``pixel_pitch_mm``)."""
-        return self.pixel_pitch_mm
+        """Pixel pitch along columns, mm (square pixels: ``pixel_pitch_mm``; NaN: unknown)."""
+        return self.d_x_mm
 
 
 #: Either camera model; the ``model`` field of ``[camera]`` says which.
@@ -239,13 +239,27 @@ class PinholeRanges(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
 
 class ImageParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """Image pipeline settings (paper §3). ``threshold``/``size_filter_cm2`` are calibrated."""
+    """Image pipeline settings (paper §3). ``threshold``/``size_filter_cm2`` are calibrated.
+
+    Beyond the paper, for real floors (:mod:`ovis.common.vision.preprocess`):
+    ``threshold_mode`` "fixed" (the paper's grey level), "otsu" (Otsu's level of the
+    frame), "adaptive" (``threshold`` applied to the local contrast: the frame minus its
+    Gaussian local mean over ``block_px``, plus 128) or "auto" (Otsu's level of that
+    local contrast); ``background``, an image of the empty floor subtracted first (then
+    128 is "as the empty floor"); ``roi``, a mask image (non-zero: look here);
+    ``max_size_cm2``, the largest object kept.
+    """
 
     median: Literal["paper", "ordinary", "none"] = "paper"
     polarity: Literal["bright", "dark"] = "bright"
     threshold: Annotated[int, msgspec.Meta(ge=0, le=255)] = 128
     size_filter_cm2: _rng(0.0, 1e6) = 20.0
     perimeter: Literal["kb", "crofton"] = "kb"
+    threshold_mode: Literal["fixed", "otsu", "adaptive", "auto"] = "fixed"
+    block_px: Annotated[int, msgspec.Meta(ge=0, le=100001)] = 0  # 0: a third of the frame
+    background: str | None = None
+    roi: str | None = None
+    max_size_cm2: Annotated[float, msgspec.Meta(gt=0.0, le=1e9)] | None = None
 
 
 class CalibrationRanges(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -375,9 +389,17 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Settings of the running services (``ovis run``/``ovis up``)."""
 
     arena: str = "default"
-    #: "sim" (the simulated arena), a folder of images, a video file, or a camera:
-    #: "camera:0" (OpenCV index) or a device path such as "/dev/video0".
+    #: "sim" (the simulated arena), a folder of images, a video file, a camera:
+    #: "camera:0" (OpenCV index) or a device path such as "/dev/video0", or a stream
+    #: URL (rtsp://, http://, https://) opened by OpenCV.
     source: str = "sim"
+    #: camera and stream settings asked of the device (OpenCV capture properties; a
+    #: device may refuse them: the frames' real size is what counts)
+    camera_width: Annotated[int, msgspec.Meta(ge=1, le=20000)] | None = None
+    camera_height: Annotated[int, msgspec.Meta(ge=1, le=20000)] | None = None
+    camera_fps: Annotated[float, msgspec.Meta(gt=0.0, le=10000.0)] | None = None
+    #: exposure in the driver's unit (V4L2: 100 µs steps); None leaves it automatic
+    camera_exposure: Annotated[float, msgspec.Meta(ge=-1e6, le=1e6)] | None = None
     fps: Annotated[float, msgspec.Meta(ge=0.0, le=10000.0)] = 30.0  # 0: as fast as possible
     loop: bool = True  # replay a folder or video from the start when it ends
     seed: Annotated[int, msgspec.Meta(ge=0)] = 0  # simulated arena seed
@@ -417,12 +439,24 @@ class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
 
 class ControlPoint(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
-    """A named calibration point (the centre of an object's top face), world cm."""
+    """A named calibration point, world cm: the centre of an object's top face (a blob,
+    matched by predicted position), or a point whose pixel position ``row``, ``col`` is
+    known (a board corner, a marker, a clicked point: no blob matching)."""
 
     name: str
     x_cm: Length
     y_cm: Length
-    z_cm: Length
+    z_cm: Length = 0.0
+    row: Length | None = None  # pixel row (px), with col
+    col: Length | None = None
+
+    def __post_init__(self) -> None:
+        if (self.row is None) != (self.col is None):
+            raise ValueError(f"control point {self.name!r}: give both row and col, or neither")
+
+    @property
+    def pixel_known(self) -> bool:
+        return self.row is not None
 
 
 class PointsFile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -503,7 +537,8 @@ def load_points(path: Path | str) -> PointsFile:
         points = msgspec.convert(data, PointsFile)
     except msgspec.ValidationError as exc:
         raise ConfigError(
-            f"points file {path}: {exc}. Expected [[points]] tables with name, x_cm, y_cm, z_cm"
+            f"points file {path}: {exc}. Expected [[points]] tables with name, x_cm, y_cm, "
+            "z_cm (default 0) and, for points whose pixel is known, row and col (px)"
         ) from None
     if points.config is not None:
         config_from_dict(points.config, f"points file {path}, [config]")

@@ -304,7 +304,7 @@ class CalibrateReply(_Msg, tag="calibrate-reply", kw_only=True):
     version: int = 0
     frame_seq: int = -1
     dipe_px: float = 0.0
-    dipe_mm: float = 0.0
+    dipe_mm: float | None = 0.0  # None: the pixel pitch is unknown
     dipe_max_px: float = 0.0
     elapsed_s: float = 0.0
     parameters: dict[str, float] = {}

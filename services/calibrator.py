@@ -16,6 +16,7 @@ from collections.abc import Callable
 
 import zenoh
 
+from ovis.common.calibration.file import dipe_text
 from ovis.common.calibration.problem import InfeasibleCalibrationError, calibrate
 from ovis.common.calibration.store import CalibrationStore
 from ovis.common.config import ControlPoint, load_points
@@ -134,11 +135,10 @@ def main(service: Service) -> None:
         publish(CalibrationUpdate(calibration=calib))
         service.sent()
         service.log.info(
-            "calibration v%d on frame %d: DIPE %.3f px (%.4f mm) in %.2f s",
+            "calibration v%d on frame %d: DIPE %s in %.2f s",
             calib.version,
             seq,
-            calib.dipe_px,
-            calib.dipe_mm,
+            dipe_text(calib.dipe_px, calib.dipe_mm),
             calib.elapsed_s,
         )
         return calibrate_reply(calib, seq, str(store.path(calib.version)))

@@ -13,9 +13,9 @@ from pathlib import Path
 import zenoh
 
 from ovis.common.messages import ENCODING, FrameHeader, MessageError, decode
+from ovis.common.pipeline.stages import MAX_CLOCK_SKEW_S
 from ovis.common.recording.pacing import Pacer, Restamp
 from ovis.common.recording.session import RecordingError, SessionReader
-from ovis.services.preprocess import MAX_CLOCK_SKEW_S
 from ovis.services.service import Service
 
 __all__ = ["ONLY", "ReplayReport", "Replayer", "capture_from_recording", "is_recording"]

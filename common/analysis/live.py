@@ -38,6 +38,8 @@ class RunSummary(msgspec.Struct):
     errors: dict[str, dict[str, int]]
     exit_codes: dict[str, int]
     restarts: dict[str, int] = {}
+    #: frames with ground truth seen (the simulator's); 0: nothing to match against
+    truth_frames: int = 0
 
 
 class LiveScore:
@@ -47,6 +49,7 @@ class LiveScore:
         self.latest: ObstacleFrame | None = None
         self.latency_ms: list[float] = []
         self.frames = 0
+        self.truth_frames = 0
         self.score = TrackingScore()
         self._truth: collections.OrderedDict[int, TruthFrame] = collections.OrderedDict()
         self._pending: collections.OrderedDict[int, ObstacleFrame] = collections.OrderedDict()
@@ -54,6 +57,7 @@ class LiveScore:
 
     def add_truth(self, truth: TruthFrame) -> None:
         with self._lock:
+            self.truth_frames += 1
             _keep(self._truth, truth.seq, truth)
             self._match()
 
@@ -110,6 +114,7 @@ class LiveScore:
             errors={n: s.errors for n, s in statuses.items() if s.errors},
             exit_codes=codes,
             restarts={n: r for n, r in (restarts or {}).items() if r},
+            truth_frames=self.truth_frames,
         )
 
 

@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.atomic import write_atomic
-from ovis.common.calibration.file import Calibration
+from ovis.common.calibration.file import Calibration, dipe_text
 from ovis.common.world.detection import Detection
 
 __all__ = [
@@ -63,7 +63,7 @@ def plot_convergence(calibration: Calibration, path: Path | str) -> None:
     ax.set_yscale("log")
     ax.set_ylabel("DIPE (px, mean over control points)")
     ax.set_title(
-        f"GA calibration: DIPE {calibration.dipe_px:.3f} px = {calibration.dipe_mm:.4f} mm "
+        f"GA calibration: DIPE {dipe_text(calibration.dipe_px, calibration.dipe_mm)} "
         f"after {len(h) - 1} generations"
     )
     ax.legend(loc="upper right", fontsize=8)
@@ -202,7 +202,7 @@ def plot_residuals(
     ax.set_ylabel("row")
     title = (
         f"Residuals of the control points, magnified {magnify:g}×: DIPE "
-        f"{calibration.dipe_px:.3f} px = {calibration.dipe_mm:.4f} mm"
+        f"{dipe_text(calibration.dipe_px, calibration.dipe_mm)}"
     )
     if loo is not None and loo.mean_px is not None:
         title += f"; leave-one-out {loo.mean_px:.3f} px"

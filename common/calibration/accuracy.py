@@ -62,7 +62,7 @@ from ovis.common.calibration.refine import (
 from ovis.common.camera.projection import back_project, pixel_footprint_cm2, project
 from ovis.common.config import CameraModel, ConfigError, ControlPoint, OvisConfig
 from ovis.common.vision.labeling import label_components
-from ovis.common.vision.preprocess import as_gray, binarize, smooth
+from ovis.common.vision.preprocess import as_gray, segment, smooth
 
 __all__ = [
     "CheckSet",
@@ -252,7 +252,7 @@ def check_errors(
     """
     cam, img = calibration.camera, calibration.image
     gray = smooth(as_gray(image), median or img.median)
-    comp = label_components(binarize(gray, img.threshold, img.polarity))
+    comp = label_components(segment(gray, img))
     foot = pixel_footprint_cm2(comp.row, comp.col, cam, calibration.pose.obstacle_height_cm)
     keep = comp.area_px * foot >= img.size_filter_cm2
     b_row, b_col = comp.row[keep], comp.col[keep]

@@ -33,7 +33,9 @@ __all__ = [
     "GenerationRecord",
     "PointResidual",
     "calibration_from_config",
+    "dipe_text",
     "load_calibration",
+    "mm_or_none",
     "now_iso",
     "save_calibration",
     "wrong_arena",
@@ -48,7 +50,7 @@ class PointResidual(PointFit, kw_only=True):
     """One control point: where it was detected and projected, and its DIPE."""
 
     dipe_px: float
-    dipe_mm: float
+    dipe_mm: float | None  # None: the pixel pitch is unknown
 
 
 class GenerationRecord(msgspec.Struct):
@@ -68,9 +70,11 @@ class Calibration(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     version: int = 1
     created: str = ""
     dipe_px: float
-    dipe_mm: float
+    #: the DIPE on the image plane in mm: None when the pixel pitch is unknown (a real
+    #: camera's pinhole without ``pixel_pitch_mm``), so that no mm figure is made up
+    dipe_mm: float | None
     dipe_max_px: float
-    dipe_max_mm: float
+    dipe_max_mm: float | None
     camera: CameraModel  # the paper model or a pinhole (its `model` field says which)
     image: ImageParams
     pose: PoseConfig
@@ -101,10 +105,25 @@ class Calibration(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     def __post_init__(self) -> None:
         for name in ("dipe_px", "dipe_mm", "dipe_max_px", "dipe_max_mm"):
             value = getattr(self, name)
-            if not math.isfinite(value) or value < 0:
+            if value is None and name.endswith("_mm"):
+                continue
+            if value is None or not math.isfinite(value) or value < 0:
                 raise ValueError(f"{name} must be a finite non-negative number, got {value}")
         if self.version < 0:
             raise ValueError(f"version must be >= 0 (0: not calibrated), got {self.version}")
+
+
+def dipe_text(px: float, mm: float | None) -> str:
+    """``"0.123 px = 0.0012 mm"``, or the pixels alone when the pixel pitch is unknown."""
+    if mm is None or not math.isfinite(mm):
+        return f"{px:.3f} px"
+    return f"{px:.3f} px = {mm:.4f} mm"
+
+
+def mm_or_none(value: float) -> float | None:
+    """A length in mm, or None where it is NaN (pixel pitch unknown)."""
+    value = float(value)
+    return value if math.isfinite(value) else None
 
 
 def now_iso() -> str:

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from ovis.common.calibration.dipe import match_points
-from ovis.common.calibration.file import Calibration
+from ovis.common.calibration.file import Calibration, mm_or_none
 from ovis.common.calibration.ga import GAResult, GenerationStats
 from ovis.common.calibration.problem import (
     CalibrationProblem,
@@ -121,7 +121,7 @@ class PinholeCalibrationProblem(CalibrationProblem):
             pair = getattr(ranges, name)
             cam_bounds.append((value, value) if pair is None else tuple(pair))
         self.bounds = np.array(
-            [config.calibration.threshold, config.calibration.size_filter_cm2, *cam_bounds],
+            [self.threshold_bounds(), config.calibration.size_filter_cm2, *cam_bounds],
             dtype=np.float64,
         )
         self.variables = ("threshold", "size_filter_cm2", *PINHOLE_VARIABLES)
@@ -295,7 +295,7 @@ def calibrate_pinhole(
         problem, result._replace(best_values=best), elapsed=elapsed, source=source
     )
     # The GA's own camera and the polished one, both at the final image settings.
-    pitch = float(config.camera.pixel_pitch_mm)
+    pitch = config.camera.d_x_mm
     final = np.array([calib.image.threshold, calib.image.size_filter_cm2])
     ga_px = _dipe(problem, np.concatenate([final, ga_values[2:]]))
     ga_px = ga_px if np.isfinite(ga_px) else None
@@ -306,7 +306,7 @@ def calibrate_pinhole(
         ga_size_filter_cm2=float(ga_values[1]),
         polished=improved,
         ga_dipe_px=ga_px,
-        ga_dipe_mm=None if ga_px is None else ga_px * pitch,
+        ga_dipe_mm=None if ga_px is None else mm_or_none(ga_px * pitch),
         polish_dipe_px=calib.dipe_px if improved else None,
         polish_dipe_mm=calib.dipe_mm if improved else None,
     ), result

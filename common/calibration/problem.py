@@ -24,7 +24,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.calibration.dipe import match_points, pixel_error_mm
-from ovis.common.calibration.file import Calibration, GenerationRecord, PointResidual, now_iso
+from ovis.common.calibration.file import (
+    Calibration,
+    GenerationRecord,
+    PointResidual,
+    mm_or_none,
+    now_iso,
+)
 from ovis.common.calibration.ga import GAResult, GenerationStats, run_ga
 from ovis.common.camera.projection import pixel_footprint_cm2, project
 from ovis.common.config import (
@@ -34,7 +40,14 @@ from ovis.common.config import (
     OvisConfig,
 )
 from ovis.common.vision.labeling import label_components
-from ovis.common.vision.preprocess import as_gray, binarize, smooth
+from ovis.common.vision.preprocess import (
+    as_gray,
+    binarize,
+    otsu_level,
+    prepare,
+    read_mask,
+    smooth,
+)
 
 __all__ = [
     "INFEASIBLE",
@@ -116,11 +129,28 @@ class CalibrationProblem:
             raise ValueError("calibration needs at least one control point")
         self.config = config
         self.smoothed = smooth(gray, config.image.median)
+        img = config.image
+        background = None
+        if img.background:
+            background = read_mask(img.background, gray.shape, "background")
+        #: what the threshold applies to (background subtracted, local contrast)
+        self.prepared = prepare(self.smoothed, img.threshold_mode, img.block_px, background)
+        self.roi = None if not img.roi else read_mask(img.roi, gray.shape, "region-of-interest")
         self.points = list(points)
         self.points_xyz = np.array([[p.x_cm, p.y_cm, p.z_cm] for p in points], dtype=np.float64)
         self.bounds = np.array(config.calibration.bounds(), dtype=np.float64)
+        self.bounds[0] = self.threshold_bounds()
         self.size_plane_cm = config.pose.obstacle_height_cm
         self._tables: dict[int, _BlobTable] = {}
+
+    def threshold_bounds(self) -> tuple[float, float]:
+        """The threshold gene's range: the configured one, or Otsu's level alone in the
+        "otsu" and "auto" modes (the level is computed, not searched)."""
+        mode = self.config.image.threshold_mode
+        if mode in ("otsu", "auto"):
+            level = float(otsu_level(self.prepared))
+            return level, level
+        return tuple(self.config.calibration.threshold)  # type: ignore[return-value]
 
     @property
     def n_points(self) -> int:
@@ -130,7 +160,9 @@ class CalibrationProblem:
         """Blobs (area, centroid) of the smoothed frame at one threshold, cached."""
         table = self._tables.get(threshold)
         if table is None:
-            binary = binarize(self.smoothed, threshold, self.config.image.polarity)
+            binary = binarize(self.prepared, threshold, self.config.image.polarity)
+            if self.roi is not None:
+                binary &= (self.roi > 0).astype(np.uint8)
             comp = label_components(binary)
             table = _BlobTable(comp.area_px, comp.row, comp.col)
             self._tables[threshold] = table
@@ -351,20 +383,20 @@ def build_calibration(
                 predicted_row=float(pred.row[i]),
                 predicted_col=float(pred.col[i]),
                 dipe_px=float(ev.dipe_px[0, i]),
-                dipe_mm=float(pixel_error_mm(d_row, d_col, cam.d_x_mm, cam.d_y_mm)),
+                dipe_mm=mm_or_none(pixel_error_mm(d_row, d_col, cam.d_x_mm, cam.d_y_mm)),
             )
         )
     dipe_px = np.array([r.dipe_px for r in residuals])
-    dipe_mm = np.array([r.dipe_mm for r in residuals])
+    dipe_mm = np.array([np.nan if r.dipe_mm is None else r.dipe_mm for r in residuals])
     image = msgspec.structs.replace(
         config.image, threshold=int(np.rint(best[0])), size_filter_cm2=float(best[1])
     )
     return Calibration(
         created=now_iso(),
         dipe_px=float(dipe_px.mean()),
-        dipe_mm=float(dipe_mm.mean()),
+        dipe_mm=mm_or_none(dipe_mm.mean()),
         dipe_max_px=float(dipe_px.max()),
-        dipe_max_mm=float(dipe_mm.max()),
+        dipe_max_mm=mm_or_none(dipe_mm.max()),
         camera=cam,
         image=image,
         pose=config.pose,

@@ -30,6 +30,7 @@ __all__ = [
     "Projection",
     "back_project",
     "camera_centre_cm",
+    "camera_for_image_size",
     "camera_parameters",
     "pixel_footprint_cm2",
     "pixel_jacobian",
@@ -124,3 +125,45 @@ def camera_parameters(cam: CameraModel) -> dict[str, float]:
         return out
     _check(cam)
     return {n: float(getattr(cam, n)) for n in CALIBRATED_VARIABLES[2:]}
+
+
+def camera_for_image_size(cam: CameraModel, rows: int, cols: int) -> CameraModel:
+    """The camera resized to a frame of ``rows`` × ``cols``: the image size comes from the
+    image. The principal point (and the paper model's N_fx, N_fy) follow only where
+    they were the old frame's centre (and size); a camera configured otherwise cannot
+    be resized and raises ``ValueError`` naming the fields to set."""
+    import msgspec
+
+    if (cam.rows, cam.cols) == (rows, cols):
+        return cam
+    # The centre as (rows - 1)/2 (pixel centres) or rows/2 (pixel edges): keep the style.
+    pp = principal_point_rowcol(cam)
+    styles = {0.5: ((rows - 1) / 2, (cols - 1) / 2), 0.0: (rows / 2, cols / 2)}
+    new_centre = next(
+        (
+            new
+            for off, new in styles.items()
+            if pp == ((cam.rows - 2 * off) / 2, (cam.cols - 2 * off) / 2)
+        ),
+        None,
+    )
+    size = f"{cols}x{rows}"
+    if new_centre is None:
+        what = "cx, cy" if isinstance(cam, PinholeParams) else "c_x, c_y"
+        raise ValueError(
+            f"the frame is {size} but the camera is configured for {cam.cols}x{cam.rows} "
+            f"with its principal point off-centre; set camera.rows, cols and {what}"
+        )
+    if isinstance(cam, PinholeParams):
+        return msgspec.structs.replace(
+            cam, rows=rows, cols=cols, cy=new_centre[0], cx=new_centre[1]
+        )
+    if (cam.N_fx, cam.N_fy) != (cam.rows, cam.cols):
+        raise ValueError(
+            f"the frame is {size} but the camera is configured for {cam.cols}x{cam.rows} "
+            "with N_fx, N_fy not its size; set camera.rows, cols, N_fx, N_fy, c_x, c_y"
+        )
+    return msgspec.structs.replace(
+        cam, rows=rows, cols=cols, N_fx=float(rows), N_fy=float(cols),
+        c_x=new_centre[0], c_y=new_centre[1],
+    )  # fmt: skip

@@ -1,8 +1,11 @@
 """Frame sources for the capture service: the simulated arena, a folder of images, a
-video file, or a camera (OpenCV index or device path).
+video file, a camera (OpenCV index or device path) or a network stream (RTSP/HTTP URL).
 
 Every source returns uint8 frames (grey or BGR) one at a time; a source that cannot be
 opened raises :class:`SourceError` with what to check, and the capture service retries.
+A camera, stream or non-looping video that stops delivering (unplugged, network lost,
+file gone) raises :class:`SourceError` once and reconnects on a later read, when the
+device is back.
 """
 
 from __future__ import annotations
@@ -25,7 +28,9 @@ __all__ = [
     "FrameSource",
     "SimSource",
     "SourceError",
+    "StreamSource",
     "VideoSource",
+    "capture_settings",
     "open_source",
 ]
 
@@ -111,28 +116,55 @@ class FolderSource:
 
 
 class _CaptureSource:
-    def __init__(self, target: int | str, description: str, loop: bool) -> None:
+    """An OpenCV ``VideoCapture`` that reconnects: after a failed read the next read
+    reopens the target (raising :class:`SourceError` while it is still missing)."""
+
+    def __init__(
+        self,
+        target: int | str,
+        description: str,
+        loop: bool,
+        settings: dict[int, float] | None = None,
+    ) -> None:
         self.target = target
         self.loop = loop
         self.description = description
-        self.cap = cv2.VideoCapture(target)
-        if not self.cap.isOpened():
+        self.settings = settings or {}
+        self.cap: cv2.VideoCapture | None = None
+        self._open()
+
+    def _open(self) -> None:
+        cap = cv2.VideoCapture(self.target)
+        if not cap.isOpened():
+            cap.release()
             raise SourceError(self._cannot_open())
+        for prop, value in self.settings.items():
+            cap.set(prop, value)
+        self.cap = cap
 
     def _cannot_open(self) -> str:
         return f"cannot open {self.description}"
 
     def read(self) -> tuple[NDArray[np.uint8], FrameTruth | None]:
+        if self.cap is None:
+            self._open()  # reconnect (SourceError while the device is still away)
+        assert self.cap is not None
         ok, image = self.cap.read()
         if not ok and self.loop and isinstance(self.target, str):
             self.cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
             ok, image = self.cap.read()
         if not ok or image is None:
-            raise SourceError(f"{self.description} delivered no frame (ended or unplugged)")
+            self.close()
+            raise SourceError(
+                f"{self.description} delivered no frame (ended, unplugged or disconnected); "
+                "reconnecting"
+            )
         return to_uint8(image), None
 
     def close(self) -> None:
-        self.cap.release()
+        if self.cap is not None:
+            self.cap.release()
+            self.cap = None
 
 
 class VideoSource(_CaptureSource):
@@ -143,10 +175,11 @@ class VideoSource(_CaptureSource):
 
 
 class CameraSource(_CaptureSource):
-    """A camera by OpenCV index (``camera:0``) or device path (``/dev/video0``)."""
+    """A camera by OpenCV index (``camera:0``) or device path (``/dev/video0``), with
+    optional width, height, fps and exposure (OpenCV capture properties)."""
 
-    def __init__(self, target: int | str) -> None:
-        super().__init__(target, f"camera {target}", loop=False)
+    def __init__(self, target: int | str, settings: dict[int, float] | None = None) -> None:
+        super().__init__(target, f"camera {target}", loop=False, settings=settings)
 
     def _cannot_open(self) -> str:
         return (
@@ -155,22 +188,59 @@ class CameraSource(_CaptureSource):
         )
 
 
-def open_source(spec: str, config: OvisConfig) -> FrameSource:
-    """Open ``spec``: "sim", "camera:N", a device path, a folder, or a video file."""
+class StreamSource(_CaptureSource):
+    """A network stream (RTSP, HTTP/HTTPS MJPEG, …) opened by OpenCV (FFmpeg)."""
+
+    def __init__(self, url: str, settings: dict[int, float] | None = None) -> None:
+        super().__init__(url, f"stream {url}", loop=False, settings=settings)
+
+    def _cannot_open(self) -> str:
+        return (
+            f"cannot open stream {self.target}: check the URL, that the camera is on the "
+            "network and that this build of OpenCV has FFmpeg"
+        )
+
+
+STREAM_SCHEMES = ("rtsp://", "rtsps://", "http://", "https://")
+
+
+def capture_settings(config: OvisConfig) -> dict[int, float]:
+    """The OpenCV capture properties asked for by ``[service] camera_*``."""
+    s = config.service
+    props = {
+        cv2.CAP_PROP_FRAME_WIDTH: s.camera_width,
+        cv2.CAP_PROP_FRAME_HEIGHT: s.camera_height,
+        cv2.CAP_PROP_FPS: s.camera_fps,
+    }
+    out = {k: float(v) for k, v in props.items() if v is not None}
+    if s.camera_exposure is not None:
+        out[cv2.CAP_PROP_AUTO_EXPOSURE] = 1.0  # V4L2: manual exposure
+        out[cv2.CAP_PROP_EXPOSURE] = float(s.camera_exposure)
+    return out
+
+
+def open_source(spec: str, config: OvisConfig, *, loop: bool | None = None) -> FrameSource:
+    """Open ``spec``: "sim", "camera:N", a device path, a folder, or a video file.
+
+    ``loop`` (default ``config.service.loop``): replay a folder or video when it ends."""
+    loop = config.service.loop if loop is None else loop
     if spec == "sim":
         return SimSource(config, config.service.seed)
     if spec.startswith("camera:"):
         index = spec.split(":", 1)[1]
         if not index.isdigit():
             raise SourceError(f"camera index must be a number, as in camera:0, got {spec!r}")
-        return CameraSource(int(index))
+        return CameraSource(int(index), capture_settings(config))
     if spec.startswith("/dev/"):
-        return CameraSource(spec)
+        return CameraSource(spec, capture_settings(config))
+    if spec.lower().startswith(STREAM_SCHEMES):
+        return StreamSource(spec, capture_settings(config))
     path = Path(spec)
     if path.is_dir():
-        return FolderSource(path, config.service.loop)
+        return FolderSource(path, loop)
     if path.is_file():
-        return VideoSource(path, config.service.loop)
+        return VideoSource(path, loop)
     raise SourceError(
-        f"source {spec!r} is not 'sim', 'camera:N', a device, a folder or a video file"
+        f"source {spec!r} is not 'sim', 'camera:N', a device, a stream URL, a folder or an "
+        "existing video file"
     )

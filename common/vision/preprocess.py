@@ -17,6 +17,7 @@ Every function takes and returns ``(H, W) uint8`` arrays and runs as one OpenCV 
 
 from __future__ import annotations
 
+import functools
 import operator
 from typing import Literal
 
@@ -24,14 +25,22 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ovis.common.config import ImageParams
+
 __all__ = [
     "ImageError",
     "MedianMode",
     "Polarity",
     "as_gray",
     "binarize",
+    "local_contrast",
+    "otsu_level",
     "paper_median",
+    "prepare",
+    "segment",
     "smooth",
+    "subtract_background",
+    "threshold_level",
 ]
 
 MedianMode = Literal["paper", "ordinary", "none"]
@@ -186,3 +195,114 @@ def binarize(gray: GrayImage, threshold: int, polarity: Polarity) -> NDArray[np.
     # cv2 floors the threshold of an 8-bit image, so t - 1 = -1 marks every pixel.
     _, binary = cv2.threshold(gray, t - 1, 1, kind)
     return binary
+
+
+ThresholdMode = Literal["fixed", "otsu", "adaptive", "auto"]
+
+#: The level of "as the local background" in a contrast or background-subtracted image.
+NEUTRAL = 128
+
+
+def auto_block_px(shape: tuple[int, ...]) -> int:
+    """Default local-mean window: an odd number near a third of the frame's shorter side."""
+    return max(3, (min(shape[:2]) // 3) | 1)
+
+
+def local_contrast(gray: GrayImage, block_px: int) -> GrayImage:
+    """``gray − its Gaussian local mean (σ = block/6) + 128``, clipped to uint8: uneven
+    lighting removed, 128 where a pixel equals its surroundings."""
+    gray = _require_gray(gray)
+    block = block_px or auto_block_px(gray.shape)
+    mean = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), block / 6.0)
+    return np.clip(gray - mean + NEUTRAL, 0, 255).astype(np.uint8)
+
+
+def subtract_background(gray: GrayImage, background: GrayImage) -> GrayImage:
+    """``gray − background + 128``, clipped: what changed against the empty floor."""
+    gray, background = _require_gray(gray), _require_gray(background, "background")
+    if background.shape != gray.shape:
+        raise ImageError(
+            f"the background image is {background.shape[1]}x{background.shape[0]} but the "
+            f"frame is {gray.shape[1]}x{gray.shape[0]}"
+        )
+    return np.clip(gray.astype(np.int16) - background + NEUTRAL, 0, 255).astype(np.uint8)
+
+
+def prepare(
+    gray: GrayImage,
+    mode: ThresholdMode,
+    block_px: int = 0,
+    background: GrayImage | None = None,
+) -> GrayImage:
+    """The image the threshold applies to: the frame, less the background if given, as
+    local contrast for the "adaptive" and "auto" modes."""
+    out = gray if background is None else subtract_background(gray, background)
+    if mode in ("adaptive", "auto"):
+        out = local_contrast(out, block_px)
+    return out
+
+
+def otsu_level(prepared: GrayImage) -> int:
+    """Otsu's threshold of an image (``cv2.THRESH_OTSU``), as a paper-style level
+    (``pixel >= level`` is an object for bright polarity)."""
+    level, _ = cv2.threshold(_require_gray(prepared), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    return int(level) + 1  # OpenCV marks pixel > level
+
+
+def threshold_level(prepared: GrayImage, mode: ThresholdMode, threshold: int) -> int:
+    """The level used: ``threshold`` for "fixed"/"adaptive", Otsu's for "otsu"/"auto"."""
+    if mode in ("otsu", "auto"):
+        return otsu_level(prepared)
+    if mode in ("fixed", "adaptive"):
+        return int(threshold)
+    raise ValueError(f"threshold mode: expected fixed, otsu, adaptive or auto, got {mode!r}")
+
+
+def read_mask(path: str, shape: tuple[int, int], what: str) -> GrayImage:
+    """A grey image file (background or region of interest) of the frame's ``shape``."""
+    image = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise ImageError(f"cannot read the {what} image {path}")
+    if image.shape != shape:
+        raise ImageError(
+            f"the {what} image {path} is {image.shape[1]}x{image.shape[0]}, the frame "
+            f"{shape[1]}x{shape[0]}"
+        )
+    return image
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_mask(path: str, shape: tuple[int, int], what: str) -> GrayImage:
+    image = read_mask(path, shape, what)
+    image.setflags(write=False)
+    return image
+
+
+def segment(smoothed: GrayImage, params: ImageParams) -> NDArray[np.uint8]:
+    """Object pixels (1) of a smoothed frame under ``params``: background subtracted,
+    local contrast, the mode's level, polarity, region of interest (see
+    :class:`~ovis.common.config.ImageParams`)."""
+    shape = smoothed.shape
+    background = None
+    if params.background:
+        background = _cached_mask(params.background, shape, "background")
+    prepared = prepare(smoothed, params.threshold_mode, params.block_px, background)
+    level = threshold_level(prepared, params.threshold_mode, params.threshold)
+    binary = binarize(prepared, min(255, level), params.polarity)
+    if params.roi:
+        binary &= (_cached_mask(params.roi, shape, "region-of-interest") > 0).astype(np.uint8)
+    return binary
+
+
+def parse_threshold(text: str) -> dict[str, object]:
+    """``--threshold`` as ImageParams fields: ``N`` (fixed level 0..255), ``otsu``,
+    ``auto`` or ``adaptive:N`` (level N on the local contrast, 128 = the surroundings)."""
+    text = text.strip().lower()
+    if text in ("otsu", "auto"):
+        return {"threshold_mode": text}
+    mode, _, value = text.rpartition(":")
+    if mode not in ("", "adaptive", "fixed") or not value.isdigit() or int(value) > 255:
+        raise ValueError(
+            f"--threshold must be a level 0..255, 'otsu', 'auto' or 'adaptive:LEVEL', got {text!r}"
+        )
+    return {"threshold_mode": mode or "fixed", "threshold": int(value)}

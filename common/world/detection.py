@@ -21,7 +21,7 @@ from ovis.common.camera.projection import PixelJacobian, pixel_footprint_cm2, pi
 from ovis.common.config import CameraModel, ImageParams, PoseConfig
 from ovis.common.vision.labeling import filter_components, label_components
 from ovis.common.vision.perimeter import perimeter
-from ovis.common.vision.preprocess import as_gray, binarize, smooth
+from ovis.common.vision.preprocess import ImageError, as_gray, segment, smooth
 from ovis.common.vision.shape import compactness, orientation
 from ovis.common.world.planner import planner_inputs
 from ovis.common.world.pose import ROBOT_ID, Tracker, pick_robot
@@ -123,11 +123,11 @@ def binarize_frame(
     """The paper's median step and binarization of a frame of the calibration's size."""
     gray = as_gray(image)
     if gray.shape != (camera.rows, camera.cols):
-        raise ValueError(
+        raise ImageError(
             f"frame is {gray.shape[1]}x{gray.shape[0]} (cols x rows) but the calibration "
-            f"is for {camera.cols}x{camera.rows}"
+            f"is for {camera.cols}x{camera.rows}; calibrate on a frame of this camera"
         )
-    return binarize(smooth(gray, params.median), params.threshold, params.polarity)
+    return segment(smooth(gray, params.median), params)
 
 
 def size_filter_px(params: ImageParams, camera: CameraModel, plane_cm: float) -> float:
@@ -170,6 +170,8 @@ def measure_blobs_and_maps(
     maps = plane_maps(comp.row, comp.col, camera, planes_cm)
     footprint = maps[0].area_cm2
     keep = (footprint > 0) & (comp.area_px * footprint >= params.size_filter_cm2)
+    if params.max_size_cm2 is not None:
+        keep &= comp.area_px * footprint <= params.max_size_cm2
     comp = filter_components(comp, keep)
     perim = perimeter(comp, params.perimeter)
     blobs = Blobs(

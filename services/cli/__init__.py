@@ -31,7 +31,7 @@ app = typer.Typer(
 )
 
 # One module per command group; each registers its commands.
-from ovis.services.cli import analysis, export, launcher, offline, recording, view  # noqa: E402
+from ovis.services.cli import analysis, camera, export, launcher, offline, recording, view  # noqa: E402
 
 offline.register(app)
 launcher.register(app)
@@ -39,6 +39,7 @@ analysis.register(app)
 export.register(app)
 view.register(app)
 recording.register(app)
+camera.register(app)
 
 
 def main() -> None:

@@ -186,7 +186,7 @@ def demo(
     """
     from ovis.common.analysis.plots import draw_detections, plot_convergence, save_png
     from ovis.common.analysis.tracking import track_simulated
-    from ovis.common.calibration.file import save_calibration
+    from ovis.common.calibration.file import dipe_text, save_calibration
     from ovis.common.sim.arena import Arena, control_points
     from ovis.common.world.detection import Detector
 
@@ -206,7 +206,7 @@ def demo(
     save_calibration(out / "calib.json", calib)
     plot_convergence(calib, out / "convergence.png")
     con.print(
-        f"   DIPE {calib.dipe_px:.3f} px = {calib.dipe_mm:.4f} mm (paper 0.735 mm), "
+        f"   DIPE {dipe_text(calib.dipe_px, calib.dipe_mm)} (paper 0.735 mm), "
         f"threshold {calib.image.threshold}, A^f {calib.image.size_filter_cm2:.1f} cm², "
         f"{calib.elapsed_s:.2f} s"
     )

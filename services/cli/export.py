@@ -14,7 +14,12 @@ __all__ = ["export", "register"]
 
 
 def export(
-    calibration: Annotated[Path, typer.Argument(help="Calibration JSON from `ovis calibrate`.")],
+    calibration: Annotated[
+        Path,
+        typer.Argument(
+            help="Calibration JSON from `ovis calibrate`, or CAM.yaml from `ovis intrinsics`."
+        ),
+    ],
     opencv: Annotated[
         Path | None,
         typer.Option(help="Write OpenCV YAML (cv2.FileStorage): K, distortion, rvec, tvec."),
@@ -35,7 +40,6 @@ def export(
     image is printed in px. Note: the paper model's image is mirror-inverted, so its
     equivalent has a negative fy.
     """
-    from ovis.common.calibration.file import load_calibration
     from ovis.common.camera.export import (
         as_pinhole,
         export_note,
@@ -47,7 +51,7 @@ def export(
 
     if opencv is None and ros is None:
         raise UserError("give --opencv FILE and/or --ros FILE")
-    calib = load_calibration(calibration)
+    calib = _load_camera(calibration)
     eq = as_pinhole(calib.camera)
     cam = eq.camera
     note = export_note(eq, str(calibration))
@@ -68,8 +72,13 @@ def export(
     con.print(f"  fx {cam.fx:.4f}  fy {cam.fy:.4f}  cx {cam.cx:.3f}  cy {cam.cy:.3f} px")
     k = distortion_coefficients(cam)
     con.print("  k1, k2, p1, p2, k3 = " + ", ".join(f"{v:.6g}" for v in k))
-    con.print("  rvec " + ", ".join(f"{v:.6f}" for v in cam.rvec) + " rad; tvec "
-              + ", ".join(f"{v:.3f}" for v in cam.tvec_cm) + " cm")  # fmt: skip
+    con.print(
+        "  rvec "
+        + ", ".join(f"{v:.6f}" for v in cam.rvec)
+        + " rad; tvec "
+        + ", ".join(f"{v:.3f}" for v in cam.tvec_cm)
+        + " cm"
+    )
     if not eq.exact:
         con.print(
             f"  distortion fit residual over the image: RMS {eq.rms_px:.3g} px, max "
@@ -81,3 +90,19 @@ def export(
 def register(app: typer.Typer) -> None:
     """Add `ovis export` to the `ovis` app."""
     app.command()(export)
+
+
+def _load_camera(path: Path):
+    """A calibration JSON, or an OpenCV intrinsics YAML/XML (lens only: identity pose)."""
+    from types import SimpleNamespace
+
+    from ovis.common.calibration.file import load_calibration
+
+    if path.suffix.lower() not in (".yaml", ".yml", ".xml"):
+        return load_calibration(path)
+    from ovis.common.camera.intrinsics import IntrinsicsFileError, read_intrinsics, with_pose
+
+    try:
+        return SimpleNamespace(camera=with_pose(read_intrinsics(path)))
+    except IntrinsicsFileError as exc:
+        raise UserError(str(exc)) from None

@@ -158,7 +158,9 @@ def run(
 def up(
     source: Annotated[
         str | None,
-        typer.Option(help="'sim' (default), a folder, a video, 'camera:N', a SESSION.mcap."),
+        typer.Option(
+            help="'sim' (default), a folder, a video, 'camera:N', a stream URL, a SESSION.mcap."
+        ),
     ] = None,
     listen: Annotated[str, typer.Option(help="Endpoint of the router.")] = DEFAULT_ENDPOINT,
     duration: Annotated[
@@ -175,6 +177,14 @@ def up(
     max_restarts: Annotated[
         int, typer.Option(min=0, help="Restarts allowed per process within a minute.")
     ] = 5,
+    calibration: Annotated[
+        Path | None,
+        typer.Option(
+            help="Calibration JSON (`ovis calibrate`) for the live services: stored as the "
+            "newest version in the state folder before they start.",
+            dir_okay=False,
+        ),
+    ] = None,
     pin: Annotated[
         str,
         typer.Option(
@@ -220,6 +230,10 @@ def up(
     recorded = prepare_recorded_source(cfg)  # a session file: its calibration, or why not
     if record is not None and record.exists():
         raise UserError(f"{record} exists; give --record another name (nothing was started)")
+    if calibration is not None:
+        from ovis.services.cli.camera import hand_over_calibration
+
+        print(hand_over_calibration(calibration, cfg), file=sys.stderr if json else sys.stdout)
     log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-"))
     cfg_path = log_dir / "config.toml"
     from ovis.common.config import dump_toml
@@ -295,6 +309,11 @@ def up(
         from rich.console import Console
 
         Console(highlight=False).print(summary_table(summary))
+    from ovis.services.cli.camera import nothing_processed
+
+    idle = nothing_processed(summary, log_dir)
+    if idle:
+        raise UserError(idle, 1)
     bad = [n for n, c in codes.items() if c not in (0, -signal.SIGTERM)]
     if bad or fleet.gave_up():
         reasons = "; ".join(fleet.gave_up()) or f"process(es) {', '.join(bad)} exited abnormally"
@@ -379,6 +398,7 @@ def recalibrate(
 
     Shows the new calibration's DIPE, parameters and version.
     """
+    from ovis.common.calibration.file import dipe_text
     from ovis.common.messages import CalibrateReply, CalibrateRequest, decode, encode
     from ovis.services.bus import open_session
 
@@ -408,7 +428,7 @@ def recalibrate(
     if not json:
         print(
             f"calibration v{answer.version} on frame {answer.frame_seq}: DIPE "
-            f"{answer.dipe_px:.3f} px = {answer.dipe_mm:.4f} mm (max {answer.dipe_max_px:.3f} px)"
+            f"{dipe_text(answer.dipe_px, answer.dipe_mm)} (max {answer.dipe_max_px:.3f} px)"
             f" in {answer.elapsed_s:.2f} s; saved to {answer.saved_to}"
         )
         for name, value in answer.parameters.items():

@@ -94,11 +94,44 @@ def simulate(
 
 def calibrate(
     image: Annotated[Path, typer.Argument(help="Calibration frame (one object per point).")],
-    points: Annotated[
-        Path,
-        typer.Option(help="Control points TOML: [[points]] name, x_cm, y_cm, z_cm."),
-    ],
     out: Annotated[Path, typer.Option(help="Where to write the calibration JSON.")],
+    points: Annotated[
+        Path | None,
+        typer.Option(
+            help="Control points TOML: [[points]] name, x_cm, y_cm, z_cm; with row, col (px) "
+            "for points whose pixel is known (then give --intrinsics)."
+        ),
+    ] = None,
+    intrinsics: Annotated[
+        Path | None,
+        typer.Option(
+            help="CAM.yaml from `ovis intrinsics`: keep the lens fixed and solve the camera's "
+            "pose over the floor (solvePnP) from pixel-known points, --board or --markers."
+        ),
+    ] = None,
+    board: Annotated[
+        str | None,
+        typer.Option(
+            help="With --intrinsics: a board lying on the floor, chessboard:COLSxROWS or "
+            "charuco:COLSxROWS:DICT; its first inner corner is the origin, x along its first row."
+        ),
+    ] = None,
+    square_cm: Annotated[
+        float, typer.Option("--square-cm", min=1e-6, help="--board: side of a square (cm).")
+    ] = 1.0,
+    marker_cm: Annotated[
+        float | None, typer.Option("--marker-cm", min=1e-6, help="--board charuco: marker side.")
+    ] = None,
+    markers: Annotated[
+        Path | None,
+        typer.Option(
+            help="With --intrinsics: ArUco markers TOML (dictionary; [[markers]] id, x_cm, "
+            "y_cm, side_cm[, angle_deg]) taped at surveyed floor positions."
+        ),
+    ] = None,
+    force: Annotated[
+        bool, typer.Option(help="Save a calibration flagged implausible (exit 0).")
+    ] = False,
     config: ConfigOpt = None,
     preset: PresetOpt = None,
     seed: Annotated[int | None, typer.Option(min=0, help="GA seed (default: config).")] = None,
@@ -158,20 +191,44 @@ def calibrate(
     """
     from ovis.common.calibration.file import save_calibration
     from ovis.common.config import load_points, with_ga
+    from ovis.services.cli.camera import calibrate_known_lens, refuse_implausible
     from ovis.services.cli.reports import print_calibration
 
+    if intrinsics is not None or board is not None or markers is not None:
+        calibrate_known_lens(
+            image,
+            intrinsics=intrinsics,
+            points=points,
+            board=board,
+            square_cm=square_cm,
+            marker_cm=marker_cm,
+            markers=markers,
+            config=config,
+            preset=preset,
+            out=out,
+            json=json,
+            force=force,
+            quiet=quiet,
+        )
+        return
+    if points is None:
+        raise UserError("give --points FILE (or --intrinsics CAM.yaml with --board/--markers)")
     pts = load_points(points)
+    if any(p.pixel_known for p in pts.points):
+        raise UserError(f"{points} gives pixels (row, col): add --intrinsics CAM.yaml")
     cfg = resolve_config(config, preset, pts.config)
     cfg = with_ga(
         cfg, seed=seed, population=population, generations=generations, pc=pc, pm=pm, polish=polish
     )
     frame = read_image(image)
+    cfg = _sized_to(cfg, frame)
     calib = calibrate_with_progress(
         frame, pts.points, cfg, source=str(image), show=not quiet and not json
     )
     calib = add_accuracy(
         frame, pts.points, cfg, calib, check=check, restarts=restarts, show=not quiet and not json
     )
+    warnings = refuse_implausible(calib, force)
     save_calibration(out, calib)
     if plot is not None:
         from ovis.common.analysis.plots import plot_convergence
@@ -186,8 +243,19 @@ def calibrate(
         emit_json(calib)
         return
     print_calibration(calib, out, plot)
-    for line in wrote:
+    for line in wrote + [f"WARNING (forced): {w}" for w in warnings]:
         console().print(line)
+
+
+def _sized_to(cfg, frame):
+    """The configuration with the camera sized to the frame (the size comes from the image)."""
+    from ovis.common.camera.projection import camera_for_image_size
+
+    try:
+        camera = camera_for_image_size(cfg.camera, frame.shape[0], frame.shape[1])
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    return msgspec.structs.replace(cfg, camera=camera)
 
 
 # ------------------------------------------------ what `ovis calibrate` adds to a calibration
@@ -260,7 +328,40 @@ def detect(
     images: Annotated[
         list[Path], typer.Argument(help="Frame(s); several frames keep obstacle ids.")
     ],
-    calibration: Annotated[Path, typer.Option(help="Calibration JSON from `ovis calibrate`.")],
+    calibration: Annotated[
+        Path | None,
+        typer.Option(
+            help="Calibration JSON from `ovis calibrate`; without it, blobs in pixels only "
+            "(automatic threshold unless --threshold)."
+        ),
+    ] = None,
+    threshold: Annotated[
+        str | None,
+        typer.Option(
+            help="Threshold: a level 0..255, 'otsu', 'auto' (Otsu on the local contrast) or "
+            "'adaptive:LEVEL' (LEVEL on the local contrast, 128 = the surroundings)."
+        ),
+    ] = None,
+    size_filter: Annotated[
+        float | None,
+        typer.Option(min=0.0, help="Smallest object: cm² with a calibration, px without."),
+    ] = None,
+    max_size: Annotated[
+        float | None,
+        typer.Option(min=0.0, help="Largest object: cm² with a calibration, px without."),
+    ] = None,
+    block_px: Annotated[
+        int | None, typer.Option(min=3, help="Local-contrast window (px) for auto/adaptive.")
+    ] = None,
+    polarity: Annotated[
+        str | None, typer.Option(help="'bright' objects on a dark floor, or 'dark'.")
+    ] = None,
+    background: Annotated[
+        Path | None, typer.Option(help="Image of the empty floor, subtracted first.")
+    ] = None,
+    roi: Annotated[
+        Path | None, typer.Option(help="Region-of-interest mask image (non-zero: look there).")
+    ] = None,
     goal: Annotated[
         str | None, typer.Option(help="Goal point X,Y (cm); default: the calibration's.")
     ] = None,
@@ -285,9 +386,23 @@ def detect(
     """
     from ovis.common.calibration.file import load_calibration
     from ovis.common.world.detection import Detector
+    from ovis.services.cli.camera import detect_without_calibration, with_image_flags
     from ovis.services.cli.reports import print_detection
 
+    flags = dict(
+        threshold=threshold,
+        size_filter=size_filter,
+        max_size=max_size,
+        block_px=block_px,
+        polarity=polarity,
+        background=background,
+        roi=roi,
+    )
+    if calibration is None:
+        detect_without_calibration(images, flags, json=json, overlay=overlay)
+        return
     calib = load_calibration(calibration)
+    calib = msgspec.structs.replace(calib, image=with_image_flags(calib.image, **flags))
     goal_xy = _numbers(goal, 2, "--goal") if goal is not None else None
     if goal_angle is not None and not np.isfinite(goal_angle):
         raise UserError("--goal-angle must be a finite number of degrees")

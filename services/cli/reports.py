@@ -45,12 +45,15 @@ def _print_residuals(calib, out: Path, plot: Path | None) -> None:
             f"{r.detected_row:.2f}, {r.detected_col:.2f}",
             f"{r.predicted_row:.2f}, {r.predicted_col:.2f}",
             f"{r.dipe_px:.3f}",
-            f"{r.dipe_mm:.4f}",
+            "-" if r.dipe_mm is None else f"{r.dipe_mm:.4f}",
         )
     con.print(p)
+    from ovis.common.calibration.file import dipe_text
+
+    paper = " (paper: 0.735214 mm)" if calib.dipe_mm is not None else " (mm: pixel pitch unknown)"
     con.print(
-        f"DIPE mean {calib.dipe_px:.3f} px = {calib.dipe_mm:.4f} mm, max {calib.dipe_max_px:.3f}"
-        f" px = {calib.dipe_max_mm:.4f} mm (paper: 0.735214 mm); {calib.evaluations} "
+        f"DIPE mean {dipe_text(calib.dipe_px, calib.dipe_mm)}, max "
+        f"{dipe_text(calib.dipe_max_px, calib.dipe_max_mm)}{paper}; {calib.evaluations} "
         f"evaluations in {calib.elapsed_s:.2f} s"
     )
     print_accuracy(calib, con)
@@ -97,6 +100,8 @@ def _num(v: float) -> str:
 
 def print_accuracy(calib, con=None) -> None:
     """Print a calibration's accuracy report (if it has one)."""
+    from ovis.common.calibration.file import dipe_text
+
     rep = calib.accuracy
     if rep is None:
         return
@@ -109,9 +114,9 @@ def print_accuracy(calib, con=None) -> None:
         else:
             which = "the polish does not lower the DIPE here: the GA's camera is kept"
         con.print(
-            f"GA alone: DIPE {calib.ga_dipe_px:.3f} px = {calib.ga_dipe_mm:.4f} mm; with the "
-            f"least-squares polish: {calib.polish_dipe_px:.3f} px = {calib.polish_dipe_mm:.4f} "
-            f"mm ({which})"
+            f"GA alone: DIPE {dipe_text(calib.ga_dipe_px, calib.ga_dipe_mm)}; with the "
+            f"least-squares polish: {dipe_text(calib.polish_dipe_px, calib.polish_dipe_mm)} "
+            f"({which})"
         )
     for held in (rep.leave_one_out, rep.check):
         if held is None:

@@ -227,14 +227,15 @@ def summary_table(s: RunSummary):
         "latency capture → obstacles p50 / p99",
         f"{fmt(s.latency_ms_p50, 'ms')} / {fmt(s.latency_ms_p99, 'ms')}",
     )
-    t.add_row(
-        "objects matched to truth",
-        f"{s.objects_matched} ({s.objects_missed} missed, {s.objects_spurious} spurious)",
-    )
-    t.add_row(
-        "position error mean / max",
-        f"{fmt(s.position_error_cm_mean, 'cm', 3)} / {fmt(s.position_error_cm_max, 'cm', 3)}",
-    )
+    if s.truth_frames:  # no truth lines for data that has no truth
+        t.add_row(
+            "objects matched to truth",
+            f"{s.objects_matched} ({s.objects_missed} missed, {s.objects_spurious} spurious)",
+        )
+        t.add_row(
+            "position error mean / max",
+            f"{fmt(s.position_error_cm_mean, 'cm', 3)} / {fmt(s.position_error_cm_max, 'cm', 3)}",
+        )
     t.add_row("calibration version", str(s.calibration_version))
     t.add_row("dropped frames", ", ".join(f"{k} {v}" for k, v in s.dropped.items()) or "0")
     errs = "; ".join(f"{k}: {v}" for k, v in s.errors.items())

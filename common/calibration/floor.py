@@ -1,0 +1,378 @@
+"""The camera's pose over the floor with a known lens, from points whose pixel is known.
+
+With the intrinsics fixed (K and distortion from ``ovis intrinsics``), a pose has six
+unknowns, and each control point with a known pixel (a board corner, a marker corner, a
+clicked point: ``row``, ``col`` in the points file) gives two equations; no blob
+matching is needed. ``cv2.solvePnP`` gives the pose (IPPE for points on one plane, SQPnP
+otherwise), ``cv2.solvePnPRefineLM`` refines it by Levenberg–Marquardt on the pixel
+residuals. Error is reported as for the GA: each point's DIPE (eq. 14, px; mm only with a
+known pixel pitch) and, held out, leave-one-out: the pose refitted without a point and
+that point's error in px (projection vs. its pixel) and in cm on its plane (its pixel
+back-projected vs. its position).
+
+The points must be usable: at least :data:`MIN_POINTS`, inside the image, not all on
+one line (in the world or in the image), no two at the same place.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import cv2
+import msgspec
+import numpy as np
+from numpy.typing import NDArray
+
+from ovis.common.calibration.file import Calibration, PointResidual, mm_or_none, now_iso
+from ovis.common.calibration.quality import AccuracyReport, HeldOut, HeldOutPoint
+from ovis.common.camera.intrinsics import CameraIntrinsics, with_pose
+from ovis.common.camera.pinhole import back_project, project
+from ovis.common.config import (
+    PINHOLE_VARIABLES,
+    ControlPoint,
+    ImageParams,
+    OvisConfig,
+    PinholeParams,
+    PinholeRanges,
+    PoseConfig,
+)
+from ovis.common.vision.boards import BoardSpec, MarkerView, find_board
+
+__all__ = [
+    "MIN_POINTS",
+    "FloorPoseError",
+    "MarkerSpec",
+    "MarkersFile",
+    "board_points",
+    "check_image_size",
+    "known_lens_config",
+    "load_markers",
+    "marker_points",
+    "solve_floor_pose",
+]
+
+#: Fewest pixel-known points: 4 give a unique pose for points on a plane.
+MIN_POINTS = 4
+#: Points closer than this to a line (as a fraction of their spread) count as collinear.
+COLLINEAR_TOLERANCE = 1e-3
+
+
+class FloorPoseError(ValueError):
+    """Points or files that cannot give a floor pose; the message says what to fix."""
+
+
+def check_image_size(intr: CameraIntrinsics, width: int, height: int, what: str) -> None:
+    """The image must be the size the intrinsics were calibrated at."""
+    if (intr.width, intr.height) != (width, height):
+        raise FloorPoseError(
+            f"{what} is {width}x{height} but the intrinsics are for {intr.width}x"
+            f"{intr.height}; calibrate the lens at the size the camera delivers"
+        )
+
+
+def _spread_rank(xy: NDArray[np.float64]) -> bool:
+    """Whether 2-D points span a plane (not all on one line or at one place)."""
+    centred = xy - xy.mean(axis=0)
+    s = np.linalg.svd(centred, compute_uv=False)
+    return bool(s[0] > 0 and s[-1] > COLLINEAR_TOLERANCE * s[0])
+
+
+def _validate(points: Sequence[ControlPoint], width: int, height: int) -> None:
+    unknown = [p.name for p in points if not p.pixel_known]
+    if unknown:
+        raise FloorPoseError(
+            f"control point(s) {', '.join(unknown)} have no row, col: with known intrinsics "
+            "give every point's pixel, or use blob points with [calibration.pinhole] pose ranges"
+        )
+    if len(points) < MIN_POINTS:
+        raise FloorPoseError(
+            f"a floor pose needs at least {MIN_POINTS} points with known pixels, got {len(points)}"
+        )
+    outside = [
+        f"{p.name} ({p.row:g}, {p.col:g})"
+        for p in points
+        if not (0 <= p.row <= height - 1 and 0 <= p.col <= width - 1)  # type: ignore[operator]
+    ]
+    if outside:
+        raise FloorPoseError(
+            f"point(s) {', '.join(outside)} lie outside the {width}x{height} image "
+            f"(row 0..{height - 1}, col 0..{width - 1})"
+        )
+    xyz = np.array([[p.x_cm, p.y_cm, p.z_cm] for p in points])
+    pix = np.array([[p.col, p.row] for p in points], dtype=np.float64)
+    if not _spread_rank(xyz[:, :2]) and np.ptp(xyz[:, 2]) == 0:
+        raise FloorPoseError(
+            "the control points lie on one line on the floor: a pose needs points spread "
+            "over an area (e.g. the four corners of a board)"
+        )
+    if not _spread_rank(pix):
+        raise FloorPoseError("the control points' pixels lie on one line in the image")
+    for a in range(len(points)):
+        d = np.linalg.norm(xyz[a + 1 :] - xyz[a], axis=1)
+        if np.any(d == 0):
+            b = a + 1 + int(np.argmin(d))
+            raise FloorPoseError(
+                f"points {points[a].name} and {points[b].name} are at the same place"
+            )
+
+
+def _pose(
+    xyz: NDArray[np.float64], pix: NDArray[np.float64], intr: CameraIntrinsics
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """solvePnP (IPPE on a plane, SQPnP otherwise) then solvePnPRefineLM."""
+    K, D = intr.matrix, intr.coefficients
+    planar = np.ptp(xyz[:, 2]) == 0
+    flag = cv2.SOLVEPNP_IPPE if planar else cv2.SOLVEPNP_SQPNP
+    ok, rvec, tvec = cv2.solvePnP(xyz, pix, K, D, flags=flag)
+    if not ok:
+        raise FloorPoseError("OpenCV found no camera pose for these points")
+    rvec, tvec = cv2.solvePnPRefineLM(xyz, pix, K, D, rvec, tvec)
+    return rvec.ravel(), tvec.ravel()
+
+
+def _camera(intr: CameraIntrinsics, rvec, tvec, pitch: float | None) -> PinholeParams:
+    return with_pose(intr, tuple(rvec), tuple(tvec), pixel_pitch_mm=pitch)
+
+
+def _point_fields(p: ControlPoint, predicted_row: float, predicted_col: float) -> dict:
+    """The fields a residual record shares: where the point is, seen and predicted."""
+    return {
+        "name": p.name,
+        "x_cm": p.x_cm,
+        "y_cm": p.y_cm,
+        "z_cm": p.z_cm,
+        "detected_row": float(p.row),  # type: ignore[arg-type]
+        "detected_col": float(p.col),  # type: ignore[arg-type]
+        "predicted_row": float(predicted_row),
+        "predicted_col": float(predicted_col),
+    }
+
+
+def _held_out_point(p: ControlPoint, cam: PinholeParams, in_sample: float | None) -> HeldOutPoint:
+    pred = project(p.x_cm, p.y_cm, p.z_cm, cam)
+    b = back_project(p.row, p.col, cam, p.z_cm)
+    cm = float(np.hypot(float(b.x_cm) - p.x_cm, float(b.y_cm) - p.y_cm)) if b.valid else None
+    return HeldOutPoint(
+        **_point_fields(p, float(pred.row), float(pred.col)),
+        error_px=float(np.hypot(float(pred.row) - p.row, float(pred.col) - p.col)),
+        error_cm=cm,
+        in_sample_px=in_sample,
+    )
+
+
+def _leave_one_out(
+    points: Sequence[ControlPoint],
+    xyz: NDArray[np.float64],
+    pix: NDArray[np.float64],
+    intr: CameraIntrinsics,
+    in_sample: NDArray[np.float64],
+) -> HeldOut | None:
+    """Each point held out in turn (needs MIN_POINTS others)."""
+    n = len(points)
+    if n <= MIN_POINTS:
+        return None
+    held: list[HeldOutPoint] = []
+    for i in range(n):
+        use = np.arange(n) != i
+        rvec, tvec = _pose(xyz[use], pix[use], intr)
+        held.append(
+            _held_out_point(points[i], _camera(intr, rvec, tvec, None), float(in_sample[i]))
+        )
+    px = np.array([h.error_px for h in held])
+    cm = np.array([h.error_cm for h in held if h.error_cm is not None])
+    return HeldOut(
+        method="leave-one-out",
+        source=f"{n} pixel-known points, the pose refitted without each (solvePnP + LM)",
+        points=held,
+        mean_px=float(px.mean()),
+        max_px=float(px.max()),
+        mean_cm=float(cm.mean()) if cm.size else None,
+        max_cm=float(cm.max()) if cm.size else None,
+    )
+
+
+def solve_floor_pose(
+    intr: CameraIntrinsics,
+    points: Sequence[ControlPoint],
+    *,
+    image_size: tuple[int, int],
+    image: ImageParams | None = None,
+    pose: PoseConfig | None = None,
+    pixel_pitch_mm: float | None = None,
+    source: str = "",
+) -> Calibration:
+    """The calibration of a camera with lens ``intr`` from pixel-known ``points`` seen in an
+    image of ``image_size`` (width, height). See the module docstring."""
+    t0 = time.perf_counter()
+    check_image_size(intr, *image_size, "the image")
+    _validate(points, *image_size)
+    xyz = np.array([[p.x_cm, p.y_cm, p.z_cm] for p in points], dtype=np.float64)
+    pix = np.array([[p.col, p.row] for p in points], dtype=np.float64)
+    rvec, tvec = _pose(xyz, pix, intr)
+    cam = _camera(intr, rvec, tvec, pixel_pitch_mm)
+    pred = project(xyz[:, 0], xyz[:, 1], xyz[:, 2], cam)
+    if not np.all(pred.valid):
+        raise FloorPoseError("the pose found puts control points behind the camera")
+    d_row, d_col = pix[:, 1] - pred.row, pix[:, 0] - pred.col
+    px = np.hypot(d_row, d_col)
+    pitch = cam.d_x_mm
+    residuals = [
+        PointResidual(
+            **_point_fields(p, pred.row[i], pred.col[i]),
+            dipe_px=float(px[i]),
+            dipe_mm=mm_or_none(px[i] * pitch),
+        )
+        for i, p in enumerate(points)
+    ]
+    loo = _leave_one_out(points, xyz, pix, intr, px)
+    notes = []
+    if loo is None:
+        notes.append(f"leave-one-out needs more than {MIN_POINTS} points (got {len(points)})")
+    return Calibration(
+        created=now_iso(),
+        dipe_px=float(px.mean()),
+        dipe_mm=mm_or_none(px.mean() * pitch),
+        dipe_max_px=float(px.max()),
+        dipe_max_mm=mm_or_none(px.max() * pitch),
+        camera=cam,
+        image=image or ImageParams(),
+        pose=pose or PoseConfig(),
+        points=residuals,
+        elapsed_s=time.perf_counter() - t0,
+        source_image=source,
+        accuracy=AccuracyReport(leave_one_out=loo, notes=notes),
+    )
+
+
+def board_points(gray: NDArray[np.uint8], spec: BoardSpec) -> list[ControlPoint]:
+    """Every corner of a board lying on the floor as a pixel-known control point.
+
+    The floor frame: the board's first inner corner is the origin, x runs along its first
+    row, z points up to the camera, so y points away from the other rows (corner (i, j),
+    i along the row, j the row, is at ``(i·S, −j·S)``); cm = the board's unit."""
+    view = find_board(gray, spec)
+    if view is None:
+        raise FloorPoseError(
+            f"{spec.describe()} not found in the image: check the board size (inner corners "
+            "of a chessboard) and that the whole board is in view"
+        )
+    return [
+        ControlPoint(
+            name=f"corner{int(i)}",
+            x_cm=float(xyz[0]),
+            y_cm=-float(xyz[1]) + 0.0,
+            z_cm=0.0,
+            row=float(xy[1]),
+            col=float(xy[0]),
+        )
+        for i, xyz, xy in zip(view.ids, view.board_xyz, view.image_xy, strict=True)
+    ]
+
+
+class MarkerSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """One ArUco marker taped on the floor: its id, centre, side and turn.
+
+    Corners (as ``cv2.aruco`` orders them: top-left, top-right, bottom-right, bottom-left
+    of the printed marker) lie at ``centre + R(angle)·(±side/2, ±side/2)``: with
+    ``angle_deg = 0`` the printed marker's rightward edge runs along the floor's +x and
+    its upward edge along +y (z up to the camera); ``angle_deg`` turns it CCW.
+    """
+
+    id: int
+    x_cm: float
+    y_cm: float
+    side_cm: float
+    z_cm: float = 0.0
+    angle_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        values = (self.x_cm, self.y_cm, self.z_cm, self.side_cm, self.angle_deg)
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"marker {self.id}: positions, side and angle must be finite")
+        if self.side_cm <= 0:
+            raise ValueError(f"marker {self.id}: side_cm must be positive")
+
+
+class MarkersFile(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """``--markers`` file: the ArUco dictionary and the surveyed markers."""
+
+    dictionary: str
+    markers: list[MarkerSpec]
+
+    def __post_init__(self) -> None:
+        ids = [m.id for m in self.markers]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"marker ids must be unique, got {ids}")
+
+
+def load_markers(path: Path | str) -> MarkersFile:
+    """Read and validate a markers TOML file."""
+    import tomllib
+
+    try:
+        data = tomllib.loads(Path(path).read_text("utf-8"))
+        return msgspec.convert(data, MarkersFile)
+    except FileNotFoundError:
+        raise FloorPoseError(f"markers file {path} does not exist") from None
+    except (tomllib.TOMLDecodeError, msgspec.ValidationError, UnicodeDecodeError) as exc:
+        raise FloorPoseError(
+            f'markers file {path}: {exc}. Expected dictionary = "DICT_4X4_50" and '
+            "[[markers]] tables with id, x_cm, y_cm, side_cm (optional z_cm, angle_deg)"
+        ) from None
+
+
+def marker_points(found: MarkerView, markers: MarkersFile) -> list[ControlPoint]:
+    """The four corners of every surveyed marker found, as pixel-known control points."""
+    survey = {m.id: m for m in markers.markers}
+    half = np.array([[-1, 1], [1, 1], [1, -1], [-1, -1]], dtype=np.float64) / 2
+    points: list[ControlPoint] = []
+    for marker_id, corners in zip(found.ids.tolist(), found.corners_xy, strict=True):
+        m = survey.get(marker_id)
+        if m is None:
+            continue
+        a = math.radians(m.angle_deg)
+        rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+        world = half * m.side_cm @ rot.T + (m.x_cm, m.y_cm)
+        for k, ((x, y), (c, r)) in enumerate(zip(world, corners, strict=True)):
+            points.append(
+                ControlPoint(
+                    name=f"m{marker_id}.{'abcd'[k]}",
+                    x_cm=float(x),
+                    y_cm=float(y),
+                    z_cm=m.z_cm,
+                    row=float(r),
+                    col=float(c),
+                )
+            )
+    if not points:
+        raise FloorPoseError(
+            f"none of the surveyed markers ({', '.join(str(m.id) for m in markers.markers)}) "
+            f"is in the image (dictionary {markers.dictionary})"
+        )
+    return points
+
+
+def known_lens_config(config: OvisConfig, intr: CameraIntrinsics) -> OvisConfig:
+    """The configuration for a GA calibration of blob control points with the lens fixed:
+    a pinhole camera with ``intr``'s K and distortion, only the pose (the
+    ``[calibration.pinhole]`` rvec/tvec ranges) and the threshold and size filter free,
+    as in the paper's single-step GA."""
+    ranges = config.calibration.pinhole or PinholeRanges()
+    lens = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+    pose_free = [n for n in PINHOLE_VARIABLES if n not in lens and getattr(ranges, n)]
+    if not pose_free:
+        raise FloorPoseError(
+            "blob control points with known intrinsics need the pose's search ranges: set "
+            "[calibration.pinhole] rvec_x..z and tvec_x_cm..z_cm in --config, or give the "
+            "points' pixels (row, col), --board or --markers instead"
+        )
+    old = config.camera
+    pose = {"rvec": old.rvec, "tvec_cm": old.tvec_cm} if isinstance(old, PinholeParams) else {}
+    pitch = old.pixel_pitch_mm if isinstance(old, PinholeParams) else None
+    camera = with_pose(intr, pixel_pitch_mm=pitch, **pose)
+    fixed = msgspec.structs.replace(ranges, **dict.fromkeys(lens))
+    calibration = msgspec.structs.replace(config.calibration, pinhole=fixed)
+    return msgspec.structs.replace(config, camera=camera, calibration=calibration)

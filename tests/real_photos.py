@@ -1,0 +1,71 @@
+"""The shared real photos (14 views of a 9×6 chessboard) and OpenCV's own answers on them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+
+def _find_photos() -> Path:
+    """``../shared/data/chessboard-9x6`` beside the clone (CI), or beside a folder above it
+    (a git worktree one level deeper)."""
+    root = Path(__file__).resolve().parents[1]
+    for folder in root.parents:
+        candidate = folder / "shared" / "data" / "chessboard-9x6"
+        if candidate.is_dir():
+            return candidate
+    return root.parent / "shared" / "data" / "chessboard-9x6"
+
+
+PHOTOS = _find_photos()
+BOARD = (9, 6)
+SUBPIX = ((11, 11), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 1e-3))
+
+
+def photo_paths() -> list[Path]:
+    """left01..left14.jpg, or skip the test with the reason."""
+    files = sorted(PHOTOS.glob("left*.jpg"))
+    if len(files) != 14:
+        pytest.skip(
+            f"the shared real photos are not at {PHOTOS} (CI has ../shared beside the clone)"
+        )
+    return files
+
+
+def board_xyz() -> np.ndarray:
+    """(54, 3) board coordinates in squares, OpenCV's corner order."""
+    obj = np.zeros((54, 3), np.float32)
+    obj[:, :2] = np.mgrid[0:9, 0:6].T.reshape(-1, 2)
+    return obj
+
+
+def opencv_corners(path: Path) -> np.ndarray:
+    """The README's recipe: findChessboardCorners + cornerSubPix, (54, 2) x = column."""
+    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    found, c = cv2.findChessboardCorners(gray, BOARD)
+    assert found, path
+    return cv2.cornerSubPix(gray, c, *SUBPIX).reshape(-1, 2)
+
+
+def opencv_calibration(paths: list[Path]):
+    """cv2.calibrateCamera over the views (rms, K, dist)."""
+    corners = [opencv_corners(p).reshape(-1, 1, 2) for p in paths]
+    rms, K, d, _, _ = cv2.calibrateCamera(
+        [board_xyz()] * len(paths), corners, (640, 512), None, None
+    )
+    return rms, K, d.ravel()
+
+
+def without_board(path: Path) -> np.ndarray:
+    """A real photo with the board's region painted over by the photo's median grey."""
+    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    hull = cv2.convexHull(opencv_corners(path)).astype(np.int32)
+    mask = np.zeros_like(gray)
+    cv2.fillConvexPoly(mask, hull, 255)
+    mask = cv2.dilate(mask, np.ones((61, 61), np.uint8))
+    out = gray.copy()
+    out[mask > 0] = int(np.median(gray))
+    return out

@@ -1,0 +1,176 @@
+"""Detection on a real photo (skimage's coins): one blob per coin, checked against an
+independent segmentation; adaptive threshold and background subtraction where a fixed
+threshold fails."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import msgspec
+import numpy as np
+import pytest
+from scipy import ndimage as ndi
+from test_cli import assert_one_line_error, ovis
+
+skimage = pytest.importorskip("skimage")
+from skimage import data, filters, segmentation  # noqa: E402
+
+
+def reference_coins(image: np.ndarray) -> np.ndarray:
+    """scikit-image's own coin segmentation (its watershed tutorial): (H, W) labels."""
+    elevation = filters.sobel(image)
+    markers = np.zeros_like(image)
+    markers[image < 30], markers[image > 150] = 1, 2
+    coins = ndi.binary_fill_holes(segmentation.watershed(elevation, markers) - 1)
+    labels, n = ndi.label(coins)
+    sizes = ndi.sum(coins, labels, range(1, n + 1))
+    for k in np.flatnonzero(sizes < 100) + 1:  # specks, not coins
+        labels[labels == k] = 0
+    return labels
+
+
+def check_one_blob_per_coin(objects: list[dict], labels: np.ndarray) -> None:
+    """Every coin has exactly one blob within 3 px of its centre, every blob is one coin's,
+    no blob is much larger than its coin (a coin merged with the floor), none a sliver."""
+    ids = [k for k in np.unique(labels) if k]
+    centres = np.array(ndi.center_of_mass(labels > 0, labels, ids))
+    areas = np.array(ndi.sum(labels > 0, labels, ids))
+    assert len(ids) == 24 and len(objects) == 24
+    found = np.array([[o["row"], o["col"]] for o in objects])
+    d = np.linalg.norm(centres[:, None] - found[None], axis=2)
+    near = d < 3.0
+    assert (near.sum(axis=1) == 1).all(), d.min(axis=1)
+    assert (near.sum(axis=0) == 1).all()
+    coin_of_blob = near.argmax(axis=0)
+    blob_area = np.array([o["area_px"] for o in objects])
+    ratio = blob_area / areas[coin_of_blob]
+    assert ratio.max() < 1.15 and ratio.min() > 0.5, ratio
+
+
+def is_correct(objects: list[dict], labels: np.ndarray) -> bool:
+    try:
+        check_one_blob_per_coin(objects, labels)
+    except AssertionError:
+        return False
+    return True
+
+
+@pytest.fixture(scope="module")
+def coins(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]:
+    path = tmp_path_factory.mktemp("coins") / "coins.png"
+    cv2.imwrite(str(path), data.coins())
+    return path, reference_coins(data.coins())
+
+
+def test_detect_coins_with_no_flag_one_blob_per_coin(coins) -> None:
+    path, labels = coins
+    out = json.loads(ovis("detect", str(path), "--json").stdout)
+    check_one_blob_per_coin(out["objects"], labels)
+
+
+def test_otsu_finds_24_blobs_but_a_wrong_segmentation(coins) -> None:
+    """A count of 24 is not enough: global Otsu merges a coin with the uneven background."""
+    path, labels = coins
+    out = json.loads(ovis("detect", str(path), "--threshold", "otsu", "--json").stdout)
+    assert len(out["objects"]) == 24 and not is_correct(out["objects"], labels)
+
+
+def lit_unevenly(image: np.ndarray) -> np.ndarray:
+    """The photo under a strong left-to-right light falloff (×0.45 … ×1.35)."""
+    ramp = np.linspace(0.45, 1.35, image.shape[1])[None, :]
+    return np.clip(image * ramp, 0, 255).astype(np.uint8)
+
+
+def _fixed_never_works(path: Path, labels: np.ndarray) -> None:
+    """No fixed level 0..255 segments the photo one blob per coin."""
+    from ovis.common.config import ImageParams
+    from ovis.common.world.pixels import detect_pixels
+
+    frame = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    for level in range(256):
+        objs = detect_pixels(frame, ImageParams(median="ordinary", threshold=level))
+        assert not is_correct([msgspec.structs.asdict(o) for o in objs], labels), level
+
+
+def test_adaptive_threshold_where_every_fixed_level_fails(coins, tmp_path: Path) -> None:
+    _, labels = coins
+    path = tmp_path / "uneven.png"
+    cv2.imwrite(str(path), lit_unevenly(data.coins()))
+    _fixed_never_works(path, labels)
+    for flag in ("adaptive:140", "auto"):
+        out = json.loads(ovis("detect", str(path), "--threshold", flag, "--json").stdout)
+        check_one_blob_per_coin(out["objects"], labels)
+
+
+def test_background_subtraction_where_every_fixed_level_fails(coins, tmp_path: Path) -> None:
+    """The empty floor: the same photo with the coins painted out (cv2.inpaint), under the
+    same light; subtracted, a fixed level (128 + 17, mid-band of 136..154) finds every coin."""
+    _, labels = coins
+    coins_img = data.coins()
+    mask = cv2.dilate((labels > 0).astype(np.uint8), np.ones((9, 9), np.uint8))
+    floor = cv2.inpaint(coins_img, mask, 7, cv2.INPAINT_TELEA)
+    path, bg = tmp_path / "uneven.png", tmp_path / "floor.png"
+    cv2.imwrite(str(path), lit_unevenly(coins_img))
+    cv2.imwrite(str(bg), lit_unevenly(floor))
+    _fixed_never_works(path, labels)
+    out = json.loads(
+        ovis("detect", str(path), "--threshold", "145", "--background", str(bg), "--json").stdout
+    )
+    check_one_blob_per_coin(out["objects"], labels)
+
+
+def test_roi_and_size_flags(coins, tmp_path: Path) -> None:
+    path, _ = coins
+    roi = np.zeros(data.coins().shape, np.uint8)
+    roi[:, : roi.shape[1] // 2] = 255
+    cv2.imwrite(str(tmp_path / "roi.png"), roi)
+    out = json.loads(ovis("detect", str(path), "--roi", str(tmp_path / "roi.png"), "--json").stdout)
+    assert 0 < len(out["objects"]) < 24
+    assert all(o["col"] < roi.shape[1] / 2 for o in out["objects"])
+    out = json.loads(ovis("detect", str(path), "--max-size", "1500", "--json").stdout)
+    assert 0 < len(out["objects"]) < 24 and all(o["area_px"] <= 1500 for o in out["objects"])
+    for args, needle in (
+        (["--threshold", "300"], "--threshold must be"),
+        (["--background", str(tmp_path / "missing.png")], "does not exist"),
+        (["--roi", str(Path(__file__))], "cannot read the region-of-interest image"),
+    ):
+        proc = ovis("detect", str(path), *args, check=False)
+        assert_one_line_error(proc, needle)
+        assert proc.returncode == 2
+
+
+def test_ga_tunes_the_threshold_on_the_local_contrast(tmp_path: Path) -> None:
+    """`threshold_mode = "adaptive"`: the GA's threshold gene ranges over the local-contrast
+    level, and the calibration keeps the mode for detection."""
+    data_dir = tmp_path / "sim"
+    ovis("simulate", "--out", str(data_dir), "--frames", "1")
+    cfg = tmp_path / "adaptive.toml"
+    cfg.write_text(
+        'preset = "default"\n[image]\nthreshold_mode = "adaptive"\n'
+        "[calibration]\nthreshold = [135.0, 250.0]\n"
+    )
+    out = tmp_path / "calib.json"
+    calib = json.loads(
+        ovis(
+            "calibrate",
+            str(data_dir / "frame_0000.png"),
+            "--points",
+            str(data_dir / "points.toml"),
+            "--config",
+            str(cfg),
+            "--out",
+            str(out),
+            "--quiet",
+            "--restarts",
+            "0",
+            "--json",
+        ).stdout
+    )
+    assert calib["image"]["threshold_mode"] == "adaptive"
+    assert 135 <= calib["image"]["threshold"] <= 250 and calib["dipe_px"] < 1.0
+    found = json.loads(
+        ovis("detect", str(data_dir / "frame_0000.png"), "--calibration", str(out), "--json").stdout
+    )
+    assert len(found["objects"]) == len(calib["points"])
