@@ -53,27 +53,69 @@ def _dictionary(name: str) -> cv2.aruco.Dictionary:
 
 
 @cache
-def marker_detector(name: str) -> cv2.aruco.ArucoDetector:
+def marker_detector(
+    name: str, side_px: tuple[float, float] | None = None, image_side: int = 0
+) -> cv2.aruco.ArucoDetector:
     """An ``ArucoDetector`` for a dictionary of :data:`MARKER_DICTIONARIES`, with
-    sub-pixel corner refinement (one per dictionary, reused)."""
+    sub-pixel corner refinement and one adaptive-threshold window (one per settings,
+    reused). ``side_px`` = the (smallest, largest) marker side expected, in pixels, in
+    an image whose larger side is ``image_side``: outlines far outside it are not
+    examined (most of the detector's time goes to examining candidates)."""
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     params.cornerRefinementWinSize = 3
     params.cornerRefinementMinAccuracy = 0.01
     params.cornerRefinementMaxIterations = 50
+    params.adaptiveThreshWinSizeMin = params.adaptiveThreshWinSizeMax = _THRESHOLD_WINDOW
+    if side_px is not None and image_side > 0:
+        lo, hi = side_px
+        params.minMarkerPerimeterRate = 4.0 * _SIZE_SLACK[0] * lo / image_side
+        params.maxMarkerPerimeterRate = 4.0 * _SIZE_SLACK[1] * hi / image_side
     return cv2.aruco.ArucoDetector(_dictionary(name), params)
 
 
-def find_markers(gray: NDArray[np.uint8], dictionary: str) -> Markers:
-    """Decode every marker of ``dictionary`` in a grey uint8 frame."""
+#: Adaptive-threshold window (px) of the marker detector.
+_THRESHOLD_WINDOW = 15
+#: Marker outlines between these multiples of the expected sides are examined.
+_SIZE_SLACK = (0.6, 1.5)
+
+
+def find_markers(
+    gray: NDArray[np.uint8],
+    dictionary: str,
+    *,
+    side_px: tuple[float, float] | None = None,
+    boxes: NDArray[np.int64] | None = None,
+) -> Markers:
+    """Decode every marker of ``dictionary`` in a grey uint8 frame.
+
+    ``side_px``: the range of marker sides to look for (pixels); ``boxes``: (k, 4)
+    ``row0, row1, col0, col1`` regions to search instead of the whole frame (e.g. around
+    the blobs that may carry a marker: much faster).
+    """
     if gray.dtype != np.uint8 or gray.ndim != 2:
         raise ValueError(f"expected a grey uint8 (H, W) image, got {gray.dtype} {gray.shape}")
-    corners, ids, _ = marker_detector(dictionary).detectMarkers(gray)
-    if ids is None or not len(ids):
-        return Markers.none()
-    xy = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)  # OpenCV: (x = col, y = row)
-    rc = xy[:, :, ::-1].copy()
     rows, cols = gray.shape
+    if boxes is None:
+        boxes = np.array([[0, rows, 0, cols]], dtype=np.int64)
+    found_ids: list[NDArray[np.int64]] = []
+    found_rc: list[NDArray[np.float64]] = []
+    for r0, r1, c0, c1 in np.asarray(boxes, dtype=np.int64).reshape(-1, 4).tolist():
+        r0, c0, r1, c1 = max(r0, 0), max(c0, 0), min(r1, rows), min(c1, cols)
+        if r1 - r0 < 8 or c1 - c0 < 8:
+            continue
+        crop = gray if (r1 - r0, c1 - c0) == (rows, cols) else np.ascontiguousarray(gray[r0:r1, c0:c1])
+        detector = marker_detector(dictionary, side_px, max(r1 - r0, c1 - c0))
+        corners, ids, _ = detector.detectMarkers(crop)
+        if ids is None or not len(ids):
+            continue
+        xy = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)  # OpenCV: x = col, y = row
+        found_rc.append(xy[:, :, ::-1] + np.array([r0, c0], dtype=np.float64))
+        found_ids.append(np.asarray(ids, dtype=np.int64).reshape(-1))
+    if not found_ids:
+        return Markers.none()
+    ids, rc = np.concatenate(found_ids), np.concatenate(found_rc)
+    ids, rc = _unique(ids, rc)
     m = BORDER_MARGIN_PX
     inside = (
         (rc[:, :, 0] >= m)
@@ -81,8 +123,20 @@ def find_markers(gray: NDArray[np.uint8], dictionary: str) -> Markers:
         & (rc[:, :, 1] >= m)
         & (rc[:, :, 1] <= cols - 1 - m)
     ).all(axis=1)
-    ids = np.asarray(ids, dtype=np.int64).reshape(-1)
     return Markers(ids[inside], rc[inside], int((~inside).sum()))
+
+
+def _unique(
+    ids: NDArray[np.int64], rc: NDArray[np.float64]
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Drop a marker found twice (in overlapping boxes): same id, centres within 2 px."""
+    centre = rc.mean(axis=1)
+    keep = np.ones(ids.size, dtype=bool)
+    for k in range(1, ids.size):
+        same = (ids[:k] == ids[k]) & keep[:k]
+        if same.any() and (np.hypot(*(centre[:k][same] - centre[k]).T) < 2.0).any():
+            keep[k] = False
+    return ids[keep], rc[keep]
 
 
 def marker_cells(dictionary: str, marker_id: int) -> NDArray[np.bool_]:
