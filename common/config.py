@@ -360,10 +360,10 @@ class RobotFilterConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True
     :mod:`ovis.common.world.robots`): the spread of the unmodelled accelerations (white
     noise driving the velocities) and of one marker measurement."""
 
-    accel_cm_s2: Annotated[float, msgspec.Meta(gt=0.0, le=1e6)] = 300.0
+    accel_cm_s2: Annotated[float, msgspec.Meta(gt=0.0, le=1e6)] = 100.0
     yaw_accel_deg_s2: Annotated[float, msgspec.Meta(gt=0.0, le=1e7)] = 2000.0
-    position_sigma_cm: Annotated[float, msgspec.Meta(gt=0.0, le=1e3)] = 0.05
-    heading_sigma_deg: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 0.3
+    position_sigma_cm: Annotated[float, msgspec.Meta(gt=0.0, le=1e3)] = 0.02
+    heading_sigma_deg: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 0.15
 
 
 class PoseConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

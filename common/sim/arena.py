@@ -391,25 +391,31 @@ class Arena:
 
         z_obst = pose.obstacle_height_cm
         area = {"arena_x_cm": sim.arena_x_cm, "arena_y_cm": sim.arena_y_cm, "gap_cm": MIN_GAP_CM}
-        paths = plan_paths(
-            self._rng,
-            n=r_count,
-            reach_cm=reach,
-            speed_cm_per_frame=sim.speed_cm_per_frame,
-            seen=seen_at(z_robot),
-            fits_image=robots_fit,
-            **area,
-        )
-        ox, oy = place_still_obstacles(
-            self._rng,
-            paths,
-            radii,
-            reach_cm=reach,
-            seen_robot=seen_at(z_robot),
-            seen_obstacle=seen_at(z_obst),
-            fits_image=obstacle_fits,
-            **area,
-        )
+        for attempt in range(_PLACE_RESTARTS):  # new paths when the obstacles find no room
+            try:
+                paths = plan_paths(
+                    self._rng,
+                    n=r_count,
+                    reach_cm=reach,
+                    speed_cm_per_frame=sim.speed_cm_per_frame,
+                    seen=seen_at(z_robot),
+                    fits_image=robots_fit,
+                    **area,
+                )
+                ox, oy = place_still_obstacles(
+                    self._rng,
+                    paths,
+                    radii,
+                    reach_cm=reach,
+                    seen_robot=seen_at(z_robot),
+                    seen_obstacle=seen_at(z_obst),
+                    fits_image=obstacle_fits,
+                    **area,
+                )
+                break
+            except ValueError:
+                if attempt == _PLACE_RESTARTS - 1:
+                    raise
         self._paths = paths
         self._x = np.concatenate([np.zeros(r_count), ox])
         self._y = np.concatenate([np.zeros(r_count), oy])
@@ -727,7 +733,9 @@ class Arena:
         if self._marked is not None and i < len(self._marked.marker_ids):
             self._paint_marker(level, i, x, y, h)
 
-    def _paint_marker(self, level: NDArray[np.float32], i: int, x: float, y: float, h: float) -> None:
+    def _paint_marker(
+        self, level: NDArray[np.float32], i: int, x: float, y: float, h: float
+    ) -> None:
         """Paint the black cells of robot ``i``'s marker on its top face: centred, its top
         edge towards the heading, turned so the camera sees it unmirrored."""
         cells, side = self._marked.cells[i], self._marked.side_cm[i]

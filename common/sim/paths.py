@@ -34,7 +34,7 @@ MIN_TURN_RADIUS_CM = 12.0
 OBSTACLE_SLACK_CM = 6.0
 #: Two paths cross where their sampled points come this close (cm).
 _CROSSING_CM = 1.5
-_TRIES = 3000
+_TRIES = 2000
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,9 @@ class EllipsePaths:
     period: int
 
     def _theta(self, t: float | FloatArray) -> FloatArray:
-        return self.phase + self.sense * 2.0 * math.pi * np.asarray(t, dtype=np.float64) / self.period
+        return (
+            self.phase + self.sense * 2.0 * math.pi * np.asarray(t, dtype=np.float64) / self.period
+        )
 
     def position(self, t: float) -> tuple[FloatArray, FloatArray]:
         """Centres (cm) of every robot at frame ``t``."""
@@ -93,8 +95,9 @@ def plan_paths(
 
     ``seen(x, y)`` gives where the camera sees robot-top points (on the floor, by central
     projection) and the scale of a length there; ``fits_image(x, y)`` whether disks of
-    radius ``reach_cm`` at those centres are inside the image. Raises ValueError if no
-    such paths are found.
+    radius ``reach_cm`` at those centres are inside the image. For each drawn ellipse,
+    every start phase (in whole frames) is tried. Raises ValueError if no such paths
+    are found.
     """
     (x0, x1), (y0, y1) = arena_x_cm, arena_y_cm
     span = min(x1 - x0, y1 - y0) / 2.0 - reach_cm
@@ -103,7 +106,9 @@ def plan_paths(
     mean_a = 0.5 * (a_lo + a_hi)
     period = max(8, round(2.0 * math.pi * 0.9 * mean_a / max(speed_cm_per_frame, 1e-6)))
     t = np.arange(period, dtype=np.float64)
-    fields: dict[str, list[float]] = {k: [] for k in ("cx", "cy", "a", "b", "alpha", "phase", "sense")}
+    shift = (t[:, None] + t[None, :]).astype(np.int64) % period  # [start, frame]
+    names = ("cx", "cy", "a", "b", "alpha", "phase", "sense")
+    fields: dict[str, list[float]] = {k: [] for k in names}
     xs: list[FloatArray] = []
     ys: list[FloatArray] = []
     shapes: list[FloatArray] = []
@@ -111,26 +116,32 @@ def plan_paths(
         for _ in range(_TRIES):
             a = rng.uniform(a_lo, a_hi)
             b = rng.uniform(max(math.sqrt(MIN_TURN_RADIUS_CM * a), 0.6 * a), a)
-            alpha, phase = rng.uniform(-math.pi, math.pi, size=2)
+            alpha = rng.uniform(-math.pi, math.pi)
             sense = float(rng.choice([-1.0, 1.0]))
-            cx = rng.uniform(x0 + reach_cm + a, x1 - reach_cm - a) if x1 - x0 > 2 * (reach_cm + a) else None
-            cy = rng.uniform(y0 + reach_cm + a, y1 - reach_cm - a) if y1 - y0 > 2 * (reach_cm + a) else None
-            if cx is None or cy is None:
+            room_x, room_y = x1 - x0 - 2 * (reach_cm + a), y1 - y0 - 2 * (reach_cm + a)
+            if room_x < 0 or room_y < 0:
                 continue
-            theta = phase + sense * 2.0 * math.pi * t / period
+            cx = x0 + reach_cm + a + rng.uniform(0.0, room_x)
+            cy = y0 + reach_cm + a + rng.uniform(0.0, room_y)
+            theta = sense * 2.0 * math.pi * t / period
             x, y = _ellipse_points(cx, cy, a, b, alpha, theta)
             if not fits_image(x, y):
                 continue
-            if not _clear_of(x, y, reach_cm, xs, ys, gap_cm, seen, reach_cm):
-                continue
-            outline = _ellipse_points(cx, cy, a, b, alpha, np.linspace(0, 2 * math.pi, 240))
+            outline = np.stack(
+                _ellipse_points(cx, cy, a, b, alpha, np.linspace(0, 2 * math.pi, 240))
+            )
             if shapes and not any(_crosses(outline, other) for other in shapes):
                 continue
-            for k, value in zip(fields, (cx, cy, a, b, alpha, phase, sense), strict=True):
+            clear = _clear_starts(x[shift], y[shift], reach_cm, xs, ys, gap_cm, seen)
+            if not clear.size:
+                continue
+            start = int(rng.choice(clear))
+            values = (cx, cy, a, b, alpha, sense * 2.0 * math.pi * start / period, sense)
+            for k, value in zip(names, values, strict=True):
                 fields[k].append(float(value))
-            xs.append(x)
-            ys.append(y)
-            shapes.append(np.stack(outline))
+            xs.append(x[shift[start]])
+            ys.append(y[shift[start]])
+            shapes.append(outline)
             break
         else:
             raise ValueError(
@@ -139,10 +150,10 @@ def plan_paths(
                 f"(placed {i}); enlarge the arena or use fewer or smaller robots"
             )
     arrays = {k: np.array(v) for k, v in fields.items()}
-    return EllipsePaths(period=period, **arrays)
+    return EllipsePaths(period=period, **arrays)  # type: ignore[arg-type]
 
 
-def _clear_of(
+def _clear_starts(
     x: FloatArray,
     y: FloatArray,
     radius: float,
@@ -150,19 +161,18 @@ def _clear_of(
     ys: list[FloatArray],
     gap_cm: float,
     seen: Callable[[FloatArray, FloatArray], tuple[FloatArray, FloatArray, float]],
-    other_radius: float,
-) -> bool:
-    """Whether a disk moving along (x, y) keeps ``gap_cm`` from disks of
-    ``other_radius`` moving along each of ``xs, ys`` (frame by frame), in the world
-    and as seen."""
+) -> NDArray[np.int64]:
+    """Starts (rows of ``x, y``: (starts, frames)) at which a disk keeps ``gap_cm`` from
+    equal disks moving along each of ``xs, ys`` in every frame, in the world and as seen."""
     if not xs:
-        return True
-    ox, oy = np.stack(xs), np.stack(ys)
-    world = np.hypot(ox - x, oy - y) - radius - other_radius
+        return np.arange(x.shape[0])
+    ox, oy = np.stack(xs)[:, None, :], np.stack(ys)[:, None, :]  # (others, 1, frames)
+    world = np.hypot(ox - x, oy - y) - 2.0 * radius
     sx, sy, s = seen(x, y)
     osx, osy, _ = seen(ox, oy)
-    view = np.hypot(osx - sx, osy - sy) - s * (radius + other_radius)
-    return bool(min(world.min(), view.min()) >= gap_cm)
+    view = np.hypot(osx - sx, osy - sy) - 2.0 * s * radius
+    ok = (np.minimum(world, view) >= gap_cm).all(axis=(0, 2))
+    return np.flatnonzero(ok)
 
 
 def _crosses(p: FloatArray, q: FloatArray) -> bool:
