@@ -44,6 +44,8 @@ def main(service: Service) -> None:
                 calibration_version=calib.version,
                 blobs=BlobList.measures(blobs),
                 maps=FloorMaps(obstacle=PlaneMap.of(floor), robot=PlaneMap.of(top)),
+                markers=frame.markers,
+                markers_at_border=frame.markers_at_border,
             )
         )
         service.sent()

@@ -7,7 +7,7 @@ from __future__ import annotations
 import threading
 import time
 
-from ovis.common.messages import BlobList, ObstacleFrame, StreamHealth
+from ovis.common.messages import BlobList, MarkerCorners, ObstacleFrame, StreamHealth
 from ovis.common.world.detection import Detector
 from ovis.services.runtime import Service
 
@@ -27,7 +27,10 @@ def main(service: Service) -> None:
         floor = top = None
         if msg.maps is not None and msg.calibration_version == service.calibration.version:
             floor, top = msg.maps.obstacle.jacobian(), msg.maps.robot.jacobian()
-        det = detector.from_blobs(msg.to_blobs(), floor=floor, top=top, stamp_s=msg.stamp_ns / 1e9)
+        markers = MarkerCorners.to_markers(msg.markers, msg.markers_at_border)
+        det = detector.from_blobs(
+            msg.to_blobs(), floor=floor, top=top, stamp_s=msg.stamp_ns / 1e9, markers=markers
+        )
         now = time.time_ns()
         robot = next((o for o in det.objects if o.kind == "robot"), None)
         publish(
@@ -41,6 +44,10 @@ def main(service: Service) -> None:
                 obstacles=[o for o in det.objects if o.kind == "obstacle"],
                 planner=det.planner,
                 arena=service.topics.arena,
+                robots=det.robots,
+                robot_plans=det.robot_plans,
+                unknown_markers=det.unknown_markers,
+                markers_at_border=det.markers_at_border,
             )
         )
         service.sent()

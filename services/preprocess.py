@@ -8,7 +8,8 @@ import time
 
 import numpy as np
 
-from ovis.common.messages import BinaryFrame, Frame
+from ovis.common.messages import BinaryFrame, Frame, MarkerCorners
+from ovis.common.world.marker_search import FrameMarkers
 from ovis.common.vision.preprocess import ImageError, as_gray, binarize, smooth
 from ovis.services.runtime import Service
 
@@ -20,6 +21,7 @@ MAX_CLOCK_SKEW_S = 3600.0
 def main(service: Service) -> None:
     service.follow_calibration()
     publish = service.publisher(service.topics.binary)
+    find_markers = FrameMarkers()
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
         frame = service.decode(payload, Frame, "frame")
@@ -44,6 +46,7 @@ def main(service: Service) -> None:
         service.saw_frame(frame.seq, frame.stamp_ns)
         params = calib.image
         binary = binarize(smooth(gray, params.median), params.threshold, params.polarity)
+        markers = find_markers(gray, calib.version, calib.camera, calib.pose)
         publish(
             BinaryFrame(
                 seq=frame.seq,
@@ -53,6 +56,8 @@ def main(service: Service) -> None:
                 bits=np.packbits(binary).tobytes(),
                 threshold=params.threshold,
                 calibration_version=calib.version,
+                markers=None if markers is None else MarkerCorners.of(markers),
+                markers_at_border=0 if markers is None else markers.partial,
             )
         )
         service.sent()

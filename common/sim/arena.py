@@ -879,13 +879,14 @@ class Arena:
 
 
 def control_points(truth: FrameTruth | _TruthRecord) -> list[ControlPoint]:
-    """A frame's objects as control points: ``R`` for the robot, ``O1``, ``O2``, … for the
-    obstacles (in id order), at the centres of their top faces (world cm)."""
+    """A frame's objects as control points: ``R`` for the robot (``R<id>`` for each marked
+    robot), ``O1``, ``O2``, … for the obstacles (in id order), at the centres of their top
+    faces (world cm)."""
     points = []
     obstacles = 0
     for obj in truth.objects:
         if obj.kind == "robot":
-            name = "R"
+            name = "R" if obj.marker_id is None else f"R{obj.id}"
         else:
             obstacles += 1
             name = f"O{obstacles}"

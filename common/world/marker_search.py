@@ -19,7 +19,7 @@ from ovis.common.camera.projection import pixel_footprint_cm2
 from ovis.common.config import CameraModel, PoseConfig
 from ovis.common.vision.markers import Markers, find_markers
 
-__all__ = ["MAX_FILL", "marker_boxes", "marker_side_px", "search_markers"]
+__all__ = ["MAX_FILL", "FrameMarkers", "marker_boxes", "marker_side_px", "search_markers"]
 
 #: A blob filling more than this share of its second-moment ellipse (4π·√det Σ; a
 #: solid disk fills 1, a solid rectangle 0.95) has no hole, hence no marker.
@@ -74,3 +74,22 @@ def search_markers(
     if not pose.robots:
         return Markers.none()
     return find_markers(gray, pose.marker_dictionary, side_px=side_px, boxes=boxes)
+
+
+class FrameMarkers:
+    """Whole-frame marker search for a stage that has the grey frame but no blobs yet
+    (the preprocess service): the marker sizes are worked out once per calibration."""
+
+    def __init__(self) -> None:
+        self._version: int | None = None
+        self._side_px = (1.0, 1.0)
+
+    def __call__(
+        self, gray: NDArray[np.uint8], version: int, camera: CameraModel, pose: PoseConfig
+    ) -> Markers | None:
+        """The frame's markers, or None when no robot is configured."""
+        if not pose.robots:
+            return None
+        if version != self._version:
+            self._version, self._side_px = version, marker_side_px(pose, camera)
+        return search_markers(gray, pose, self._side_px)
