@@ -20,6 +20,7 @@ import msgspec
 
 __all__ = [
     "CALIBRATED_VARIABLES",
+    "MARKER_DICTIONARIES",
     "PINHOLE_VARIABLES",
     "PRESETS",
     "CalibrationRanges",
@@ -28,7 +29,6 @@ __all__ = [
     "ConfigError",
     "ControlPoint",
     "GAConfig",
-    "MARKER_DICTIONARIES",
     "ImageParams",
     "OvisConfig",
     "PinholeParams",

@@ -9,8 +9,8 @@ import time
 import numpy as np
 
 from ovis.common.messages import BinaryFrame, Frame, MarkerCorners
-from ovis.common.world.marker_search import FrameMarkers
 from ovis.common.vision.preprocess import ImageError, as_gray, binarize, smooth
+from ovis.common.world.marker_search import FrameMarkers
 from ovis.services.runtime import Service
 
 #: Frames stamped further than this from the local clock are refused (a broken clock or

@@ -81,7 +81,7 @@ from ovis.common.config import (
     PoseConfig,
     dump_toml,
 )
-from ovis.common.sim.paths import plan_paths, place_still_obstacles
+from ovis.common.sim.paths import place_still_obstacles, plan_paths
 from ovis.common.vision.markers import marker_cells
 
 __all__ = [

@@ -3,8 +3,8 @@
 
 :func:`find_markers` returns each decoded marker's id and its four corners in OpenCV's
 order — the printed marker's top-left, top-right, bottom-right, bottom-left — as
-(row, col), refined to sub-pixel on lines fitted to the marker's edges. A marker with a corner closer than
-:data:`BORDER_MARGIN_PX` to the image border is cut by it (or nearly): its corners are
+(row, col), refined to sub-pixel on lines fitted to the marker's edges. A marker with a
+corner closer than :data:`BORDER_MARGIN_PX` to the image border is cut by it (or nearly): its corners are
 not trusted, and it is counted in ``partial`` instead. :func:`marker_cells` gives the
 printed pattern (for the simulator).
 """
@@ -103,7 +103,9 @@ def find_markers(
         r0, c0, r1, c1 = max(r0, 0), max(c0, 0), min(r1, rows), min(c1, cols)
         if r1 - r0 < 8 or c1 - c0 < 8:
             continue
-        crop = gray if (r1 - r0, c1 - c0) == (rows, cols) else np.ascontiguousarray(gray[r0:r1, c0:c1])
+        crop = (
+            gray if (r1 - r0, c1 - c0) == (rows, cols) else np.ascontiguousarray(gray[r0:r1, c0:c1])
+        )
         detector = marker_detector(dictionary, side_px, max(r1 - r0, c1 - c0))
         corners, ids, _ = detector.detectMarkers(crop)
         if ids is None or not len(ids):

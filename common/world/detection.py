@@ -20,8 +20,8 @@ from numpy.typing import NDArray
 from ovis.common.camera.projection import PixelJacobian, pixel_footprint_cm2, pixel_jacobian
 from ovis.common.config import CameraModel, ImageParams, PoseConfig
 from ovis.common.vision.labeling import filter_components, label_components
-from ovis.common.vision.perimeter import perimeter
 from ovis.common.vision.markers import Markers
+from ovis.common.vision.perimeter import perimeter
 from ovis.common.vision.preprocess import as_gray, binarize, smooth
 from ovis.common.vision.shape import compactness, orientation
 from ovis.common.world.marker_search import marker_boxes, marker_side_px, search_markers
@@ -410,7 +410,13 @@ class Detector:
         objects = list(map(DetectedObject, *(columns[f][out].tolist() for f in fields)))
         if not pose.robots:
             planner = self._plan(
-                ids[out], is_robot[out], xy[out, 0], xy[out, 1], radius[out], goal_xy, goal_angle_deg
+                ids[out],
+                is_robot[out],
+                xy[out, 0],
+                xy[out, 1],
+                radius[out],
+                goal_xy,
+                goal_angle_deg,
             )
             return Detection(objects=objects, planner=planner)
         obstacle_xyr = np.column_stack([xy[obstacle], radius[obstacle]])
