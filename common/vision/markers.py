@@ -4,9 +4,9 @@
 :func:`find_markers` returns each decoded marker's id and its four corners in OpenCV's
 order — the printed marker's top-left, top-right, bottom-right, bottom-left — as
 (row, col), refined to sub-pixel on lines fitted to the marker's edges. A marker with a
-corner closer than :data:`BORDER_MARGIN_PX` to the image border is cut by it (or nearly): its corners are
-not trusted, and it is counted in ``partial`` instead. :func:`marker_cells` gives the
-printed pattern (for the simulator).
+corner closer than :data:`BORDER_MARGIN_PX` to the image border is cut by it (or
+nearly): its corners are not trusted, and it is counted in ``partial`` instead.
+:func:`marker_cells` gives the printed pattern (for the simulator).
 """
 
 from __future__ import annotations
