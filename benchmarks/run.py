@@ -33,6 +33,7 @@ GROUPS = {
     "scaling": "Scaling",
     "calibration": "GA calibration",
     "e2e": "End to end",
+    "robots": "Marked robots",
     "memory": "Memory",
 }
 DEFAULT = ("pipeline", "scaling", "calibration", "e2e")
@@ -68,6 +69,10 @@ def run_groups(names: list[str], quick: bool, memory_s: float) -> list[Row]:
             from benchmarks.bus import e2e_rows
 
             rows += e2e_rows(quick, log)
+        elif name == "robots":
+            from benchmarks.robots import robots_rows
+
+            rows += robots_rows(quick, log)
         elif name == "memory":
             from benchmarks.bus import memory_rows
 
