@@ -26,7 +26,9 @@ __all__ = ["MAX_FILL", "FrameMarkers", "marker_boxes", "marker_side_px", "search
 MAX_FILL = 0.85
 #: Box half-size in standard deviations of the blob along its wider image axis, plus px.
 _BOX_SIGMAS = 2.4
-_BOX_PAD_PX = 4.0
+_BOX_PAD_PX = 6.0
+#: Half the diagonal of a square, in sides (a marker seen at any angle fits this far).
+_MARKER_HALF = 0.75
 
 
 def marker_side_px(pose: PoseConfig, camera: CameraModel) -> tuple[float, float]:
@@ -57,8 +59,11 @@ def marker_boxes(
     """Boxes ``(k, 4)`` = row0, row1, col0, col1 around the blobs that may carry a marker."""
     det = np.maximum(mu_rr * mu_cc - mu_rc * mu_rc, 0.0)
     fill = area_px / np.maximum(4.0 * np.pi * np.sqrt(det), 1e-9)
-    half = _BOX_SIGMAS * np.sqrt(np.maximum(mu_rr, mu_cc)) + _BOX_PAD_PX
-    pick = (fill < MAX_FILL) & (2.0 * half >= side_px[0])
+    spread = _BOX_SIGMAS * np.sqrt(np.maximum(mu_rr, mu_cc))
+    pick = (fill < MAX_FILL) & (2.0 * spread >= side_px[0])
+    # the marker is centred on its robot: a box round the largest marker (half its
+    # diagonal, plus room for the refinement) is enough, whatever the robot's size
+    half = np.minimum(spread, _MARKER_HALF * side_px[1]) + _BOX_PAD_PX
     r, c, h = row[pick], col[pick], half[pick]
     return np.column_stack([r - h, r + h + 1, c - h, c + h + 1]).astype(np.int64)
 

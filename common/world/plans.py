@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.config import PoseConfig
-from ovis.common.world.planner import planner_inputs
+from ovis.common.world.planner import signed_angle_deg
 from ovis.common.world.robots import RobotState
 
 __all__ = ["RobotPlan", "TargetEntry", "robot_plans"]
@@ -48,17 +48,22 @@ class RobotPlan(msgspec.Struct, kw_only=True):
     entries: list[TargetEntry]
 
 
-def _goal_direction(
-    robot: RobotState, goal_xy: tuple[float, float] | None, goal_angle: float | None
-) -> float | None:
-    if goal_angle is not None:
-        return float(goal_angle)
-    if goal_xy is None:
-        return None
-    dx, dy = goal_xy[0] - robot.x_cm, goal_xy[1] - robot.y_cm
-    if math.hypot(dx, dy) < 1e-9:
-        return None
-    return math.degrees(math.atan2(dy, dx))
+def _goal_directions(robots: list[RobotState], pose: PoseConfig) -> NDArray[np.float64]:
+    """Each robot's goal direction (deg from +X); NaN without a goal or on it."""
+    specs = {r.id: r for r in pose.robots}
+    out = np.full(len(robots), np.nan)
+    for k, robot in enumerate(robots):
+        spec = specs.get(robot.id)
+        own = spec is not None and (spec.goal_cm is not None or spec.goal_angle_deg is not None)
+        goal_xy = spec.goal_cm if own else pose.goal_cm  # type: ignore[union-attr]
+        goal_angle = spec.goal_angle_deg if own else pose.goal_angle_deg  # type: ignore[union-attr]
+        if goal_angle is not None:
+            out[k] = goal_angle
+        elif goal_xy is not None:
+            dx, dy = goal_xy[0] - robot.x_cm, goal_xy[1] - robot.y_cm
+            if math.hypot(dx, dy) >= 1e-9:
+                out[k] = math.degrees(math.atan2(dy, dx))
+    return out
 
 
 def robot_plans(
@@ -68,37 +73,43 @@ def robot_plans(
     pose: PoseConfig,
 ) -> list[RobotPlan]:
     """Planner inputs of each robot against the obstacles (ids, (n, 3) x, y, r in cm)
-    and the other robots."""
-    specs = {r.id: r for r in pose.robots}
+    and the other robots, for all robots at once (the paper's formulas, as
+    :func:`ovis.common.world.planner.planner_inputs`)."""
+    if not robots:
+        return []
     obstacles_xyr = np.asarray(obstacles_xyr, dtype=np.float64).reshape(-1, 3)
-    robot_xyr = np.array([[r.x_cm, r.y_cm, r.radius_cm] for r in robots]).reshape(-1, 3)
+    me = np.array([[r.x_cm, r.y_cm, r.radius_cm, r.heading_deg] for r in robots])
+    targets = np.concatenate([obstacles_xyr, me[:, :3]])
+    ids = [*np.asarray(obstacle_ids).tolist(), *(r.id for r in robots)]
+    m = len(obstacles_xyr)
+    kinds = ["obstacle"] * m + ["robot"] * len(robots)
+    dx = targets[None, :, 0] - me[:, 0, None]
+    dy = targets[None, :, 1] - me[:, 1, None]
+    distance = np.hypot(dx, dy) - targets[None, :, 2]
+    bearing = np.degrees(np.arctan2(dy, dx))
+    relative = signed_angle_deg(np.radians(me[:, 3, None]), np.radians(bearing))
+    goal = _goal_directions(robots, pose)
+    to_goal = signed_angle_deg(np.radians(goal[:, None]), np.radians(bearing))
     plans = []
     for k, robot in enumerate(robots):
-        spec = specs.get(robot.id)
-        own = spec is not None and (spec.goal_cm is not None or spec.goal_angle_deg is not None)
-        goal_xy = spec.goal_cm if own else pose.goal_cm  # type: ignore[union-attr]
-        goal_angle = spec.goal_angle_deg if own else pose.goal_angle_deg  # type: ignore[union-attr]
-        others = np.arange(len(robots)) != k
-        targets = np.concatenate([obstacles_xyr, robot_xyr[others]])
-        ids = [*obstacle_ids.tolist(), *(r.id for r, o in zip(robots, others, strict=True) if o)]
-        kinds = ["obstacle"] * len(obstacles_xyr) + ["robot"] * int(others.sum())
-        xy = (robot.x_cm, robot.y_cm)
-        relative = planner_inputs(xy, targets, goal_angle_deg=robot.heading_deg)
-        direction = _goal_direction(robot, goal_xy, goal_angle)
-        angles: list[float | None] = [None] * len(ids)
-        if direction is not None:
-            angles = planner_inputs(xy, targets, goal_angle_deg=direction).angle_deg.tolist()
+        cols = [c for c in range(len(ids)) if c != m + k]  # not itself
+        has_goal = not math.isnan(goal[k])
         entries = [
             TargetEntry(
-                target_id=int(i),
-                target_kind=kind,  # type: ignore[arg-type]
-                distance_cm=float(d),
-                angle_deg=a,
-                heading_angle_deg=float(h),
+                target_id=ids[c],
+                target_kind=kinds[c],  # type: ignore[arg-type]
+                distance_cm=d,
+                angle_deg=g if has_goal else None,
+                heading_angle_deg=h,
             )
-            for i, kind, d, a, h in zip(
-                ids, kinds, relative.distance_cm, angles, relative.angle_deg, strict=True
+            for c, d, g, h in zip(
+                cols,
+                distance[k, cols].tolist(),
+                to_goal[k, cols].tolist(),
+                relative[k, cols].tolist(),
+                strict=True,
             )
         ]
+        direction = float(goal[k]) if has_goal else None
         plans.append(RobotPlan(robot_id=robot.id, goal_direction_deg=direction, entries=entries))
     return plans
