@@ -413,8 +413,9 @@ class Arena:
                     **area,
                 )
                 break
-            except ValueError:
-                if attempt == _PLACE_RESTARTS - 1:
+            except ValueError as exc:
+                crowded = "cover" in str(exc)  # too many robots: no draw will do
+                if crowded or attempt == _PLACE_RESTARTS - 1:
                     raise
         self._paths = paths
         self._x = np.concatenate([np.zeros(r_count), ox])

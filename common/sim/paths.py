@@ -35,6 +35,8 @@ OBSTACLE_SLACK_CM = 6.0
 #: Two paths cross where their sampled points come this close (cm).
 _CROSSING_CM = 1.5
 _TRIES = 2000
+#: Robots (with their gaps) may cover at most this share of the arena.
+_MAX_CROWD = 0.3
 
 
 @dataclass(frozen=True)
@@ -100,6 +102,13 @@ def plan_paths(
     are found.
     """
     (x0, x1), (y0, y1) = arena_x_cm, arena_y_cm
+    crowd = n * math.pi * (reach_cm + gap_cm) ** 2 / max((x1 - x0) * (y1 - y0), 1e-9)
+    if crowd > _MAX_CROWD:
+        raise ValueError(
+            f"cannot find crossing paths for {n} robots of radius {reach_cm:.1f} cm: with "
+            f"their gaps they would cover {crowd:.0%} of the arena x {arena_x_cm} cm, y "
+            f"{arena_y_cm} cm (at most {_MAX_CROWD:.0%}); use fewer or smaller robots"
+        )
     span = min(x1 - x0, y1 - y0) / 2.0 - reach_cm
     a_lo, a_hi = MIN_TURN_RADIUS_CM, max(MIN_TURN_RADIUS_CM, 0.8 * span)
     # one period for all: the mean perimeter at the wanted speed
