@@ -8,8 +8,8 @@ import math
 from pathlib import Path
 
 import msgspec
-from pipeline_helpers import Recorder
-from zenoh_helpers import alive, client, free_port, ovis_cmd, spawn, stop, wait_for
+from pipeline_helpers import running_pipeline
+from zenoh_helpers import wait_for
 
 from ovis.common.config import dump_toml, load_config
 from ovis.common.sim.scenes import marked_scene
@@ -19,28 +19,16 @@ STAGES = ("capture", "preprocess", "label", "pose")
 
 
 def test_robots_travel_the_bus_with_identity_heading_and_planner(tmp_path: Path) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
     data = msgspec.to_builtins(marked_scene(load_config(), 4, 6))
     data["service"].update(fps=15.0, auto_calibrate=False, state_dir=str(tmp_path / "state"))
-    data["zenoh"] = {"connect": [endpoint]}
-    config = tmp_path / "config.toml"
-    config.write_text(dump_toml(data))
-    procs = {"router": spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")}
-    try:
-        for stage in STAGES:
-            args = ovis_cmd("run", stage, "--config", str(config))
-            procs[stage] = spawn(args, tmp_path / f"{stage}.log")
-        with client(endpoint) as session:
-            wait_for(lambda: alive(session) >= set(STAGES), 60, "the four stages alive")
-            rec = Recorder(session)
-            wait_for(lambda: rec.count() >= 40, 60, "40 obstacle messages")
-            msgs = [m for m in rec.since(10) if m.seq in rec.truth]
-    finally:
-        stop([p for n, p in procs.items() if n != "router"])
-        stop([procs["router"]])
-    for stage in STAGES:
-        log = (tmp_path / f"{stage}.log").read_text()
-        assert "Traceback" not in log, f"{stage} log:\n{log}"
+
+    def config_text(endpoint: str) -> str:
+        return dump_toml({**data, "zenoh": {"connect": [endpoint]}})
+
+    with running_pipeline(tmp_path, config_text=config_text, stages=STAGES) as p:
+        rec = p.rec
+        wait_for(lambda: rec.count() >= 40, 60, "40 obstacle messages")
+        msgs = [m for m in rec.since(10) if m.seq in rec.truth]
     assert len(msgs) >= 20
     for m in msgs:
         truth = {o.id: o for o in rec.truth[m.seq].objects if o.kind == "robot"}
