@@ -42,10 +42,11 @@ GROUPS = {
     "calibration": "GA calibration",
     "e2e": "End to end",
     "view": "Live view",
+    "robots": "Marked robots",
     "memory": "Memory",
     "recording": "Recording",
 }
-DEFAULT = ("pipeline", "scaling", "calibration", "e2e", "view", "recording")
+DEFAULT = ("pipeline", "scaling", "calibration", "e2e", "view", "recording", "robots")
 
 
 def log(message: str) -> None:
@@ -86,6 +87,10 @@ def run_groups(names: list[str], quick: bool, memory_s: float) -> list[Row]:
             from benchmarks.recording import recording_rows
 
             rows += recording_rows(quick, log)
+        elif name == "robots":
+            from benchmarks.robots import robots_rows
+
+            rows += robots_rows(quick, log)
         elif name == "memory":
             from benchmarks.bus import memory_rows
 

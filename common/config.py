@@ -20,6 +20,7 @@ import msgspec
 
 __all__ = [
     "CALIBRATED_VARIABLES",
+    "MARKER_DICTIONARIES",
     "PINHOLE_VARIABLES",
     "PRESETS",
     "CalibrationRanges",
@@ -34,6 +35,8 @@ __all__ = [
     "PinholeRanges",
     "PointsFile",
     "PoseConfig",
+    "RobotFilterConfig",
+    "RobotSpec",
     "ServiceConfig",
     "SimulatorConfig",
     "ZenohConfig",
@@ -319,6 +322,68 @@ class GAConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     polish: bool = False
 
 
+#: Marker dictionaries ``[pose] marker_dictionary`` may name, and how many markers each
+#: holds (ids run from 0): AprilTag 36h11 and OpenCV's ArUco 4×4, 5×5 and 6×6 sets.
+MARKER_DICTIONARIES: dict[str, int] = {
+    "apriltag_36h11": 587,
+    **{f"aruco_{n}x{n}_{k}": k for n in (4, 5, 6) for k in (50, 100, 250, 1000)},
+}
+
+MarkerDictionary = Literal[
+    "apriltag_36h11",
+    "aruco_4x4_50",
+    "aruco_4x4_100",
+    "aruco_4x4_250",
+    "aruco_4x4_1000",
+    "aruco_5x5_50",
+    "aruco_5x5_100",
+    "aruco_5x5_250",
+    "aruco_5x5_1000",
+    "aruco_6x6_50",
+    "aruco_6x6_100",
+    "aruco_6x6_250",
+    "aruco_6x6_1000",
+]
+
+Angle = _rng(-360.0, 360.0)
+
+
+class RobotSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """One marked robot (``[[pose.robots]]``): its identity and the marker on its top.
+
+    ``marker_side_cm`` is the side of the marker's black square (what OpenCV calls the
+    marker length), printed flat on the robot's top at ``marker_height_cm`` above the
+    floor with its top edge towards the robot's front (its heading), centred on the
+    robot's centre. ``radius_cm`` is the robot's footprint radius: blobs within it are
+    the robot's, and the other robots plan around a disk of that radius. A goal point
+    or goal line of its own overrides ``[pose] goal_cm``/``goal_angle_deg``.
+    """
+
+    id: Annotated[int, msgspec.Meta(ge=0, le=1_000_000)]
+    name: Annotated[str, msgspec.Meta(min_length=1, max_length=64)]
+    marker_id: Annotated[int, msgspec.Meta(ge=0, le=100_000)]
+    marker_side_cm: Annotated[float, msgspec.Meta(gt=0.0, le=1e4)]
+    marker_height_cm: _rng(0.0, 1e4)
+    radius_cm: Annotated[float, msgspec.Meta(gt=0.0, le=1e4)]
+    goal_cm: PairF | None = None
+    goal_angle_deg: Angle | None = None
+
+    def __post_init__(self) -> None:
+        if self.goal_cm is not None and not all(math.isfinite(v) for v in self.goal_cm):
+            raise ValueError(f"pose.robots: robot {self.name!r} goal_cm must be finite")
+
+
+class RobotFilterConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """The constant-velocity Kalman filter of each marked robot (``[pose.filter]``; see
+    :mod:`ovis.common.world.robots`): the spread of the unmodelled accelerations (white
+    noise driving the velocities) and of one marker measurement."""
+
+    accel_cm_s2: Annotated[float, msgspec.Meta(gt=0.0, le=1e6)] = 100.0
+    yaw_accel_deg_s2: Annotated[float, msgspec.Meta(gt=0.0, le=1e7)] = 2000.0
+    position_sigma_cm: Annotated[float, msgspec.Meta(gt=0.0, le=1e3)] = 0.02
+    heading_sigma_deg: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 0.15
+
+
 class PoseConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Robot/obstacle rule, object heights, tracking and goal (paper §5.2).
 
@@ -334,11 +399,39 @@ class PoseConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     track_gate_cm: Annotated[float, msgspec.Meta(gt=0.0, le=1e4)] = 20.0
     goal_cm: PairF | None = None
     goal_angle_deg: _rng(-360.0, 360.0) | None = None
+    #: marked robots; empty: the one robot is picked by the compactness rule above
+    robots: Annotated[list[RobotSpec], msgspec.Meta(max_length=1000)] = []
+    marker_dictionary: MarkerDictionary = "aruco_4x4_50"
+    #: a marked robot not seen for this long (s) is dropped; until then it is reported
+    #: where its filter predicts it, with the age of its last sighting
+    robot_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 1.0
+    filter: RobotFilterConfig = msgspec.field(default_factory=RobotFilterConfig)
 
     def __post_init__(self) -> None:
         _check_pair("pose", "robot_area_cm2", self.robot_area_cm2, 0.0, 1e7)
         if self.goal_cm is not None and not all(math.isfinite(v) for v in self.goal_cm):
             raise ValueError("pose.goal_cm must be finite")
+        size = MARKER_DICTIONARIES[self.marker_dictionary]
+        by_marker: dict[int, RobotSpec] = {}
+        by_id: dict[int, RobotSpec] = {}
+        for robot in self.robots:
+            if robot.marker_id >= size:
+                raise ValueError(
+                    f"pose.robots: robot {robot.name!r} has marker_id {robot.marker_id} but "
+                    f"{self.marker_dictionary} holds markers 0-{size - 1}"
+                )
+            other = by_marker.setdefault(robot.marker_id, robot)
+            if other is not robot:
+                raise ValueError(
+                    f"pose.robots: robots {other.name!r} (id {other.id}) and {robot.name!r} "
+                    f"(id {robot.id}) both use marker {robot.marker_id}; give each its own"
+                )
+            other = by_id.setdefault(robot.id, robot)
+            if other is not robot:
+                raise ValueError(
+                    f"pose.robots: robots {other.name!r} and {robot.name!r} both have id "
+                    f"{robot.id}; give each its own"
+                )
 
 
 class SimulatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -361,6 +454,10 @@ class SimulatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     clutter_area_cm2: PairF = (1.0, 12.0)
     clutter_level: _rng(0.0, 255.0) = 235.0
     supersample: Annotated[int, msgspec.Meta(ge=1, le=8)] = 3
+    #: grey level of a marker's black cells (marked robots, ``pose.robots``)
+    marker_level: _rng(0.0, 255.0) = 25.0
+    #: simulated frames per second: the ground truth's velocities are in cm/s at this rate
+    fps: Annotated[float, msgspec.Meta(gt=0.0, le=10000.0)] = 30.0
 
     def __post_init__(self) -> None:
         _check_pair("simulator", "arena_x_cm", self.arena_x_cm, -1e5, 1e5)

@@ -20,7 +20,10 @@ from numpy.typing import NDArray
 from ovis.common.calibration.file import Calibration
 from ovis.common.camera.projection import PixelJacobian
 from ovis.common.sim.arena import SimObject
+from ovis.common.vision.markers import Markers
 from ovis.common.world.detection import Blobs, DetectedObject, PlannerEntry
+from ovis.common.world.plans import RobotPlan
+from ovis.common.world.robots import RobotState, UnknownMarker
 
 __all__ = [
     "ENCODING",
@@ -34,6 +37,7 @@ __all__ = [
     "FloorMaps",
     "Frame",
     "FrameHeader",
+    "MarkerCorners",
     "Message",
     "MessageError",
     "ObstacleFrame",
@@ -137,6 +141,32 @@ class FrameHeader(_Msg, tag="frame", kw_only=True):
     cols: Side
 
 
+class MarkerCorners(msgspec.Struct):
+    """One decoded marker: its id and four corners (row, col, in OpenCV's order:
+    top-left, top-right, bottom-right, bottom-left of the printed marker)."""
+
+    id: Annotated[int, msgspec.Meta(ge=0)]
+    corners: Annotated[list[Finite], msgspec.Meta(min_length=8, max_length=8)]
+
+    @staticmethod
+    def of(markers: Markers) -> list[MarkerCorners]:
+        return [
+            MarkerCorners(int(i), c.reshape(8).tolist())
+            for i, c in zip(markers.ids, markers.corners, strict=True)
+        ]
+
+    @staticmethod
+    def to_markers(found: list[MarkerCorners] | None, at_border: int = 0) -> Markers:
+        if not found:
+            return Markers(Markers.none().ids, Markers.none().corners, at_border)
+        ids = np.array([m.id for m in found], dtype=np.int64)
+        corners = np.array([m.corners for m in found], dtype=np.float64).reshape(-1, 4, 2)
+        return Markers(ids, corners, at_border)
+
+
+MarkerList = Annotated[list[MarkerCorners], msgspec.Meta(max_length=10000)]
+
+
 class BinaryFrame(_Msg, tag="binary", kw_only=True):
     """A binarized frame (paper §3), one bit per pixel (``np.packbits``, row-major)."""
 
@@ -147,6 +177,9 @@ class BinaryFrame(_Msg, tag="binary", kw_only=True):
     bits: bytes
     threshold: Annotated[int, msgspec.Meta(ge=0, le=255)]
     calibration_version: Annotated[int, msgspec.Meta(ge=0)]
+    #: markers decoded in the grey frame (None: none looked for, no robot configured)
+    markers: MarkerList | None = None
+    markers_at_border: Annotated[int, msgspec.Meta(ge=0)] = 0
 
     def __post_init__(self) -> None:
         expected = (self.rows * self.cols + 7) // 8
@@ -223,6 +256,9 @@ class BlobList(_Msg, tag="blobs", kw_only=True):
     calibration_version: Annotated[int, msgspec.Meta(ge=0)]
     blobs: Annotated[list[BlobMeasure], msgspec.Meta(max_length=100000)]
     maps: FloorMaps | None = None
+    #: the binary frame's markers, passed on to the pose service
+    markers: MarkerList | None = None
+    markers_at_border: Annotated[int, msgspec.Meta(ge=0)] = 0
 
     def __post_init__(self) -> None:
         if self.maps is None:
@@ -254,6 +290,14 @@ class ObstacleFrame(_Msg, tag="obstacles", kw_only=True):
 
     ``robot`` is None when no blob passes the robot rule. ``frame_age_ms`` is how old the
     frame was when this was published; ``calibration_version`` which calibration made it.
+
+    With marked robots (``[[pose.robots]]``), ``robots`` holds each robot's filtered pose,
+    heading, velocity and age, ``robot_plans`` its planner inputs (obstacles and the
+    other robots; angles from its goal direction and from its heading),
+    ``unknown_markers`` the markers no robot carries and ``markers_at_border`` those cut
+    by the image border; ``robot`` is then the first robot's blob and ``planner`` its
+    entries, so a subscriber written for one robot keeps working. These fields are new
+    (defaults: empty), the earlier ones unchanged.
     """
 
     seq: Seq
@@ -265,6 +309,10 @@ class ObstacleFrame(_Msg, tag="obstacles", kw_only=True):
     obstacles: list[DetectedObject]
     planner: list[PlannerEntry]
     arena: str = "default"
+    robots: list[RobotState] = []
+    robot_plans: list[RobotPlan] = []
+    unknown_markers: list[UnknownMarker] = []
+    markers_at_border: Annotated[int, msgspec.Meta(ge=0)] = 0
 
 
 class StreamHealth(_Msg, tag="health", kw_only=True):

@@ -9,12 +9,14 @@ import time
 from ovis.common.messages import Frame
 from ovis.common.pipeline.stages import binary_frame, clock_skew
 from ovis.common.vision.preprocess import ImageError, as_gray
+from ovis.common.world.marker_search import FrameMarkers
 from ovis.services.service import Service
 
 
 def main(service: Service) -> None:
     service.follow_calibration()
     publish = service.publisher(service.topics.binary)
+    find_markers = FrameMarkers()
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
         frame = service.decode(payload, Frame, "frame")
@@ -29,6 +31,11 @@ def main(service: Service) -> None:
             service.error("bad_frame", f"frame {frame.seq}: {exc}")
             return
         service.saw_frame(frame.seq, frame.stamp_ns)
-        service.publish_result(publish, binary_frame(frame, gray, calib))
+        service.publish_result(
+            publish,
+            binary_frame(
+                frame, gray, calib, find_markers(gray, calib.version, calib.camera, calib.pose)
+            ),
+        )
 
     service.serve(service.inbox(service.topics.frames), handle)

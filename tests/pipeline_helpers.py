@@ -9,7 +9,7 @@ import re
 import subprocess
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -80,33 +80,44 @@ class Pipeline:
 
 
 @contextlib.contextmanager
-def running_pipeline(tmp: Path, service_toml: str = "", timeout: float = 60) -> Iterator[Pipeline]:
+def running_pipeline(
+    tmp: Path,
+    service_toml: str = "",
+    timeout: float = 60,
+    *,
+    config_text: Callable[[str], str] | None = None,
+    stages: tuple[str, ...] = STAGES,
+) -> Iterator[Pipeline]:
     """`ovis router` plus each stage as its own `ovis run` process, with ``service_toml``
-    lines added to the [service] table; yields once calibrated obstacles flow. On exit
-    every process is stopped and no stage log may hold a traceback."""
+    lines added to the [service] table (or the configuration ``config_text(endpoint)``);
+    yields once obstacles flow (with the calibrator among ``stages``: calibrated ones).
+    On exit every process is stopped and no stage log may hold a traceback."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = tmp / "config.toml"
     config.write_text(
-        f'preset = "default"\n[service]\n{service_toml}\nstate_dir = "{tmp / "state"}"\n'
+        config_text(endpoint)
+        if config_text is not None
+        else f'preset = "default"\n[service]\n{service_toml}\nstate_dir = "{tmp / "state"}"\n'
         f'[zenoh]\nconnect = ["{endpoint}"]\n'
     )
     procs = {"router": spawn(ovis_cmd("router", "--listen", endpoint), tmp / "router.log")}
-    for stage in STAGES:
+    for stage in stages:
         procs[stage] = spawn(ovis_cmd("run", stage, "--config", str(config)), tmp / f"{stage}.log")
+    least = 1 if "calibrator" in stages else 0
     try:
         with client(endpoint) as session:
-            wait_for(lambda: alive(session) >= set(STAGES), timeout, "all five services alive")
+            wait_for(lambda: alive(session) >= set(stages), timeout, f"{stages} alive")
             rec = Recorder(session)
             wait_for(
-                lambda: any(m.calibration_version >= 1 for m in rec.since(0)),
+                lambda: any(m.calibration_version >= least for m in rec.since(0)),
                 timeout,
-                "obstacle messages made with the initial calibration",
+                "obstacle messages" + (" made with the initial calibration" if least else ""),
             )
             yield Pipeline(endpoint, session, rec, procs, tmp, config)
     finally:
         stop([p for n, p in procs.items() if n != "router"])
         stop([procs["router"]])
-    for stage in STAGES:
+    for stage in stages:
         log = (tmp / f"{stage}.log").read_text()
         assert "Traceback" not in log, f"{stage} log:\n{log}"
 

@@ -25,6 +25,7 @@ import zenoh
 
 from ovis.common.messages import ENCODING, ObstacleFrame, Topics, TruthFrame, encode
 from ovis.common.world.detection import DetectedObject, PlannerEntry
+from ovis.common.world.robots import RobotState
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "deploy" / "examples" / "subscribe_obstacles.py"
 TIMEOUT_S = 20.0
@@ -102,7 +103,27 @@ def _obj(id: int, kind: str, x: float, y: float, r: float) -> DetectedObject:
     )
 
 
-def _frame(seq: int, *, robot: bool = True) -> ObstacleFrame:
+def _robots(seq: int) -> list[RobotState]:
+    return [
+        RobotState(
+            id=i,
+            name=f"bot{i}",
+            marker_id=10 + i,
+            x_cm=20.0 * i + seq,
+            y_cm=30.5,
+            z_cm=5.0,
+            heading_deg=-135.25 + i,
+            vx_cm_s=12.0,
+            vy_cm_s=-3.5,
+            yaw_rate_deg_s=0.0,
+            age_s=0.0 if i == 1 else 0.25,
+            radius_cm=9.0,
+        )
+        for i in (1, 2)
+    ]
+
+
+def _frame(seq: int, *, robot: bool = True, marked: bool = False) -> ObstacleFrame:
     """A frame whose values depend on seq, so a line printed can be matched to its frame."""
     obstacles = [
         _obj(2 + seq % 3, "obstacle", 10.0 + seq, 20.5, 4.25),
@@ -120,6 +141,7 @@ def _frame(seq: int, *, robot: bool = True) -> ObstacleFrame:
             PlannerEntry(obstacle_id=o.id, distance_cm=12.5 + seq + i, angle_deg=-45.25 + 90 * i)
             for i, o in enumerate(obstacles)
         ],
+        robots=_robots(seq) if marked else [],
     )
 
 
@@ -131,6 +153,7 @@ def _publish_until(
     *,
     robot: bool = True,
     junk: bool = False,
+    marked: bool = False,
 ) -> dict[int, ObstacleFrame]:
     """Publish frames (seq 0, 1, …) every 50 ms until ``n_lines`` lines or the process ends."""
     publisher = session.declare_publisher(
@@ -146,7 +169,7 @@ def _publish_until(
                 publisher.put(b"\xc1 not msgpack")
                 publisher.put(encode(TruthFrame(seq=seq, objects=[])))
                 publisher.put(b"\x93\x01\x02\x03")  # an array, not a map
-            sent[seq] = _frame(seq, robot=robot)
+            sent[seq] = _frame(seq, robot=robot, marked=marked)
             publisher.put(encode(sent[seq]))
             seq += 1
             time.sleep(0.05)
@@ -217,6 +240,36 @@ def test_text_output_names_robot_and_each_obstacle() -> None:
         "  obstacle 7: at (-3.5, 40.0) cm, radius 6.0 cm, "
         f"distance {frame.planner[1].distance_cm:.1f} cm, angle 44.8 deg"
     )
+
+
+def test_marked_robots_are_printed_with_heading_and_velocity() -> None:
+    with _router() as (session, endpoint):
+        text = _spawn("--connect", endpoint, "--count", "1")
+        lines = _spawn("--connect", endpoint, "--count", "1", "--json")
+        try:
+            assert text.stdout is not None and lines.stdout is not None
+            out, js = _Lines(text.stdout), _Lines(lines.stdout)
+            sent = _publish_until(session, text, out, 5, marked=True)
+            while lines.poll() is None and not js.lines:
+                _publish_until(session, lines, js, 1, marked=True)
+            assert text.wait(TIMEOUT_S) == 0 and lines.wait(TIMEOUT_S) == 0
+        finally:
+            _stop(text)
+            _stop(lines)
+    out.join()
+    js.join()
+    first = int(out.lines[0].split()[1])
+    x = 20.0 + sent[first].robots[0].x_cm - 20.0
+    assert out.lines[3] == (
+        f"  robot 1 bot1: at ({x:.1f}, 30.5) cm, heading -134.2 deg, velocity (12.0, -3.5) "
+        "cm/s, seen 0.00 s ago"
+    )
+    assert out.lines[4].startswith("  robot 2 bot2:") and out.lines[4].endswith("seen 0.25 s ago")
+    got = json.loads(js.lines[0])
+    assert [(r["id"], r["marker_id"], r["heading_deg"]) for r in got["robots"]] == [
+        (1, 11, -134.25),
+        (2, 12, -133.25),
+    ]
 
 
 def test_a_frame_without_robot_is_printed_too() -> None:

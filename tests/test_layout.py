@@ -36,7 +36,7 @@ LAYERS: dict[str, set[str]] = {
     "vision": {"config"},
     "world": {"config", "camera", "vision"},
     "calibration": {"config", "atomic", "camera", "vision"},
-    "sim": {"config", "atomic", "camera"},
+    "sim": {"config", "atomic", "camera", "vision"},
     "capture": {"config", "atomic", "camera", "sim", "vision"},
     "messages": {"config", "camera", "vision", "world", "calibration", "sim"},
     "pipeline": FOUNDATION,

@@ -1000,3 +1000,35 @@ def test_blob_list_carries_the_label_services_floor_maps_and_refuses_ragged_ones
     bad["maps"]["obstacle"]["y_cm"][0] = float("nan")
     with pytest.raises(MessageError, match=r"\$\.maps\.obstacle\.y_cm"):
         decode(msgspec.msgpack.encode(bad), BlobList)
+
+
+def test_an_obstacle_frame_with_robots_still_decodes_with_the_earlier_schema() -> None:
+    """A subscriber built on the schema before marked robots (no robots fields) reads
+    today's message: the new fields are extra map keys, the old ones unchanged."""
+    from ovis.common.messages import ObstacleFrame, message_schema
+    from ovis.common.world.robots import RobotState
+
+    class EarlierObstacleFrame(msgspec.Struct, tag_field="type", tag="obstacles", kw_only=True):
+        seq: int
+        stamp_ns: int
+        published_ns: int
+        frame_age_ms: float
+        calibration_version: int
+        robot: dict | None
+        obstacles: list[dict]
+        planner: list[dict]
+        arena: str = "default"
+
+    robot = RobotState(id=3, name="c", marker_id=4, x_cm=1.0, y_cm=2.0, z_cm=5.0,
+                       heading_deg=-90.0, vx_cm_s=1.0, vy_cm_s=0.0, yaw_rate_deg_s=0.0,
+                       age_s=0.1, radius_cm=9.0)  # fmt: skip
+    new = ObstacleFrame(
+        seq=5, stamp_ns=7, published_ns=8, frame_age_ms=1.0, calibration_version=2,
+        robot=None, obstacles=[], planner=[], robots=[robot],
+    )  # fmt: skip
+    old = msgspec.msgpack.decode(encode(new), type=EarlierObstacleFrame)
+    assert (old.seq, old.calibration_version, old.robot, old.obstacles) == (5, 2, None, [])
+    assert decode(encode(new), ObstacleFrame).robots == [robot]
+    defs = message_schema()["$defs"]
+    assert {"robots", "robot_plans", "unknown_markers"} <= set(defs["ObstacleFrame"]["properties"])
+    assert {"heading_deg", "age_s", "vx_cm_s"} <= set(defs["RobotState"]["properties"])

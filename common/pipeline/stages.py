@@ -6,13 +6,21 @@ frame before it is processed."""
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
 from ovis.common.calibration.file import Calibration
 from ovis.common.config import CameraModel
-from ovis.common.messages import BinaryFrame, BlobList, FloorMaps, Frame, ObstacleFrame, PlaneMap
+from ovis.common.messages import (
+    BinaryFrame,
+    BlobList,
+    FloorMaps,
+    Frame,
+    MarkerCorners,
+    ObstacleFrame,
+    PlaneMap,
+)
 from ovis.common.vision.preprocess import GrayImage, binarize, smooth
 from ovis.common.world.detection import Detector, measure_blobs_and_maps, size_filter_px
 
@@ -58,9 +66,13 @@ def wrong_size(frame: _Sized, camera: CameraModel, kind: str) -> str | None:
     )
 
 
-def binary_frame(frame: Frame, gray: GrayImage, calib: Calibration) -> BinaryFrame:
+def binary_frame(
+    frame: Frame, gray: GrayImage, calib: Calibration, markers: Any = None
+) -> BinaryFrame:
     """The preprocessing stage: the median step and binarization (§3) of ``gray`` (the
-    frame's grey image) with the calibration's threshold and polarity, packed."""
+    frame's grey image) with the calibration's threshold and polarity, packed; with the
+    robots' marker corners found on the grey image (``markers``, from
+    :class:`~ovis.common.world.marker_search.FrameMarkers`; None without robots)."""
     params = calib.image
     binary = binarize(smooth(gray, params.median), params.threshold, params.polarity)
     return BinaryFrame(
@@ -71,6 +83,8 @@ def binary_frame(frame: Frame, gray: GrayImage, calib: Calibration) -> BinaryFra
         bits=np.packbits(binary).tobytes(),
         threshold=params.threshold,
         calibration_version=calib.version,
+        markers=None if markers is None else MarkerCorners.of(markers),
+        markers_at_border=0 if markers is None else markers.partial,
     )
 
 
@@ -106,6 +120,8 @@ def blob_list(frame: BinaryFrame, calib: Calibration, min_area_px: float) -> Blo
         calibration_version=calib.version,
         blobs=BlobList.measures(blobs),
         maps=FloorMaps(obstacle=PlaneMap.of(floor), robot=PlaneMap.of(top)),
+        markers=frame.markers,
+        markers_at_border=frame.markers_at_border,
     )
 
 
@@ -118,7 +134,10 @@ def obstacle_frame(
     floor = top = None
     if msg.maps is not None and msg.calibration_version == calibration_version:
         floor, top = msg.maps.obstacle.jacobian(), msg.maps.robot.jacobian()
-    det = detector.from_blobs(msg.to_blobs(), floor=floor, top=top, stamp_s=msg.stamp_ns / 1e9)
+    markers = MarkerCorners.to_markers(msg.markers, msg.markers_at_border)
+    det = detector.from_blobs(
+        msg.to_blobs(), floor=floor, top=top, stamp_s=msg.stamp_ns / 1e9, markers=markers
+    )
     return ObstacleFrame(
         seq=msg.seq,
         stamp_ns=msg.stamp_ns,
@@ -129,4 +148,8 @@ def obstacle_frame(
         obstacles=[o for o in det.objects if o.kind == "obstacle"],
         planner=det.planner,
         arena=arena,
+        robots=det.robots,
+        robot_plans=det.robot_plans,
+        unknown_markers=det.unknown_markers,
+        markers_at_border=det.markers_at_border,
     )

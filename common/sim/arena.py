@@ -58,7 +58,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import cv2
 import msgspec
@@ -73,7 +73,16 @@ from ovis.common.camera.projection import (
     principal_point_rowcol,
     project,
 )
-from ovis.common.config import CameraModel, CameraParams, ControlPoint, OvisConfig, dump_toml
+from ovis.common.config import (
+    CameraModel,
+    CameraParams,
+    ControlPoint,
+    OvisConfig,
+    PoseConfig,
+    dump_toml,
+)
+from ovis.common.sim.paths import place_still_obstacles, plan_paths
+from ovis.common.vision.markers import marker_cells
 
 __all__ = [
     "CLUTTER_CLEARANCE_CM",
@@ -114,7 +123,7 @@ _STREAM_NOISE = 3
 FloatArray = NDArray[np.float64]
 
 
-class SimObject(msgspec.Struct, kw_only=True, frozen=True):
+class SimObject(msgspec.Struct, kw_only=True, frozen=True, omit_defaults=True):
     """Ground truth of one object in one frame (world cm, degrees).
 
     ``x_cm, y_cm`` is the centre of the top face, ``z_cm`` its height; ``radius_cm`` is
@@ -133,6 +142,11 @@ class SimObject(msgspec.Struct, kw_only=True, frozen=True):
     shape: Literal["rect", "disk"]
     length_cm: float
     width_cm: float
+    #: marked robots only (``pose.robots``): its marker, and its velocity at
+    #: ``simulator.fps`` frames per second
+    marker_id: int | None = None
+    vx_cm_s: float = 0.0
+    vy_cm_s: float = 0.0
 
 
 class FrameTruth(msgspec.Struct, kw_only=True, frozen=True):
@@ -231,6 +245,33 @@ def _shape_gaps(
     return np.where(orect, to_rect, np.hypot(dx, dy) - ohalf_len) - half_len
 
 
+class MarkedRobots(NamedTuple):
+    """What the simulator draws of each marked robot: marker id, side (cm), printed cells
+    (see :func:`ovis.common.vision.markers.marker_cells`), and ``hand`` = ±1, which way
+    the marker's right side is from its top as seen from above (chosen per camera so the
+    image shows the marker unmirrored, as a real camera would)."""
+
+    marker_ids: list[int]
+    side_cm: list[float]
+    cells: list[NDArray[np.bool_]]
+    hand: float
+
+    @classmethod
+    def build(cls, pose: PoseConfig, robot_size_cm: tuple[float, float]) -> MarkedRobots:
+        cells = [marker_cells(pose.marker_dictionary, r.marker_id) for r in pose.robots]
+        for r, c in zip(pose.robots, cells, strict=True):
+            quiet = r.marker_side_cm / c.shape[0]  # a white cell all round it
+            if r.marker_side_cm + 2.0 * quiet > min(robot_size_cm):
+                raise ValueError(
+                    f"robot {r.name!r}: a marker of {r.marker_side_cm} cm plus its white "
+                    f"margin does not fit on the simulated robot's top "
+                    f"({robot_size_cm[0]} x {robot_size_cm[1]} cm, simulator.robot_size_cm)"
+                )
+        return cls(
+            [r.marker_id for r in pose.robots], [r.marker_side_cm for r in pose.robots], cells, 1.0
+        )
+
+
 class Arena:
     """A simulated arena: one robot and ``n_obstacles`` disks moving under the camera.
 
@@ -273,10 +314,28 @@ class Arena:
                 f"(robot {z_robot} cm, obstacles {z_obst} cm)"
             )
 
+        self._marked: MarkedRobots | None = None
+        if config.pose.robots:
+            self._setup_marked(cz)
+        else:
+            self._setup_one_robot(cz, z_robot, z_obst)
+        light_rng = np.random.default_rng([self._seed, _STREAM_LIGHT])
+        self._light = lighting_field(
+            self._cam,
+            gradient=sim.lighting_gradient,
+            vignetting=sim.vignetting,
+            direction_rad=float(light_rng.uniform(0.0, 2.0 * math.pi)),
+        )
+        self._light.setflags(write=False)
+
+    def _setup_one_robot(self, cz: float, z_robot: float, z_obst: float) -> None:
+        """The paper's scene: one unmarked robot and moving obstacles."""
+        sim = self._sim
         n = 1 + sim.n_obstacles
         length, width = sim.robot_size_cm
         radii = self._rng.uniform(*sim.obstacle_radius_cm, size=sim.n_obstacles)
         self._kind = ["robot"] + ["obstacle"] * sim.n_obstacles
+        self._ids = list(range(n))
         self._is_rect = np.array([True] + [False] * sim.n_obstacles)
         self._half_len = np.concatenate([[length / 2.0], radii])
         self._half_wid = np.concatenate([[width / 2.0], radii])
@@ -291,14 +350,98 @@ class Arena:
         self._heading = np.zeros(n)
         self._direction = np.zeros(n)
         self._place_all()
-        light_rng = np.random.default_rng([self._seed, _STREAM_LIGHT])
-        self._light = lighting_field(
-            self._cam,
-            gradient=sim.lighting_gradient,
-            vignetting=sim.vignetting,
-            direction_rad=float(light_rng.uniform(0.0, 2.0 * math.pi)),
+
+    def _setup_marked(self, cz: float) -> None:
+        """Marked robots (``pose.robots``) on crossing paths, still obstacles beside them
+        (:mod:`ovis.common.sim.paths`)."""
+        sim, pose = self._sim, self._config.pose
+        marked = MarkedRobots.build(pose, sim.robot_size_cm)
+        self._marked = marked._replace(hand=self._marker_hand(pose.robots[0].marker_height_cm))
+        robots, m = pose.robots, sim.n_obstacles
+        r_count = len(robots)
+        length, width = sim.robot_size_cm
+        radii = self._rng.uniform(*sim.obstacle_radius_cm, size=m)
+        first_free = max(r.id for r in robots) + 1
+        self._kind = ["robot"] * r_count + ["obstacle"] * m
+        self._ids = [r.id for r in robots] + list(range(first_free, first_free + m))
+        self._is_rect = np.array([True] * r_count + [False] * m)
+        self._half_len = np.concatenate([np.full(r_count, length / 2.0), radii])
+        self._half_wid = np.concatenate([np.full(r_count, width / 2.0), radii])
+        z_top = [r.marker_height_cm for r in robots]
+        self._z = np.array(z_top + [pose.obstacle_height_cm] * m, dtype=np.float64)
+        self._shadow = cz / (cz - self._z)
+        self._speed = np.zeros(r_count + m)  # nothing moves by bouncing
+        reach = math.hypot(length, width) / 2.0
+        fx, fy = self._foot
+
+        def seen_at(z: float):
+            s = cz / (cz - z)
+            return lambda x, y: (fx + s * (x - fx), fy + s * (y - fy), s)
+
+        ring = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
+        z_robot = max(z_top)
+
+        def robots_fit(x: FloatArray, y: FloatArray) -> bool:
+            px = (x[:, None] + reach * np.cos(ring)).ravel()
+            py = (y[:, None] + reach * np.sin(ring)).ravel()
+            return self._in_image(px, py, z_robot)[0]
+
+        def obstacle_fits(x: float, y: float, r: float) -> bool:
+            return self._in_image(x + r * np.cos(ring), y + r * np.sin(ring), z_obst)[0]
+
+        z_obst = pose.obstacle_height_cm
+        area = {"arena_x_cm": sim.arena_x_cm, "arena_y_cm": sim.arena_y_cm, "gap_cm": MIN_GAP_CM}
+        for attempt in range(_PLACE_RESTARTS):  # new paths when the obstacles find no room
+            try:
+                paths = plan_paths(
+                    self._rng,
+                    n=r_count,
+                    reach_cm=reach,
+                    speed_cm_per_frame=sim.speed_cm_per_frame,
+                    seen=seen_at(z_robot),
+                    fits_image=robots_fit,
+                    **area,
+                )
+                ox, oy = place_still_obstacles(
+                    self._rng,
+                    paths,
+                    radii,
+                    reach_cm=reach,
+                    seen_robot=seen_at(z_robot),
+                    seen_obstacle=seen_at(z_obst),
+                    fits_image=obstacle_fits,
+                    **area,
+                )
+                break
+            except ValueError as exc:
+                crowded = "cover" in str(exc)  # too many robots: no draw will do
+                if crowded or attempt == _PLACE_RESTARTS - 1:
+                    raise
+        self._paths = paths
+        self._x = np.concatenate([np.zeros(r_count), ox])
+        self._y = np.concatenate([np.zeros(r_count), oy])
+        self._heading = np.zeros(r_count + m)
+        self._direction = np.zeros(r_count + m)
+        self._follow_paths()
+
+    def _marker_hand(self, z: float) -> float:
+        """+1 when the camera sees the floor as a real camera does from above (the image's
+        (col, row) turn the other way from the world's (x, y)), else −1."""
+        (x0, x1), (y0, y1) = self._sim.arena_x_cm, self._sim.arena_y_cm
+        x, y = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+        p = project(np.array([x, x + 1.0, x]), np.array([y, y, y + 1.0]), z, self._cam)
+        det = (p.col[1] - p.col[0]) * (p.row[2] - p.row[0]) - (p.col[2] - p.col[0]) * (
+            p.row[1] - p.row[0]
         )
-        self._light.setflags(write=False)
+        return 1.0 if float(det) < 0.0 else -1.0
+
+    def _follow_paths(self) -> None:
+        """Marked robots to where their paths are at the current frame."""
+        r_count = len(self._paths.cx)
+        x, y = self._paths.position(self._index)
+        vx, vy = self._paths.velocity(self._index)
+        self._x[:r_count], self._y[:r_count] = x, y
+        self._heading[:r_count] = self._direction[:r_count] = np.arctan2(vy, vx)
 
     # ------------------------------------------------------------------ properties
     @property
@@ -460,6 +603,10 @@ class Arena:
         current positions, so the arena, image and gap rules hold after every move. An
         object that finds no valid move this frame stays put and picks a new direction.
         """
+        if self._marked is not None:
+            self._index += 1
+            self._follow_paths()
+            return
         n = len(self._kind)
         everyone = np.arange(n)
         for i in range(n):
@@ -509,9 +656,18 @@ class Arena:
             radius = math.sqrt(length * width / math.pi) if rect else self._half_len[i]
             heading = math.degrees(self._heading[i]) if rect else 0.0
             heading = (heading + 180.0) % 360.0 - 180.0
+            extra: dict[str, float | int] = {}
+            if self._marked is not None and i < len(self._paths.cx):
+                vx, vy = self._paths.velocity(self._index)
+                fps = self._sim.fps
+                extra = {
+                    "marker_id": self._marked.marker_ids[i],
+                    "vx_cm_s": float(vx[i]) * fps,
+                    "vy_cm_s": float(vy[i]) * fps,
+                }
             objects.append(
                 SimObject(
-                    id=i,
+                    id=self._ids[i],
                     kind=kind,  # type: ignore[arg-type]
                     x_cm=float(self._x[i]),
                     y_cm=float(self._y[i]),
@@ -521,6 +677,7 @@ class Arena:
                     shape="rect" if rect else "disk",
                     length_cm=float(length),
                     width_cm=float(width),
+                    **extra,  # type: ignore[arg-type]
                 )
             )
         return FrameTruth(index=self._index, objects=objects)
@@ -574,6 +731,33 @@ class Arena:
             return dx * dx + dy * dy <= hl * hl
 
         self._paint(level, px, py, float(self._z[i]), inside, self._sim.object_level)
+        if self._marked is not None and i < len(self._marked.marker_ids):
+            self._paint_marker(level, i, x, y, h)
+
+    def _paint_marker(
+        self, level: NDArray[np.float32], i: int, x: float, y: float, h: float
+    ) -> None:
+        """Paint the black cells of robot ``i``'s marker on its top face: centred, its top
+        edge towards the heading, turned so the camera sees it unmirrored."""
+        cells, side = self._marked.cells[i], self._marked.side_cm[i]
+        k = cells.shape[0]
+        up = np.array([math.cos(h), math.sin(h)])
+        right = self._marked.hand * np.array([up[1], -up[0]])
+        half = side / 2.0
+        u = np.array([-half, half, half, -half])
+        v = np.array([half, half, -half, -half])
+        px, py = x + u * right[0] + v * up[0], y + u * right[1] + v * up[1]
+
+        def inside(X: FloatArray, Y: FloatArray) -> NDArray[np.bool_]:
+            dx, dy = X - x, Y - y
+            uu, vv = dx * right[0] + dy * right[1], dx * up[0] + dy * up[1]
+            col = np.floor((uu + half) / side * k).astype(np.int64)
+            row = np.floor((half - vv) / side * k).astype(np.int64)
+            ok = (col >= 0) & (col < k) & (row >= 0) & (row < k)
+            white = cells[np.clip(row, 0, k - 1), np.clip(col, 0, k - 1)]
+            return ok & ~white
+
+        self._paint(level, px, py, float(self._z[i]), inside, self._sim.marker_level)
 
     def _paint_clutter(self, level: NDArray[np.float32]) -> None:
         """Draw this frame's clutter specks on the floor (Z = 0) into ``level``."""
@@ -696,13 +880,14 @@ class Arena:
 
 
 def control_points(truth: FrameTruth | _TruthRecord) -> list[ControlPoint]:
-    """A frame's objects as control points: ``R`` for the robot, ``O1``, ``O2``, … for the
-    obstacles (in id order), at the centres of their top faces (world cm)."""
+    """A frame's objects as control points: ``R`` for the robot (``R<id>`` for each marked
+    robot), ``O1``, ``O2``, … for the obstacles (in id order), at the centres of their top
+    faces (world cm)."""
     points = []
     obstacles = 0
     for obj in truth.objects:
         if obj.kind == "robot":
-            name = "R"
+            name = "R" if obj.marker_id is None else f"R{obj.id}"
         else:
             obstacles += 1
             name = f"O{obstacles}"

@@ -20,11 +20,15 @@ from numpy.typing import NDArray
 from ovis.common.camera.projection import PixelJacobian, pixel_footprint_cm2, pixel_jacobian
 from ovis.common.config import CameraModel, ImageParams, PoseConfig
 from ovis.common.vision.labeling import filter_components, label_components
+from ovis.common.vision.markers import Markers
 from ovis.common.vision.perimeter import perimeter
 from ovis.common.vision.preprocess import ImageError, as_gray, segment, smooth
 from ovis.common.vision.shape import compactness, orientation
+from ovis.common.world.marker_search import marker_boxes, marker_side_px, search_markers
 from ovis.common.world.planner import planner_inputs
+from ovis.common.world.plans import RobotPlan, robot_plans
 from ovis.common.world.pose import ROBOT_ID, Tracker, pick_robot
+from ovis.common.world.robots import RobotState, RobotTracker, UnknownMarker
 
 __all__ = [
     "Blobs",
@@ -85,10 +89,18 @@ class PlannerEntry(msgspec.Struct):
 
 
 class Detection(msgspec.Struct, kw_only=True):
-    """Everything found in one frame."""
+    """Everything found in one frame. With marked robots (``pose.robots``): ``robots``
+    (filtered poses, :mod:`ovis.common.world.robots`), ``robot_plans`` (per robot,
+    :mod:`ovis.common.world.plans`), the markers no robot carries, and how many markers
+    were cut by the image border; ``planner`` is then the first robot's, against the
+    obstacles."""
 
     objects: list[DetectedObject]
     planner: list[PlannerEntry]
+    robots: list[RobotState] = []
+    robot_plans: list[RobotPlan] = []
+    unknown_markers: list[UnknownMarker] = []
+    markers_at_border: int = 0
 
 
 class Blobs(NamedTuple):
@@ -221,6 +233,50 @@ def world_shape(
     return area_cm2, np.where(heading == -90.0, 90.0, heading), elongation
 
 
+class _MarkedFrame(NamedTuple):
+    """Marked robots of one frame and their blobs: ``owner`` (n,) index into ``robots``
+    (−1: nobody's), ``rep`` the blob standing for each robot (−1: none), ``keep`` the
+    blobs to report."""
+
+    robots: list[RobotState]
+    unknown: list[UnknownMarker]
+    owner: NDArray[np.int64]
+    rep: NDArray[np.int64]
+    keep: NDArray[np.bool_]
+    at_border: int
+
+    @classmethod
+    def none(cls, n: int) -> _MarkedFrame:
+        empty = np.zeros(0, dtype=np.int64)
+        return cls([], [], np.full(n, -1, dtype=np.int64), empty, np.ones(n, dtype=bool), 0)
+
+    def fill(
+        self,
+        ids: NDArray[np.int64],
+        xy: NDArray[np.float64],
+        z: NDArray[np.float64],
+        heading: NDArray[np.object_],
+        vel: NDArray[np.float64],
+    ) -> None:
+        """Write each robot's id and filtered pose into its blob's columns (in place)."""
+        for robot, k in zip(self.robots, self.rep.tolist(), strict=True):
+            if k >= 0:
+                ids[k], z[k], heading[k] = robot.id, robot.z_cm, robot.heading_deg
+                xy[k] = robot.x_cm, robot.y_cm
+                vel[k] = robot.vx_cm_s, robot.vy_cm_s
+
+
+def _first_robot_planner(plans: list[RobotPlan]) -> list[PlannerEntry]:
+    """The legacy planner list: the first robot's obstacles, when it has a goal."""
+    if not plans:
+        return []
+    return [
+        PlannerEntry(e.target_id, e.distance_cm, e.angle_deg)
+        for e in plans[0].entries
+        if e.target_kind == "obstacle" and e.angle_deg is not None
+    ]
+
+
 class Detector:
     """Frame → :class:`Detection` with a calibration, keeping obstacle ids across frames."""
 
@@ -228,15 +284,20 @@ class Detector:
         self.camera = camera
         self.image = image
         self.pose = pose
-        self.tracker = Tracker(pose.track_gate_cm)
+        first_obstacle = max((r.id for r in pose.robots), default=ROBOT_ID) + 1
+        self.tracker = Tracker(pose.track_gate_cm, _next_id=first_obstacle)
+        self.robots = RobotTracker(pose)
         self._last_stamp: float | None = None
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
+        self.marker_side_px = marker_side_px(pose, camera)
 
     def recalibrate(self, camera: CameraModel, image: ImageParams, pose: PoseConfig) -> None:
-        """Use a new calibration; obstacle identities are kept."""
+        """Use a new calibration; obstacle and robot identities are kept."""
         self.camera, self.image, self.pose = camera, image, pose
         self.tracker.gate_cm = pose.track_gate_cm
+        self.robots.reconfigure(pose)
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
+        self.marker_side_px = marker_side_px(pose, camera)
 
     def detect(
         self,
@@ -257,6 +318,10 @@ class Detector:
         blobs, (floor, top) = measure_blobs_and_maps(
             binary, self.image, self.camera, planes, min_area_px=self.min_area_px
         )
+        markers = None
+        if self.pose.robots:  # markers are searched for around blobs with a hole only
+            boxes = marker_boxes(*(blobs[:3] + blobs[5:]), self.marker_side_px)
+            markers = search_markers(as_gray(frame), self.pose, self.marker_side_px, boxes)
         return self.from_blobs(
             blobs,
             floor=floor,
@@ -264,6 +329,7 @@ class Detector:
             goal_xy=goal_xy,
             goal_angle_deg=goal_angle_deg,
             stamp_s=stamp_s,
+            markers=markers,
         )
 
     def from_blobs(
@@ -275,12 +341,14 @@ class Detector:
         goal_xy: tuple[float, float] | None = None,
         goal_angle_deg: float | None = None,
         stamp_s: float | None = None,
+        markers: Markers | None = None,
     ) -> Detection:
         """The pose half of :meth:`detect`, from already measured blobs.
 
         ``floor`` and ``top`` are the pixel → plane maps at the blobs' centroids on the
         obstacle plane and on the robot's top plane when already known
-        (:func:`measure_blobs_and_maps`); else they are back-projected here.
+        (:func:`measure_blobs_and_maps`); else they are back-projected here. ``markers``
+        are the frame's decoded markers (used when ``pose.robots`` is configured).
         """
         cam, pose = self.camera, self.pose
         comp = blobs
@@ -288,33 +356,40 @@ class Detector:
         if floor is None or top is None:
             planes = (pose.obstacle_height_cm, pose.robot_height_cm)
             floor, top = plane_maps(comp.row, comp.col, cam, planes)
-        robot = pick_robot(blobs.compactness, comp.area_px * top.area_cm2, pose)
-        is_robot = np.zeros(n, dtype=bool)
-        z = np.full(n, pose.obstacle_height_cm)
+        now = stamp_s if stamp_s is not None else (self._last_stamp or 0.0) + 1.0
+        dt = now - self._last_stamp if self._last_stamp is not None else 1.0
+        self._last_stamp = now
+        marked = _MarkedFrame.none(n)
+        if pose.robots:
+            marked = self._marked(markers or Markers.none(), top, now)
+            is_robot = marked.owner >= 0
+        else:
+            robot = pick_robot(blobs.compactness, comp.area_px * top.area_cm2, pose)
+            is_robot = np.zeros(n, dtype=bool)
+            if robot >= 0:
+                is_robot[robot] = True
+        z = np.where(is_robot, pose.robot_height_cm, pose.obstacle_height_cm)
         j = floor
-        if robot >= 0:  # the robot on its top plane, everything else on the obstacles'
-            is_robot[robot] = True
-            z[robot] = pose.robot_height_cm
+        if is_robot.any():  # the robot on its top plane, everything else on the obstacles'
             pairs = zip(floor, top, strict=True)
             j = PixelJacobian(*(np.where(is_robot, t, f) for f, t in pairs))
         area_cm2, heading, elongation = world_shape(blobs, j)
         radius = np.sqrt(area_cm2 / np.pi)
-        ok = j.valid
+        ok = j.valid & marked.keep
         obstacle = ok & ~is_robot
         ids = np.full(n, ROBOT_ID, dtype=np.int64)
         vel = np.zeros((n, 2))
         xy = np.empty((n, 2))
         xy[:, 0], xy[:, 1] = j.x_cm, j.y_cm
         ids[obstacle], step = self.tracker.update(xy[obstacle])
-        now = stamp_s if stamp_s is not None else (self._last_stamp or 0.0) + 1.0
-        dt = now - self._last_stamp if self._last_stamp is not None else 1.0
-        self._last_stamp = now
         vel[obstacle] = step / dt if dt > 0 else 0.0
+        shown = heading.astype(object)
+        shown[elongation < ROUND_ELONGATION] = None
+        if pose.robots:  # each robot's blob where its marker and filter put it
+            marked.fill(ids, xy, z, shown, vel)
         # Objects in id order (the robot first), built column by column.
         out = np.arange(n)[ok]
         out = out[ids[out].argsort(kind="stable")]
-        shown = heading.astype(object)
-        shown[elongation < ROUND_ELONGATION] = None
         columns = {
             "id": ids,
             "kind": _KINDS[is_robot.astype(np.int64)],
@@ -323,8 +398,8 @@ class Detector:
             "area_px": comp.area_px,
             "perimeter_px": blobs.perimeter_px,
             "compactness": blobs.compactness,
-            "x_cm": j.x_cm,
-            "y_cm": j.y_cm,
+            "x_cm": xy[:, 0],
+            "y_cm": xy[:, 1],
             "z_cm": z,
             "radius_cm": radius,
             "area_cm2": area_cm2,
@@ -335,10 +410,49 @@ class Detector:
         }
         fields = DetectedObject.__struct_fields__  # positional: in field order
         objects = list(map(DetectedObject, *(columns[f][out].tolist() for f in fields)))
-        planner = self._plan(
-            ids[out], is_robot[out], j.x_cm[out], j.y_cm[out], radius[out], goal_xy, goal_angle_deg
+        if not pose.robots:
+            planner = self._plan(
+                ids[out],
+                is_robot[out],
+                xy[out, 0],
+                xy[out, 1],
+                radius[out],
+                goal_xy,
+                goal_angle_deg,
+            )
+            return Detection(objects=objects, planner=planner)
+        obstacle_xyr = np.column_stack([xy[obstacle], radius[obstacle]])
+        plans = robot_plans(marked.robots, ids[obstacle], obstacle_xyr, pose)
+        return Detection(
+            objects=objects,
+            planner=_first_robot_planner(plans),
+            robots=marked.robots,
+            robot_plans=plans,
+            unknown_markers=marked.unknown,
+            markers_at_border=marked.at_border,
         )
-        return Detection(objects=objects, planner=planner)
+
+    def _marked(self, markers: Markers, top: PixelJacobian, now: float) -> _MarkedFrame:
+        """Robots from this frame's markers, and which blobs are whose: a blob whose
+        centroid (on the robot plane) lies within a robot's radius is that robot's (the
+        nearest such blob stands for it; the rest, e.g. bits of its marker, are dropped)."""
+        robots, unknown = self.robots.update(markers, self.camera, now)
+        n = top.x_cm.size
+        owner = np.full(n, -1, dtype=np.int64)
+        rep = np.full(len(robots), -1, dtype=np.int64)
+        if robots and n:
+            rx = np.array([[r.x_cm, r.y_cm, r.radius_cm] for r in robots])
+            d = np.hypot(top.x_cm[:, None] - rx[:, 0], top.y_cm[:, None] - rx[:, 1])
+            d[~(d <= rx[:, 2])] = np.inf  # (NaN for pixels that miss the plane, too)
+            nearest = d.argmin(axis=1)
+            owner = np.where(np.isfinite(d[np.arange(n), nearest]), nearest, -1)
+            for k in range(len(robots)):
+                mine = np.flatnonzero(owner == k)
+                if mine.size:
+                    rep[k] = mine[d[mine, k].argmin()]
+        keep = owner < 0
+        keep[rep[rep >= 0]] = True
+        return _MarkedFrame(robots, unknown, owner, rep, keep, markers.partial)
 
     def _plan(
         self,

@@ -119,7 +119,10 @@ def _finite(value: Any) -> Any:
 def format_json(msg: dict[str, Any]) -> str:
     """One JSON line: seq, stamp_ns, calibration_version, robot, obstacles, planner."""
     keys = ("seq", "stamp_ns", "calibration_version", "robot", "obstacles", "planner")
-    return json.dumps(_finite({k: msg.get(k) for k in keys}), allow_nan=False)
+    out = {k: msg.get(k) for k in keys}
+    if msg.get("robots"):  # marked robots (newer ovis): each with id, pose, heading, velocity
+        out["robots"] = msg["robots"]
+    return json.dumps(_finite(out), allow_nan=False)
 
 
 def _num(value: Any, spec: str = ".1f") -> str:
@@ -127,7 +130,8 @@ def _num(value: Any, spec: str = ".1f") -> str:
 
 
 def format_text(msg: dict[str, Any]) -> str:
-    """Robot position, then each obstacle's id, position, radius, distance and angle."""
+    """Robot position, then each obstacle's id, position, radius, distance and angle, then
+    each marked robot's id, name, position, heading, velocity and age."""
     robot = msg["robot"]
     if isinstance(robot, dict):
         where = f"robot at ({_num(robot.get('x_cm'))}, {_num(robot.get('y_cm'))}) cm"
@@ -149,6 +153,15 @@ def format_text(msg: dict[str, Any]) -> str:
             f"{_num(obstacle.get('y_cm'))}) cm, radius {_num(obstacle.get('radius_cm'))} cm, "
             f"distance {_num(entry.get('distance_cm'))} cm, "
             f"angle {_num(entry.get('angle_deg'))} deg"
+        )
+    for robot in msg.get("robots") or []:  # marked robots (newer ovis; absent before)
+        if not isinstance(robot, dict):
+            continue
+        lines.append(
+            f"  robot {robot.get('id')} {robot.get('name', '')}: at ({_num(robot.get('x_cm'))}, "
+            f"{_num(robot.get('y_cm'))}) cm, heading {_num(robot.get('heading_deg'))} deg, "
+            f"velocity ({_num(robot.get('vx_cm_s'))}, {_num(robot.get('vy_cm_s'))}) cm/s, "
+            f"seen {_num(robot.get('age_s'), '.2f')} s ago"
         )
     return "\n".join(lines)
 

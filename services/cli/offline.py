@@ -62,6 +62,18 @@ def simulate(
     config: ConfigOpt = None,
     preset: PresetOpt = None,
     json: JsonOpt = False,
+    robots: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            max=50,
+            help="Marked robots (each with an ArUco/AprilTag marker, on crossing paths); "
+            "default: the paper's one unmarked robot.",
+        ),
+    ] = None,
+    obstacles: Annotated[
+        int | None, typer.Option(min=0, max=500, help="Obstacles (default: the config's).")
+    ] = None,
 ) -> None:
     """Render frames of the simulated arena with ground truth.
 
@@ -73,7 +85,11 @@ def simulate(
     from ovis.common.sim.arena import write_dataset
 
     cfg = resolve_config(config, preset)
-    info = write_dataset(out, cfg, frames, seed)
+    cfg = _scene(cfg, robots, obstacles)
+    try:
+        info = write_dataset(out, cfg, frames, seed)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
     if json:
         emit_json(info)
         return
@@ -90,6 +106,18 @@ def simulate(
         f"--out {out / 'calib.json'}"
         + (f" --check {info.checks}" if info.checks is not None else "")
     )
+
+
+def _scene(cfg, robots: int | None, obstacles: int | None):
+    """The configuration with --robots marked robots and --obstacles obstacles."""
+    if robots is not None:
+        from ovis.common.sim.scenes import marked_scene
+
+        return marked_scene(cfg, robots, obstacles)
+    if obstacles is not None:
+        sim = msgspec.structs.replace(cfg.simulator, n_obstacles=obstacles)
+        return msgspec.structs.replace(cfg, simulator=sim)
+    return cfg
 
 
 def calibrate(
@@ -377,6 +405,15 @@ def detect(
             "frames, one file per frame: NAME_0000.png …)."
         ),
     ] = None,
+    fps: Annotated[
+        float,
+        typer.Option(
+            min=1e-3,
+            max=1e4,
+            help="Frame rate of the frames, for velocities in cm/s (`ovis simulate` "
+            "frames: simulator.fps, 30); default 1, the paper's Δt = 1 s.",
+        ),
+    ] = 1.0,
 ) -> None:
     """Find the robot and the obstacles in frames; compute the planner's inputs.
 
@@ -410,7 +447,7 @@ def detect(
     results = []
     for i, path in enumerate(images):
         frame = read_image(path)
-        det = detector.detect(frame, goal_xy=goal_xy, goal_angle_deg=goal_angle)
+        det = detector.detect(frame, goal_xy=goal_xy, goal_angle_deg=goal_angle, stamp_s=i / fps)
         results.append((path, frame, det))
         if overlay is not None:
             from ovis.common.analysis.plots import draw_detections, save_png

@@ -185,6 +185,10 @@ def print_detection(path: Path, det) -> None:
             f"{o.radius_cm:.2f}",
         )
     con.print(t)
+    if det.robots or det.unknown_markers:
+        from ovis.services.cli.robots import print_robots
+
+        print_robots(det, con)
     if det.planner:
         p = table("motion planner inputs", ("obstacle", "distance cm", "angle deg"))
         for e in det.planner:

@@ -1,0 +1,151 @@
+"""Fiducial markers in a grey frame (pixels only): ArUco and AprilTag 36h11 via OpenCV's
+``cv2.aruco.ArucoDetector``.
+
+:func:`find_markers` returns each decoded marker's id and its four corners in OpenCV's
+order — the printed marker's top-left, top-right, bottom-right, bottom-left — as
+(row, col), refined to sub-pixel on lines fitted to the marker's edges. A marker with a
+corner closer than :data:`BORDER_MARGIN_PX` to the image border is cut by it (or
+nearly): its corners are not trusted, and it is counted in ``partial`` instead.
+:func:`marker_cells` gives the printed pattern (for the simulator).
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from ovis.common.config import MARKER_DICTIONARIES
+
+__all__ = ["BORDER_MARGIN_PX", "Markers", "find_markers", "marker_cells", "marker_detector"]
+
+#: A marker with a corner nearer than this to the image border is reported as partial.
+BORDER_MARGIN_PX = 2.0
+
+_OPENCV_NAMES = {
+    "apriltag_36h11": "DICT_APRILTAG_36h11",
+    **{f"aruco_{n}x{n}_{k}": f"DICT_{n}X{n}_{k}" for n in (4, 5, 6) for k in (50, 100, 250, 1000)},
+}
+
+
+class Markers(NamedTuple):
+    """Markers decoded in one frame: ids (n,), corners (n, 4, 2) as (row, col) in OpenCV's
+    corner order, and how many were dropped for touching the image border."""
+
+    ids: NDArray[np.int64]
+    corners: NDArray[np.float64]
+    partial: int = 0
+
+    @classmethod
+    def none(cls) -> Markers:
+        return cls(np.zeros(0, dtype=np.int64), np.zeros((0, 4, 2)), 0)
+
+
+def _dictionary(name: str) -> cv2.aruco.Dictionary:
+    if name not in MARKER_DICTIONARIES:
+        raise ValueError(
+            f"unknown marker dictionary {name!r}; choose one of {', '.join(MARKER_DICTIONARIES)}"
+        )
+    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, _OPENCV_NAMES[name]))
+
+
+@cache
+def marker_detector(
+    name: str, side_px: tuple[float, float] | None = None, image_side: int = 0
+) -> cv2.aruco.ArucoDetector:
+    """An ``ArucoDetector`` for a dictionary of :data:`MARKER_DICTIONARIES`, with
+    corners refined on the marker's edges and one adaptive-threshold window (one per settings,
+    reused). ``side_px`` = the (smallest, largest) marker side expected, in pixels, in
+    an image whose larger side is ``image_side``: outlines far outside it are not
+    examined (most of the detector's time goes to examining candidates)."""
+    params = cv2.aruco.DetectorParameters()
+    # corners from lines fitted to the marker's edges: several times steadier than
+    # OpenCV's corner sub-pixel search on blurred, noisy frames (see docs/robots.md)
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_CONTOUR
+    params.adaptiveThreshWinSizeMin = params.adaptiveThreshWinSizeMax = _THRESHOLD_WINDOW
+    if side_px is not None and image_side > 0:
+        lo, hi = side_px
+        params.minMarkerPerimeterRate = 4.0 * _SIZE_SLACK[0] * lo / image_side
+        params.maxMarkerPerimeterRate = 4.0 * _SIZE_SLACK[1] * hi / image_side
+    return cv2.aruco.ArucoDetector(_dictionary(name), params)
+
+
+#: Adaptive-threshold window (px) of the marker detector.
+_THRESHOLD_WINDOW = 15
+#: Marker outlines between these multiples of the expected sides are examined.
+_SIZE_SLACK = (0.6, 1.5)
+
+
+def find_markers(
+    gray: NDArray[np.uint8],
+    dictionary: str,
+    *,
+    side_px: tuple[float, float] | None = None,
+    boxes: NDArray[np.int64] | None = None,
+) -> Markers:
+    """Decode every marker of ``dictionary`` in a grey uint8 frame.
+
+    ``side_px``: the range of marker sides to look for (pixels); ``boxes``: (k, 4)
+    ``row0, row1, col0, col1`` regions to search instead of the whole frame (e.g. around
+    the blobs that may carry a marker: much faster).
+    """
+    if gray.dtype != np.uint8 or gray.ndim != 2:
+        raise ValueError(f"expected a grey uint8 (H, W) image, got {gray.dtype} {gray.shape}")
+    rows, cols = gray.shape
+    if boxes is None:
+        boxes = np.array([[0, rows, 0, cols]], dtype=np.int64)
+    found_ids: list[NDArray[np.int64]] = []
+    found_rc: list[NDArray[np.float64]] = []
+    for r0, r1, c0, c1 in np.asarray(boxes, dtype=np.int64).reshape(-1, 4).tolist():
+        r0, c0, r1, c1 = max(r0, 0), max(c0, 0), min(r1, rows), min(c1, cols)
+        if r1 - r0 < 8 or c1 - c0 < 8:
+            continue
+        # a 3×3 median first: a dark speck touching a marker's edge (sensor pepper, dust)
+        # otherwise bends its outline out of a quadrilateral and the marker is missed
+        crop = cv2.medianBlur(np.ascontiguousarray(gray[r0:r1, c0:c1]), 3)
+        detector = marker_detector(dictionary, side_px, max(r1 - r0, c1 - c0))
+        corners, ids, _ = detector.detectMarkers(crop)
+        if ids is None or not len(ids):
+            continue
+        xy = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)  # OpenCV: x = col, y = row
+        found_rc.append(xy[:, :, ::-1] + np.array([r0, c0], dtype=np.float64))
+        found_ids.append(np.asarray(ids, dtype=np.int64).reshape(-1))
+    if not found_ids:
+        return Markers.none()
+    ids, rc = np.concatenate(found_ids), np.concatenate(found_rc)
+    ids, rc = _unique(ids, rc)
+    m = BORDER_MARGIN_PX
+    inside = (
+        (rc[:, :, 0] >= m)
+        & (rc[:, :, 0] <= rows - 1 - m)
+        & (rc[:, :, 1] >= m)
+        & (rc[:, :, 1] <= cols - 1 - m)
+    ).all(axis=1)
+    return Markers(ids[inside], rc[inside], int((~inside).sum()))
+
+
+def _unique(
+    ids: NDArray[np.int64], rc: NDArray[np.float64]
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Drop a marker found twice (in overlapping boxes): same id, centres within 2 px."""
+    centre = rc.mean(axis=1)
+    keep = np.ones(ids.size, dtype=bool)
+    for k in range(1, ids.size):
+        same = (ids[:k] == ids[k]) & keep[:k]
+        if same.any() and (np.hypot(*(centre[:k][same] - centre[k]).T) < 2.0).any():
+            keep[k] = False
+    return ids[keep], rc[keep]
+
+
+def marker_cells(dictionary: str, marker_id: int) -> NDArray[np.bool_]:
+    """The printed pattern of one marker, black border included: (k, k) bools, True for
+    white cells, row 0 at the marker's top edge and column 0 at its left."""
+    d = _dictionary(dictionary)
+    if not 0 <= marker_id < MARKER_DICTIONARIES[dictionary]:
+        raise ValueError(f"{dictionary} has no marker {marker_id}")
+    k = d.markerSize + 2
+    image = cv2.aruco.generateImageMarker(d, int(marker_id), k, borderBits=1)
+    return image > 127

@@ -1,0 +1,115 @@
+"""Motion-planner inputs of every marked robot (paper §5.2 for each of them).
+
+For robot R, every obstacle O and every *other* robot (a disk of its configured
+``radius_cm``: an obstacle to R) gets the paper's distance ``|O − R| − r_O`` and two
+signed angles, degrees in (−180, 180], counter-clockwise positive, of the direction
+R → O (:func:`ovis.common.world.planner.planner_inputs`):
+
+* ``angle_deg`` from R's goal direction (its own ``goal_cm``/``goal_angle_deg``, else
+  ``[pose]``'s; None when it has no goal or stands on it);
+* ``heading_angle_deg`` from R's heading.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+import msgspec
+import numpy as np
+from numpy.typing import NDArray
+
+from ovis.common.config import PoseConfig
+from ovis.common.world.planner import signed_angle_deg
+from ovis.common.world.robots import RobotState
+
+__all__ = ["RobotPlan", "TargetEntry", "robot_plans"]
+
+Angle = Annotated[float, msgspec.Meta(gt=-180.0, le=180.0)]
+Finite = Annotated[float, msgspec.Meta(ge=-1e12, le=1e12)]
+
+
+class TargetEntry(msgspec.Struct, kw_only=True):
+    """One obstacle or other robot, as robot ``RobotPlan.robot_id`` sees it."""
+
+    target_id: Annotated[int, msgspec.Meta(ge=0)]
+    target_kind: Literal["obstacle", "robot"]
+    distance_cm: Finite
+    angle_deg: Angle | None
+    heading_angle_deg: Angle
+
+
+class RobotPlan(msgspec.Struct, kw_only=True):
+    """Planner inputs of one robot: its goal direction (deg from +X, None without a
+    goal) and one entry per obstacle, then per other robot."""
+
+    robot_id: Annotated[int, msgspec.Meta(ge=0)]
+    goal_direction_deg: Finite | None
+    entries: list[TargetEntry]
+
+
+def _goal_directions(robots: list[RobotState], pose: PoseConfig) -> NDArray[np.float64]:
+    """Each robot's goal direction (deg from +X); NaN without a goal or on it."""
+    specs = {r.id: r for r in pose.robots}
+    out = np.full(len(robots), np.nan)
+    for k, robot in enumerate(robots):
+        spec = specs.get(robot.id)
+        own = spec is not None and (spec.goal_cm is not None or spec.goal_angle_deg is not None)
+        goal_xy = spec.goal_cm if own else pose.goal_cm  # type: ignore[union-attr]
+        goal_angle = spec.goal_angle_deg if own else pose.goal_angle_deg  # type: ignore[union-attr]
+        if goal_angle is not None:
+            out[k] = goal_angle
+        elif goal_xy is not None:
+            dx, dy = goal_xy[0] - robot.x_cm, goal_xy[1] - robot.y_cm
+            if math.hypot(dx, dy) >= 1e-9:
+                out[k] = math.degrees(math.atan2(dy, dx))
+    return out
+
+
+def robot_plans(
+    robots: list[RobotState],
+    obstacle_ids: NDArray[np.int64],
+    obstacles_xyr: NDArray[np.float64],
+    pose: PoseConfig,
+) -> list[RobotPlan]:
+    """Planner inputs of each robot against the obstacles (ids, (n, 3) x, y, r in cm)
+    and the other robots, for all robots at once (the paper's formulas, as
+    :func:`ovis.common.world.planner.planner_inputs`)."""
+    if not robots:
+        return []
+    obstacles_xyr = np.asarray(obstacles_xyr, dtype=np.float64).reshape(-1, 3)
+    me = np.array([[r.x_cm, r.y_cm, r.radius_cm, r.heading_deg] for r in robots])
+    targets = np.concatenate([obstacles_xyr, me[:, :3]])
+    ids = [*np.asarray(obstacle_ids).tolist(), *(r.id for r in robots)]
+    m = len(obstacles_xyr)
+    kinds = ["obstacle"] * m + ["robot"] * len(robots)
+    dx = targets[None, :, 0] - me[:, 0, None]
+    dy = targets[None, :, 1] - me[:, 1, None]
+    distance = np.hypot(dx, dy) - targets[None, :, 2]
+    bearing = np.degrees(np.arctan2(dy, dx))
+    relative = signed_angle_deg(np.radians(me[:, 3, None]), np.radians(bearing))
+    goal = _goal_directions(robots, pose)
+    to_goal = signed_angle_deg(np.radians(goal[:, None]), np.radians(bearing))
+    plans = []
+    for k, robot in enumerate(robots):
+        cols = [c for c in range(len(ids)) if c != m + k]  # not itself
+        has_goal = not math.isnan(goal[k])
+        entries = [
+            TargetEntry(
+                target_id=ids[c],
+                target_kind=kinds[c],  # type: ignore[arg-type]
+                distance_cm=d,
+                angle_deg=g if has_goal else None,
+                heading_angle_deg=h,
+            )
+            for c, d, g, h in zip(
+                cols,
+                distance[k, cols].tolist(),
+                to_goal[k, cols].tolist(),
+                relative[k, cols].tolist(),
+                strict=True,
+            )
+        ]
+        direction = float(goal[k]) if has_goal else None
+        plans.append(RobotPlan(robot_id=robot.id, goal_direction_deg=direction, entries=entries))
+    return plans

@@ -1,0 +1,282 @@
+"""Marked robots on the floor: pose from a marker's corners, and a filter over frames.
+
+**Pose** (:func:`marker_poses`). A marker lies flat on its robot's top at
+``marker_height_cm``: its four corners are back-projected onto that plane, z = h (not the
+floor: the top is nearer the camera), with the camera model in use. The robot's centre is
+the mean of the four points (the marker is a square centred on the robot). Its heading is
+the direction from the marker's bottom edge to its top edge (the marker's top faces the
+robot's front), averaged with the left → right edge direction turned 90° towards it;
+degrees counter-clockwise from +X in the world frame, in (−180, 180].
+
+**Filter** (:class:`RobotFilter`), one per robot: a constant-velocity Kalman filter on
+the state (x, y, vx, vy, θ, ω). The three pairs (x, vx), (y, vy), (θ, ω) do not interact,
+so each is a 1-D filter with ``F = [[1, Δt], [0, 1]]``, process noise of a white
+acceleration a (``Q = σ_a²·[[Δt⁴/4, Δt³/2], [Δt³/2, Δt²]]``, σ_a = ``filter.accel_cm_s2``
+or ``filter.yaw_accel_deg_s2``) and a measurement of the first element with σ =
+``filter.position_sigma_cm`` / ``filter.heading_sigma_deg``. The heading innovation is
+wrapped to (−180, 180] and θ kept there. A robot not seen is predicted forward; its
+``age_s`` is the time since its last sighting, and after ``pose.robot_timeout_s`` it is
+dropped (a later sighting starts a new filter).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Annotated, NamedTuple
+
+import msgspec
+import numpy as np
+from numpy.typing import NDArray
+
+from ovis.common.camera.projection import back_project
+from ovis.common.config import CameraModel, PoseConfig, RobotSpec
+from ovis.common.vision.markers import Markers
+
+__all__ = [
+    "MarkerPoses",
+    "RobotFilter",
+    "RobotState",
+    "RobotTracker",
+    "UnknownMarker",
+    "marker_poses",
+    "wrap_deg",
+]
+
+Finite = Annotated[float, msgspec.Meta(ge=-1e12, le=1e12)]
+NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=1e12)]
+
+#: Initial spread of an unseen velocity (cm/s) and yaw rate (deg/s).
+_V0_SIGMA = 200.0
+_W0_SIGMA = 360.0
+
+
+class RobotState(msgspec.Struct, kw_only=True):
+    """One marked robot in one frame: filtered pose and velocity (world cm, degrees,
+    seconds). ``age_s`` is how long ago its marker was last seen (0: in this frame)."""
+
+    id: Annotated[int, msgspec.Meta(ge=0)]
+    name: str
+    marker_id: Annotated[int, msgspec.Meta(ge=0)]
+    x_cm: Finite
+    y_cm: Finite
+    z_cm: Finite
+    heading_deg: Annotated[float, msgspec.Meta(gt=-180.0, le=180.0)]
+    vx_cm_s: Finite
+    vy_cm_s: Finite
+    yaw_rate_deg_s: Finite
+    age_s: NonNegative
+    radius_cm: NonNegative
+
+
+class UnknownMarker(msgspec.Struct, kw_only=True):
+    """A decoded marker that no configured robot carries: its id, image centre, and
+    floor position at ``pose.robot_height_cm`` (not a robot: nothing is tracked)."""
+
+    marker_id: Annotated[int, msgspec.Meta(ge=0)]
+    row: Finite
+    col: Finite
+    x_cm: Finite
+    y_cm: Finite
+
+
+def wrap_deg(angle: NDArray[np.float64] | float) -> NDArray[np.float64]:
+    """Angles in degrees wrapped to (−180, 180]."""
+    wrapped = 180.0 - (180.0 - np.asarray(angle, dtype=np.float64)) % 360.0
+    return np.where(wrapped <= -180.0, wrapped + 360.0, wrapped)
+
+
+class MarkerPoses(NamedTuple):
+    """Floor pose of each marker: (n,) centre x, y (cm), heading (deg) and validity."""
+
+    x_cm: NDArray[np.float64]
+    y_cm: NDArray[np.float64]
+    heading_deg: NDArray[np.float64]
+    valid: NDArray[np.bool_]
+
+
+def marker_poses(
+    corners_rc: NDArray[np.float64], heights_cm: NDArray[np.float64], camera: CameraModel
+) -> MarkerPoses:
+    """Centre and heading of markers from their image corners (n, 4, 2) (row, col, in
+    OpenCV's order: top-left, top-right, bottom-right, bottom-left), each on the plane
+    z = ``heights_cm`` (n,)."""
+    z = np.asarray(heights_cm, dtype=np.float64)[:, None]
+    b = back_project(corners_rc[:, :, 0], corners_rc[:, :, 1], camera, z)
+    x, y = np.asarray(b.x_cm), np.asarray(b.y_cm)
+    top = np.stack([x[:, 0] + x[:, 1], y[:, 0] + y[:, 1]])
+    bottom = np.stack([x[:, 3] + x[:, 2], y[:, 3] + y[:, 2]])
+    left = np.stack([x[:, 0] + x[:, 3], y[:, 0] + y[:, 3]])
+    right = np.stack([x[:, 1] + x[:, 2], y[:, 1] + y[:, 2]])
+    up, across = (top - bottom) / 2.0, (right - left) / 2.0
+    # turn `across` by 90° towards `up` (which way depends on the world's handedness)
+    turn = np.sign(across[0] * up[1] - across[1] * up[0])
+    up2 = np.stack([-across[1] * turn, across[0] * turn])
+    heading = np.degrees(np.arctan2(up[1] + up2[1], up[0] + up2[0]))
+    valid = np.asarray(b.valid).reshape(x.shape).all(axis=1) & (turn != 0)
+    return MarkerPoses(x.mean(axis=1), y.mean(axis=1), wrap_deg(heading), valid)
+
+
+def _wrap(angle: float) -> float:
+    """One angle (deg) wrapped to (−180, 180]."""
+    wrapped = 180.0 - (180.0 - angle) % 360.0
+    return wrapped + 360.0 if wrapped <= -180.0 else wrapped
+
+
+@dataclass
+class RobotFilter:
+    """Constant-velocity Kalman filter of one robot (see the module docstring).
+
+    Rows k = 0, 1, 2 are (x, vx), (y, vy), (θ, ω): ``value``/``rate`` hold the state,
+    ``p00, p01, p11`` each row's 2×2 covariance (plain floats: for three 2-state rows,
+    scalar arithmetic is several times faster than numpy's small-array calls).
+    """
+
+    accel: tuple[float, float, float]  # σ of the white acceleration per row
+    sigma: tuple[float, float, float]  # σ of one measurement per row
+    value: list[float]
+    rate: list[float]
+    p00: list[float]
+    p01: list[float]
+    p11: list[float]
+    stamp_s: float
+    seen_s: float
+
+    @classmethod
+    def start(
+        cls, pose: PoseConfig, x: float, y: float, heading: float, stamp_s: float
+    ) -> RobotFilter:
+        f = pose.filter
+        sigma = (f.position_sigma_cm, f.position_sigma_cm, f.heading_sigma_deg)
+        accel = (f.accel_cm_s2, f.accel_cm_s2, f.yaw_accel_deg_s2)
+        p11 = [_V0_SIGMA**2, _V0_SIGMA**2, _W0_SIGMA**2]
+        return cls(
+            accel, sigma, [x, y, _wrap(heading)], [0.0, 0.0, 0.0],
+            [v * v for v in sigma], [0.0, 0.0, 0.0], p11, stamp_s, stamp_s,
+        )  # fmt: skip
+
+    @property
+    def state(self) -> NDArray[np.float64]:
+        """(3, 2): rows (x, vx), (y, vy), (θ, ω)."""
+        return np.array([self.value, self.rate]).T
+
+    def predict(self, stamp_s: float) -> None:
+        """Move the state to ``stamp_s`` (no-op for an earlier or equal stamp)."""
+        dt = stamp_s - self.stamp_s
+        if dt <= 0.0:
+            return
+        q00, q01, q11 = dt**4 / 4.0, dt**3 / 2.0, dt * dt
+        for k in range(3):
+            a2 = self.accel[k] ** 2
+            self.value[k] += self.rate[k] * dt
+            p01, p11 = self.p01[k], self.p11[k]
+            self.p00[k] += 2.0 * dt * p01 + dt * dt * p11 + a2 * q00
+            self.p01[k] = p01 + dt * p11 + a2 * q01
+            self.p11[k] = p11 + a2 * q11
+        self.value[2] = _wrap(self.value[2])
+        self.stamp_s = stamp_s
+
+    def update(self, x: float, y: float, heading: float) -> None:
+        """Fold in one marker measurement taken at the current stamp."""
+        for k, z in enumerate((x, y, heading)):
+            innovation = z - self.value[k]
+            if k == 2:
+                innovation = _wrap(innovation)
+            p00, p01 = self.p00[k], self.p01[k]
+            s = p00 + self.sigma[k] ** 2
+            k0, k1 = p00 / s, p01 / s
+            self.value[k] += k0 * innovation
+            self.rate[k] += k1 * innovation
+            self.p00[k] = (1.0 - k0) * p00
+            self.p01[k] = (1.0 - k0) * p01
+            self.p11[k] -= k1 * p01
+        self.value[2] = _wrap(self.value[2])
+        self.seen_s = self.stamp_s
+
+
+@dataclass
+class RobotTracker:
+    """Every configured robot's filter; one :meth:`update` per frame."""
+
+    pose: PoseConfig
+    filters: dict[int, RobotFilter] = field(default_factory=dict)  # by robot id
+
+    def reconfigure(self, pose: PoseConfig) -> None:
+        """New settings; filters of robots still configured with the same marker are kept."""
+        keep = {(r.id, r.marker_id) for r in pose.robots}
+        old = {r.id: r.marker_id for r in self.pose.robots}
+        self.filters = {k: f for k, f in self.filters.items() if (k, old.get(k)) in keep}
+        self.pose = pose
+
+    def update(
+        self, markers: Markers, camera: CameraModel, stamp_s: float
+    ) -> tuple[list[RobotState], list[UnknownMarker]]:
+        """Fold in this frame's markers; the robots still tracked and the unknown markers."""
+        specs = {r.marker_id: r for r in self.pose.robots}
+        known = np.array([int(i) in specs for i in markers.ids], dtype=bool)
+        heights = np.array(
+            [specs[int(i)].marker_height_cm if k else self.pose.robot_height_cm
+             for i, k in zip(markers.ids, known, strict=True)]
+        )  # fmt: skip
+        poses = marker_poses(markers.corners, heights, camera)
+        measured: dict[int, tuple[float, float, float]] = {}
+        for k in np.flatnonzero(known & poses.valid):
+            robot = specs[int(markers.ids[k])]
+            z = (float(poses.x_cm[k]), float(poses.y_cm[k]), float(poses.heading_deg[k]))
+            if robot.id in measured:  # the same marker twice: keep the one nearer the filter
+                z = self._nearer(robot.id, measured[robot.id], z)
+            measured[robot.id] = z
+        states: list[RobotState] = []
+        for robot in sorted(self.pose.robots, key=lambda r: r.id):
+            f = self.filters.get(robot.id)
+            z = measured.get(robot.id)
+            if f is None and z is None:
+                continue
+            if f is None:
+                f = self.filters[robot.id] = RobotFilter.start(self.pose, *z, stamp_s)  # type: ignore[misc]
+            else:
+                f.predict(stamp_s)
+                if z is not None:
+                    f.update(*z)
+            age = max(stamp_s - f.seen_s, 0.0)
+            if age > self.pose.robot_timeout_s:
+                del self.filters[robot.id]
+                continue
+            states.append(_state(robot, f, age))
+        unknown = [
+            UnknownMarker(
+                marker_id=int(markers.ids[k]),
+                row=float(markers.corners[k, :, 0].mean()),
+                col=float(markers.corners[k, :, 1].mean()),
+                x_cm=float(poses.x_cm[k]),
+                y_cm=float(poses.y_cm[k]),
+            )
+            for k in np.flatnonzero(~known & poses.valid)
+        ]
+        return states, unknown
+
+    def _nearer(
+        self, robot_id: int, a: tuple[float, float, float], b: tuple[float, float, float]
+    ) -> tuple[float, float, float]:
+        f = self.filters.get(robot_id)
+        if f is None:
+            return a
+        x, y = f.value[0], f.value[1]
+        return a if np.hypot(a[0] - x, a[1] - y) <= np.hypot(b[0] - x, b[1] - y) else b
+
+
+def _state(robot: RobotSpec, f: RobotFilter, age: float) -> RobotState:
+    (x, y, heading), (vx, vy, yaw_rate) = f.value, f.rate
+    return RobotState(
+        id=robot.id,
+        name=robot.name,
+        marker_id=robot.marker_id,
+        x_cm=x,
+        y_cm=y,
+        z_cm=robot.marker_height_cm,
+        heading_deg=_wrap(heading),
+        vx_cm_s=vx,
+        vy_cm_s=vy,
+        yaw_rate_deg_s=yaw_rate,
+        age_s=age,
+        radius_cm=robot.radius_cm,
+    )
