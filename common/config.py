@@ -26,8 +26,10 @@ __all__ = [
     "CalibrationRanges",
     "CameraModel",
     "CameraParams",
+    "CameraSpec",
     "ConfigError",
     "ControlPoint",
+    "FusionConfig",
     "GAConfig",
     "ImageParams",
     "OvisConfig",
@@ -521,6 +523,53 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     ] = []
 
 
+#: A camera's name becomes a Zenoh key chunk (``ovis/<arena>/cam/<name>/…``).
+CameraName = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
+
+
+class CameraSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """One of several cameras over one arena (``[[cameras]]``): its name, its source (as
+    ``service.source``) and its camera model calibrated to the *shared* floor frame
+    (``camera``, inline) or a calibration file saved by ``ovis calibrate``/``ovis locate``
+    (``calibration``); exactly one of the two."""
+
+    name: CameraName
+    source: Annotated[str, msgspec.Meta(min_length=1, max_length=4096)] = "sim"
+    camera: CameraModel | None = None
+    calibration: Annotated[str, msgspec.Meta(min_length=1, max_length=4096)] | None = None
+
+    def __post_init__(self) -> None:
+        if (self.camera is None) == (self.calibration is None):
+            raise ValueError(
+                f"cameras: camera {self.name!r} needs exactly one of camera (a model) "
+                "or calibration (a file)"
+            )
+
+
+class FusionConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """How the fusion service merges the cameras' detections (``[fusion]``, see
+    :mod:`ovis.common.fusion`).
+
+    Frames whose capture stamps lie within ``match_window_ms`` of each other form one
+    world frame; a world frame waits at most ``wait_ms`` for a late camera, and a frame
+    arriving after its world frame left is counted as late. A camera's position error at
+    a floor point is ``pixel_sigma_px`` pushed through its back-projection Jacobian;
+    two obstacles are one when their distance is within ``gate_sigmas`` of the combined
+    error (plus ``gate_floor_cm``) and their radii differ by at most ``radius_gate_cm``.
+    A world obstacle keeps its identity while it moves less than ``track_gate_cm`` per
+    frame and is dropped after ``lost_frames`` frames unseen.
+    """
+
+    match_window_ms: Annotated[float, msgspec.Meta(gt=0.0, le=10000.0)] = 10.0
+    wait_ms: Annotated[float, msgspec.Meta(ge=0.0, le=10000.0)] = 20.0
+    pixel_sigma_px: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 0.3
+    gate_sigmas: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 5.0
+    gate_floor_cm: Annotated[float, msgspec.Meta(ge=0.0, le=1e4)] = 1.0
+    radius_gate_cm: Annotated[float, msgspec.Meta(ge=0.0, le=1e4)] = 2.0
+    track_gate_cm: Annotated[float, msgspec.Meta(gt=0.0, le=1e4)] = 10.0
+    lost_frames: Annotated[int, msgspec.Meta(ge=1, le=100000)] = 15
+
+
 class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Everything ovis needs: camera, image pipeline, GA ranges and settings, pose, simulator."""
 
@@ -533,6 +582,15 @@ class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     simulator: SimulatorConfig = msgspec.field(default_factory=SimulatorConfig)
     service: ServiceConfig = msgspec.field(default_factory=ServiceConfig)
     zenoh: ZenohConfig = msgspec.field(default_factory=ZenohConfig)
+    #: several cameras over one arena, fused into one world (empty: the one ``camera``)
+    cameras: Annotated[list[CameraSpec], msgspec.Meta(max_length=64)] = []
+    fusion: FusionConfig = msgspec.field(default_factory=FusionConfig)
+
+    def __post_init__(self) -> None:
+        names = [c.name for c in self.cameras]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(f"cameras: names must be unique, {', '.join(twice)} repeated")
 
 
 class ControlPoint(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
