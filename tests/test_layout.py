@@ -42,6 +42,7 @@ LAYERS: dict[str, set[str]] = {
     "pipeline": FOUNDATION,
     "analysis": FOUNDATION,
     "view": {"config", "camera", "calibration", "messages"},
+    "fusion": {"config", "camera"},
 }
 
 #: Recording stores and replays messages: what they may import, plus them and atomic files.

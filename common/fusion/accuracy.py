@@ -26,7 +26,9 @@ def position_covariance(
     points ``(x, y)`` on the plane ``z``, for an isotropic pixel error of
     ``pixel_sigma_px``: ``σ² J Jᵀ`` with ``J = ∂(X, Y)/∂(row, col)``. Points the camera
     does not see get an infinite covariance (no weight)."""
-    x, y, z = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float)) for v in (x_cm, y_cm, z_cm)))
+    x, y, z = np.broadcast_arrays(
+        *(np.atleast_1d(np.asarray(v, float)) for v in (x_cm, y_cm, z_cm))
+    )
     p = project(x, y, z, cam)
     jac = pixel_jacobian(p.row, p.col, cam, z)
     J = np.stack(

@@ -31,9 +31,7 @@ class MatchedFrame(Generic[T]):
 class FrameMatcher(Generic[T]):
     """Groups per-camera items by capture stamp (see the module docstring)."""
 
-    def __init__(
-        self, cameras: list[str], *, window_ns: int, wait_ns: int, stale_ns: int
-    ) -> None:
+    def __init__(self, cameras: list[str], *, window_ns: int, wait_ns: int, stale_ns: int) -> None:
         if not cameras:
             raise ValueError("a frame matcher needs at least one camera")
         if window_ns <= 0 or wait_ns < 0 or stale_ns <= 0:
@@ -46,7 +44,7 @@ class FrameMatcher(Generic[T]):
         self._started_ns: int | None = None  # first item: never-heard cameras count as
         # live for ``stale_ns`` after it, so the first world frames wait for them
         self._open: list[MatchedFrame[T]] = []
-        self._left_until_ns = -1  # stamp of the newest world frame that left
+        self._left_until_ns: int | None = None  # stamp of the newest world frame that left
 
     def live(self, now_ns: int) -> list[str]:
         """The cameras heard within ``stale_ns`` (those a world frame waits for)."""
@@ -66,9 +64,8 @@ class FrameMatcher(Generic[T]):
         if self._started_ns is None:
             self._started_ns = now_ns
         self.last_heard_ns[camera] = now_ns
-        if stamp_ns <= self._left_until_ns + self.window_ns // 2 and not self._fits_open(
-            stamp_ns
-        ):
+        left = self._left_until_ns
+        if left is not None and stamp_ns <= left + self.window_ns and not self._fits_open(stamp_ns):
             self.late[camera] += 1
             return self.due(now_ns)
         group = self._group_for(camera, stamp_ns, now_ns)
@@ -89,7 +86,10 @@ class FrameMatcher(Generic[T]):
         if ready < 0:
             return []
         out, self._open = self._open[: ready + 1], self._open[ready + 1 :]
-        self._left_until_ns = max(self._left_until_ns, out[-1].stamp_ns)
+        newest = out[-1].stamp_ns
+        self._left_until_ns = (
+            newest if self._left_until_ns is None else max(self._left_until_ns, newest)
+        )
         return out
 
     def _fits_open(self, stamp_ns: int) -> bool:

@@ -71,7 +71,9 @@ def _merge(group: list[Sighting]) -> Fused:
     covs = np.stack([_cov(s) for s in group])
     mean, P = weighted_mean(pts, covs)
     w = 1.0 / np.trace(covs, axis1=1, axis2=2)
-    headings = [(s.heading_deg, wi) for s, wi in zip(group, w, strict=True) if s.heading_deg is not None]
+    headings = [
+        (s.heading_deg, wi) for s, wi in zip(group, w, strict=True) if s.heading_deg is not None
+    ]
     heading = None
     if headings:
         a = np.radians([h for h, _ in headings])

@@ -59,7 +59,9 @@ class WorldScorer:
         w = np.array([[o[1], o[2]] for o in world]).reshape(-1, 2)
         t = np.array([[o[1], o[2]] for o in truth]).reshape(-1, 2)
         d = np.linalg.norm(w[:, None] - t[None], axis=-1)
-        rows, cols = linear_sum_assignment(np.where(d <= self.gate_cm, d, 1e9)) if d.size else ([], [])
+        rows, cols = (
+            linear_sum_assignment(np.where(d <= self.gate_cm, d, 1e9)) if d.size else ([], [])
+        )
         pairs = [(r, c) for r, c in zip(rows, cols, strict=True) if d[r, c] <= self.gate_cm]
         matched_w = {r for r, _ in pairs}
         matched_t = {c for _, c in pairs}
@@ -68,9 +70,11 @@ class WorldScorer:
                 self.duplicates += 1
             else:
                 self.phantoms += 1
-        want = set(range(len(truth))) if seen is None else {
-            k for k, o in enumerate(truth) if o[0] in seen
-        }
+        want = (
+            set(range(len(truth)))
+            if seen is None
+            else {k for k, o in enumerate(truth) if o[0] in seen}
+        )
         self.missed += len(want - matched_t)
         for r, c in pairs:
             wid, x, y, cams = world[r]

@@ -39,11 +39,14 @@ def _down_rotation(yaw_deg: float, tilt_x_deg: float, tilt_y_deg: float) -> Floa
     """World → camera rotation of a camera looking down (optical axis −Z), its image
     columns along +X turned by ``yaw``, tilted by small angles about X and Y."""
     down = np.diag([1.0, -1.0, -1.0])
-    yaw, tx, ty = (cv2.Rodrigues(np.array(v, float))[0] for v in (
-        [0.0, 0.0, math.radians(yaw_deg)],
-        [math.radians(tilt_x_deg), 0.0, 0.0],
-        [0.0, math.radians(tilt_y_deg), 0.0],
-    ))
+    yaw, tx, ty = (
+        cv2.Rodrigues(np.array(v, float))[0]
+        for v in (
+            [0.0, 0.0, math.radians(yaw_deg)],
+            [math.radians(tilt_x_deg), 0.0, 0.0],
+            [0.0, math.radians(tilt_y_deg), 0.0],
+        )
+    )
     return tx @ ty @ down @ yaw.T
 
 
@@ -69,9 +72,17 @@ def camera_grid(
     specs = []
     for j in range(ny):
         for i in range(nx):
-            x0, x1 = i * w - (overlap_cm if i > 0 else 0.0), (i + 1) * w + (overlap_cm if i < nx - 1 else 0.0)
-            y0, y1 = j * h - (overlap_cm if j > 0 else 0.0), (j + 1) * h + (overlap_cm if j < ny - 1 else 0.0)
-            centre = np.array([(x0 + x1) / 2 + rng.uniform(-3, 3), (y0 + y1) / 2 + rng.uniform(-3, 3)])
+            x0, x1 = (
+                i * w - (overlap_cm if i > 0 else 0.0),
+                (i + 1) * w + (overlap_cm if i < nx - 1 else 0.0),
+            )
+            y0, y1 = (
+                j * h - (overlap_cm if j > 0 else 0.0),
+                (j + 1) * h + (overlap_cm if j < ny - 1 else 0.0),
+            )
+            centre = np.array(
+                [(x0 + x1) / 2 + rng.uniform(-3, 3), (y0 + y1) / 2 + rng.uniform(-3, 3)]
+            )
             z = height_cm * rng.uniform(0.93, 1.07)
             R = _down_rotation(rng.uniform(-5, 5), rng.uniform(-3, 3), rng.uniform(-3, 3))
             k1 = float(rng.uniform(-0.08, 0.04))
@@ -84,13 +95,20 @@ def camera_grid(
             f = 0.85 * min((cols / 2) / u, (rows / 2) / v)
             rvec = cv2.Rodrigues(R)[0].ravel()
             cam = PinholeParams(
-                rows=rows, cols=cols, fx=f, fy=f * rng.uniform(0.995, 1.005),
-                cx=cols / 2 - 0.5 + rng.uniform(-4, 4), cy=rows / 2 - 0.5 + rng.uniform(-4, 4),
-                k1=k1, rvec=tuple(float(r) for r in rvec),
+                rows=rows,
+                cols=cols,
+                fx=float(f),
+                fy=float(f * rng.uniform(0.995, 1.005)),
+                cx=float(cols / 2 - 0.5 + rng.uniform(-4, 4)),
+                cy=float(rows / 2 - 0.5 + rng.uniform(-4, 4)),
+                k1=k1,
+                rvec=tuple(float(r) for r in rvec),
                 tvec_cm=tuple(float(t) for t in -R @ C),
             )
             p = project(corners[:, 0], corners[:, 1], np.full(4, 7.0), cam)
-            inside = p.valid & (p.row >= 0) & (p.row <= rows - 1) & (p.col >= 0) & (p.col <= cols - 1)
+            inside = (
+                p.valid & (p.row >= 0) & (p.row <= rows - 1) & (p.col >= 0) & (p.col <= cols - 1)
+            )
             if not inside.all():
                 raise ValueError(f"camera cam{i}{j} does not cover its cell; lower the overlap")
             specs.append(CameraSpec(name=f"cam{i}{j}", source="sim", camera=cam))
@@ -130,10 +148,16 @@ class GridScene:
         self._omega = speed_cm_s / mean_radius * np.where(k % 2 == 0, 1.0, -1.0)
         placed: list[tuple[float, float, float]] = []
         path_t = np.linspace(0, 2 * math.pi, 200)
-        path = np.concatenate([
-            np.stack([cx + a * np.cos(path_t), cy + b * np.sin(path_t)], 1)
-            for a, b in zip(self._ax, self._ay, strict=True)
-        ]) if robots else np.zeros((0, 2))
+        path = (
+            np.concatenate(
+                [
+                    np.stack([cx + a * np.cos(path_t), cy + b * np.sin(path_t)], 1)
+                    for a, b in zip(self._ax, self._ay, strict=True)
+                ]
+            )
+            if robots
+            else np.zeros((0, 2))
+        )
         tries = 0
         while len(placed) < obstacles:
             tries += 1
@@ -148,8 +172,18 @@ class GridScene:
                 continue
             placed.append((x, y, r))
         self._obstacles = [
-            SimObject(id=1000 + n, kind="obstacle", x_cm=x, y_cm=y, z_cm=obstacle_height_cm,
-                      radius_cm=r, heading_deg=0.0, shape="disk", length_cm=2 * r, width_cm=2 * r)
+            SimObject(
+                id=1000 + n,
+                kind="obstacle",
+                x_cm=x,
+                y_cm=y,
+                z_cm=obstacle_height_cm,
+                radius_cm=r,
+                heading_deg=0.0,
+                shape="disk",
+                length_cm=2 * r,
+                width_cm=2 * r,
+            )
             for n, (x, y, r) in enumerate(placed)
         ]
 
@@ -162,11 +196,21 @@ class GridScene:
         vx = -self._ax * np.sin(a) * self._omega
         vy = self._ay * np.cos(a) * self._omega
         robots = [
-            SimObject(id=k + 1, kind="robot", x_cm=float(x[k]), y_cm=float(y[k]),
-                      z_cm=self.robot_z, radius_cm=9.0,
-                      heading_deg=math.degrees(math.atan2(vy[k], vx[k])), shape="rect",
-                      length_cm=14.0, width_cm=10.0, marker_id=k,
-                      vx_cm_s=float(vx[k]), vy_cm_s=float(vy[k]))
+            SimObject(
+                id=k + 1,
+                kind="robot",
+                x_cm=float(x[k]),
+                y_cm=float(y[k]),
+                z_cm=self.robot_z,
+                radius_cm=9.0,
+                heading_deg=math.degrees(math.atan2(vy[k], vx[k])),
+                shape="rect",
+                length_cm=14.0,
+                width_cm=10.0,
+                marker_id=k,
+                vx_cm_s=float(vx[k]),
+                vy_cm_s=float(vy[k]),
+            )
             for k in range(len(a))
         ]
         return robots + self._obstacles
@@ -185,10 +229,19 @@ def measure(
     z = np.array([o.z_cm for o in objects])
     r = np.array([max(o.radius_cm, o.length_cm / 2) for o in objects])
     ang = np.linspace(0, 2 * math.pi, 8, endpoint=False)
-    rim = project(x[:, None] + r[:, None] * np.cos(ang), y[:, None] + r[:, None] * np.sin(ang),
-                  np.broadcast_to(z[:, None], (len(x), 8)), cam)
-    inside = (rim.valid & (rim.row >= 0) & (rim.row <= cam.rows - 1) & (rim.col >= 0)
-              & (rim.col <= cam.cols - 1)).all(axis=1)
+    rim = project(
+        x[:, None] + r[:, None] * np.cos(ang),
+        y[:, None] + r[:, None] * np.sin(ang),
+        np.broadcast_to(z[:, None], (len(x), 8)),
+        cam,
+    )
+    inside = (
+        rim.valid
+        & (rim.row >= 0)
+        & (rim.row <= cam.rows - 1)
+        & (rim.col >= 0)
+        & (rim.col <= cam.cols - 1)
+    ).all(axis=1)
     p = project(x, y, z, cam)
     row = p.row + rng.normal(0, pixel_sigma_px, len(x))
     col = p.col + rng.normal(0, pixel_sigma_px, len(x))
@@ -196,5 +249,6 @@ def measure(
     keep = inside & p.valid & b.valid
     return [
         msgspec.structs.replace(o, x_cm=float(b.x_cm[k]), y_cm=float(b.y_cm[k]))
-        for k, o in enumerate(objects) if keep[k]
+        for k, o in enumerate(objects)
+        if keep[k]
     ]
