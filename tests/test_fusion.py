@@ -91,10 +91,10 @@ def test_camera_grid_covers_every_cell_with_overlaps_and_different_cameras() -> 
     assert np.array_equal(np.array(views), np.eye(4, dtype=bool))
     # the shared floor frame: a pixel of one camera back-projects onto the same floor
     # point another camera sees
-    a, b = cams[0], cams[3]
-    q = project(centre[0], centre[1], 7.0, a)
-    x = back_project(q.row, q.col, a, 7.0)
-    assert math.hypot(float(x.x_cm) - centre[0], float(x.y_cm) - centre[1]) < 1e-6
+    for cam in cams:
+        q = project(centre[0] + 3.0, centre[1] - 2.0, 7.0, cam)
+        x = back_project(q.row, q.col, cam, 7.0)
+        assert math.hypot(float(x.x_cm) - centre[0] - 3.0, float(x.y_cm) - centre[1] + 2.0) < 1e-6
     with pytest.raises(ValueError, match="does not cover its cell"):
         camera_grid(2, 2, cell_cm=CELL, overlap_cm=400.0, height_cm=20.0)
 
