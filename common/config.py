@@ -348,6 +348,8 @@ MarkerDictionary = Literal[
 ]
 
 Angle = _rng(-360.0, 360.0)
+#: A camera's name becomes a Zenoh key chunk (``ovis/<arena>/cam/<name>/…``).
+CameraName = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
 
 
 class RobotSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -521,10 +523,9 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     cpus: Annotated[
         list[Annotated[int, msgspec.Meta(ge=0, le=4095)]], msgspec.Meta(max_length=4096)
     ] = []
-
-
-#: A camera's name becomes a Zenoh key chunk (``ovis/<arena>/cam/<name>/…``).
-CameraName = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
+    #: one camera of several (``[[cameras]]``): this process is in that camera's chain
+    #: and its topics are ``ovis/<arena>/cam/<camera_name>/…``; None: the one camera
+    camera_name: CameraName | None = None
 
 
 class CameraSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -46,6 +46,8 @@ __all__ = [
     "StreamHealth",
     "Topics",
     "TruthFrame",
+    "WorldFrame",
+    "WorldObject",
     "decode",
     "encode",
     "message_schema",
@@ -329,6 +331,42 @@ class StreamHealth(_Msg, tag="health", kw_only=True):
     calibration_version: int = 0
 
 
+class WorldObject(msgspec.Struct, kw_only=True):
+    """One object of the fused world (several cameras, :mod:`ovis.common.fusion`): its
+    world identity (a robot's: its marker's robot id; an obstacle's: kept across
+    hand-overs between cameras), where it is on the shared floor (cm), the expected
+    error of that position (``sigma_cm``, the larger axis of the merged covariance) and
+    the cameras that saw it in this frame."""
+
+    id: Annotated[int, msgspec.Meta(ge=0)]
+    kind: Literal["robot", "obstacle"]
+    x_cm: Finite
+    y_cm: Finite
+    z_cm: Finite
+    radius_cm: NonNeg
+    sigma_cm: NonNeg
+    cameras: list[str]
+    marker_id: Annotated[int, msgspec.Meta(ge=0)] | None = None
+    heading_deg: Finite | None = None
+
+
+class WorldFrame(_Msg, tag="world", kw_only=True):
+    """What the fusion service publishes on ``ovis/<arena>/world``: one arena, one list
+    of objects, whatever camera saw them. ``stamp_ns`` is the capture stamp of the
+    world frame's first camera frame; ``cameras`` the cameras whose frames it holds,
+    ``missing`` the live cameras whose frame did not come in time; ``late_frames``
+    counts, per camera, the frames that came after their world frame had left."""
+
+    seq: Seq
+    stamp_ns: Stamp
+    published_ns: Stamp
+    arena: str
+    objects: list[WorldObject]
+    cameras: list[str]
+    missing: list[str] = []
+    late_frames: dict[str, Annotated[int, msgspec.Meta(ge=0)]] = {}
+
+
 class TruthFrame(_Msg, tag="truth", kw_only=True):
     """Ground truth of a simulated frame (published by the simulated capture only)."""
 
@@ -397,6 +435,7 @@ Message = (
     | CalibrationUpdate
     | ServiceStatus
     | StreamHealth
+    | WorldFrame
 )
 
 _ENCODER = msgspec.msgpack.Encoder()
@@ -447,14 +486,19 @@ _ARENA_RE = re.compile(r"[A-Za-z0-9_.-]{1,64}")
 class Topics:
     """Key expressions of one arena, all rooted at ``ovis/<arena>/``."""
 
-    def __init__(self, arena: str = "default") -> None:
-        if not _ARENA_RE.fullmatch(arena):
-            raise ValueError(
-                f"arena name {arena!r} must be 1-64 letters, digits, '_', '.' or '-' "
-                "(it becomes a Zenoh key chunk)"
-            )
+    def __init__(self, arena: str = "default", camera: str | None = None) -> None:
+        for what, name in (("arena", arena), ("camera", camera)):
+            if name is not None and not _ARENA_RE.fullmatch(name):
+                raise ValueError(
+                    f"{what} name {name!r} must be 1-64 letters, digits, '_', '.' or '-' "
+                    "(it becomes a Zenoh key chunk)"
+                )
         self.arena = arena
-        root = f"ovis/{arena}"
+        self.camera = camera
+        #: the fused world of every camera (the fusion service), always at the arena's root
+        self.world = f"ovis/{arena}/world"
+        # one camera of several: its chain's topics are ovis/<arena>/cam/<name>/…
+        root = f"ovis/{arena}" if camera is None else f"ovis/{arena}/cam/{camera}"
         self.root = root
         self.frames = f"{root}/frames"
         self.binary = f"{root}/binary"
@@ -466,6 +510,10 @@ class Topics:
         self.calibrate = f"{root}/calibrate"
         self.status_all = f"{root}/status/*"
         self.alive_all = f"{root}/alive/*"
+
+    def of_camera(self, camera: str) -> Topics:
+        """The topics of one camera's chain in this arena (``ovis/<arena>/cam/<name>/…``)."""
+        return Topics(self.arena, camera)
 
     def status(self, service: str) -> str:
         return f"{self.root}/status/{service}"

@@ -49,7 +49,7 @@ class Service:
         self.name = name
         self.config = config
         self.session = session
-        self.topics = Topics(config.service.arena)
+        self.topics = Topics(config.service.arena, config.service.camera_name)
         self.log = logging.getLogger(f"ovis.{name}")
         self.stop = threading.Event()
         self.started_ns = time.time_ns()

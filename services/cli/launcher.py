@@ -19,7 +19,7 @@ from ovis.services.cli.ui import JsonOpt
 
 __all__ = ["register"]
 
-STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
+STAGES = ("capture", "preprocess", "label", "pose", "calibrator", "fusion")
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 #: `ovis up` starts the capture once the other stages are alive, or after this long.
 STARTUP_S = 30.0

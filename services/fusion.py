@@ -1,0 +1,141 @@
+"""Fusion service: the detections of several cameras (``[[cameras]]``), each from its own
+capture → preprocess → label → pose chain on ``ovis/<arena>/cam/<name>/obstacles``,
+merged into one world on ``ovis/<arena>/world`` (:class:`WorldFrame`; the logic is
+:mod:`ovis.common.fusion`). A camera that stops leaves its area uncovered: after
+``service.frame_timeout_s`` it is no longer waited for, and each world frame names the
+cameras missing from it."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import zenoh
+
+from ovis.common.calibration.file import load_calibration
+from ovis.common.config import CameraModel, CameraSpec
+from ovis.common.fusion.accuracy import sightings_of
+from ovis.common.fusion.merge import Sighting
+from ovis.common.fusion.world import WorldFrameResult, WorldFuser
+from ovis.common.messages import ObstacleFrame, WorldFrame, WorldObject
+from ovis.services.inbox import Inbox
+from ovis.services.service import Service
+
+__all__ = ["camera_model", "main"]
+
+#: how often overdue world frames are let go while no camera speaks, s
+TICK_S = 0.002
+
+
+def camera_model(spec: CameraSpec) -> CameraModel:
+    """A camera's model on the shared floor: inline, or from its calibration file."""
+    if spec.camera is not None:
+        return spec.camera
+    return load_calibration(spec.calibration).camera  # type: ignore[arg-type]
+
+
+def detections(msg: ObstacleFrame) -> list[dict]:
+    """One camera's obstacle frame as plain detections (marked robots by marker)."""
+    out = [
+        {"kind": "robot", "x_cm": r.x_cm, "y_cm": r.y_cm, "z_cm": r.z_cm,
+         "radius_cm": r.radius_cm, "marker_id": r.marker_id, "heading_deg": r.heading_deg}
+        for r in msg.robots
+        if r.age_s == 0.0  # seen in this frame, not predicted
+    ]  # fmt: skip
+    if not msg.robots and msg.robot is not None:
+        out.append({"kind": "robot", "x_cm": msg.robot.x_cm, "y_cm": msg.robot.y_cm,
+                    "z_cm": msg.robot.z_cm, "radius_cm": msg.robot.radius_cm})  # fmt: skip
+    out += [
+        {"kind": "obstacle", "x_cm": o.x_cm, "y_cm": o.y_cm, "z_cm": o.z_cm,
+         "radius_cm": o.radius_cm}
+        for o in msg.obstacles
+    ]  # fmt: skip
+    return out
+
+
+def world_message(r: WorldFrameResult, seq: int, arena: str, late: dict[str, int]) -> WorldFrame:
+    """The world topic's message of one fused world frame."""
+    return WorldFrame(
+        seq=seq,
+        stamp_ns=r.stamp_ns,
+        published_ns=time.time_ns(),
+        arena=arena,
+        objects=[
+            WorldObject(
+                id=t.id,
+                kind="robot" if t.obj.kind == "robot" else "obstacle",
+                x_cm=t.obj.x_cm,
+                y_cm=t.obj.y_cm,
+                z_cm=t.obj.z_cm,
+                radius_cm=t.obj.radius_cm,
+                sigma_cm=t.obj.sigma_cm,
+                cameras=t.obj.cameras,
+                marker_id=t.obj.marker_id,
+                heading_deg=t.obj.heading_deg,
+            )
+            for t in r.objects
+        ],
+        cameras=r.cameras,
+        missing=r.missing,
+        late_frames=dict(late),
+    )
+
+
+def main(service: Service) -> None:
+    cfg = service.config
+    if not cfg.cameras:
+        raise SystemExit("fusion: the configuration lists no [[cameras]]; nothing to fuse")
+    models = {spec.name: camera_model(spec) for spec in cfg.cameras}
+    fuser = WorldFuser(list(models), cfg.fusion, stale_ns=int(cfg.service.frame_timeout_s * 1e9))
+    # every camera's frames are wanted (a world frame needs them all): room for several
+    # frames of each; what overflows is counted as dropped in the status
+    inbox = Inbox(max(cfg.service.queue_depth, 8) * len(models))
+    service._inboxes.append(inbox)  # noqa: SLF001 (its drops count in the status)
+    for name in models:
+
+        def on_sample(sample: zenoh.Sample, name: str = name) -> None:
+            inbox.put((name, sample.payload.to_bytes()))
+
+        service.session.declare_subscriber(service.topics.of_camera(name).obstacles, on_sample)
+    publish = service.publisher(service.topics.world)
+    sigma = cfg.fusion.pixel_sigma_px
+    seq = received = 0
+
+    def emit(results: list[WorldFrameResult]) -> None:
+        nonlocal seq
+        for r in results:
+            out = world_message(r, seq, service.topics.arena, fuser.matcher.late)
+            seq += 1
+            publish(out)
+            service.sent()
+            service.last_latency_ms = (out.published_ns - out.stamp_ns) / 1e6
+            service.state = "ok" if not r.missing else f"missing {', '.join(r.missing)}"
+
+    def loop() -> None:
+        service.ready()
+        service.state = "waiting for input"
+        while not service.stop.is_set():
+            item = inbox.get(timeout=TICK_S)
+            now = time.time_ns()
+            if item is None:
+                emit(fuser.due(now))
+                continue
+            name, payload = item
+            msg = service.decode(payload, ObstacleFrame, "obstacles")
+            if msg is None:
+                continue
+            nonlocal received
+            service.saw_frame(received, msg.stamp_ns)  # cameras' seqs interleave: ours
+            received += 1
+            try:
+                found: list[Sighting] = sightings_of(name, models[name], detections(msg), sigma)
+            except Exception as exc:  # a camera's bad frame costs that frame only
+                service.error("processing", f"camera {name}: {type(exc).__name__}: {exc}")
+                continue
+            emit(fuser.add(name, msg.stamp_ns, found, now))
+
+    worker = threading.Thread(target=loop, daemon=True)
+    worker.start()
+    while not service.stop.wait(0.2):
+        pass
+    worker.join(timeout=1.0)

@@ -1,0 +1,211 @@
+"""The fusion service as a real process on loopback Zenoh (issue 19): a real camera chain
+(capture → preprocess → label → pose) publishing on its per-camera topics, fused into
+``ovis/<arena>/world``; and four cameras of the simulated 2×2 arena, a camera going
+silent while the others keep flowing."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import msgspec
+import numpy as np
+from zenoh_helpers import alive, client, free_port, ovis_cmd, spawn, stop, wait_for
+
+from ovis.common.config import FusionConfig, dump_toml, load_config
+from ovis.common.fusion.scoring import WorldScorer
+from ovis.common.messages import (
+    ENCODING,
+    ObstacleFrame,
+    Topics,
+    TruthFrame,
+    WorldFrame,
+    decode,
+    encode,
+)
+from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena, measure
+from ovis.common.world.detection import DetectedObject
+from ovis.common.world.robots import RobotState
+
+CELL = (100.0, 75.0)
+
+
+def _write(path: Path, data: dict) -> Path:
+    path.write_text(dump_toml(data))
+    return path
+
+
+def _base(endpoint: str, tmp: Path) -> dict:
+    data = msgspec.to_builtins(load_config())
+    data["zenoh"]["connect"] = [endpoint]
+    data["service"]["state_dir"] = str(tmp / "state")
+    return data
+
+
+class Collector:
+    """Every message on a key, decoded, with its receipt time."""
+
+    def __init__(self, session, key: str, kind) -> None:
+        self.items: list = []
+        self._lock = threading.Lock()
+
+        def on(sample) -> None:
+            msg = decode(sample.payload.to_bytes(), kind)
+            with self._lock:
+                self.items.append(msg)
+
+        self._sub = session.declare_subscriber(key, on)
+
+    def snapshot(self) -> list:
+        with self._lock:
+            return list(self.items)
+
+
+def test_a_real_camera_chain_on_its_own_topics_is_fused_into_the_world(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    chain = _base(endpoint, tmp_path)
+    chain["service"].update(camera_name="north", fps=15.0, seed=5)
+    fusion = _base(endpoint, tmp_path)
+    fusion["cameras"] = [{"name": "north", "source": "sim", "camera": chain["camera"]}]
+    chain_cfg = _write(tmp_path / "chain.toml", chain)
+    fusion_cfg = _write(tmp_path / "fusion.toml", fusion)
+    procs = [spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")]
+    stages = ("capture", "preprocess", "label", "pose")
+    procs += [
+        spawn(ovis_cmd("run", s, "--config", str(chain_cfg)), tmp_path / f"{s}.log") for s in stages
+    ]
+    procs.append(
+        spawn(ovis_cmd("run", "fusion", "--config", str(fusion_cfg)), tmp_path / "fusion.log")
+    )
+    cam = Topics("default").of_camera("north")
+    try:
+        with client(endpoint) as session:
+            wait_for(lambda: "fusion" in alive(session), 60, "fusion alive")
+            wait_for(lambda: set(stages) <= alive(session, "default/cam/north"), 60, "chain")
+            world = Collector(session, Topics("default").world, WorldFrame)
+            obstacles = Collector(session, cam.obstacles, ObstacleFrame)
+            truth = Collector(session, cam.truth, TruthFrame)
+            wait_for(lambda: len(world.snapshot()) >= 30, 60, "30 world frames")
+    finally:
+        stop(procs[1:])
+        stop(procs[:1])
+    for name in (*stages, "fusion"):
+        log = (tmp_path / f"{name}.log").read_text()
+        assert "Traceback" not in log, f"{name} log:\n{log}"
+    # nothing on the single-camera topics: the chain used its camera's
+    by_stamp = {m.stamp_ns: m for m in obstacles.snapshot()}
+    truths = {t.seq: t for t in truth.snapshot()}
+    checked = 0
+    for w in world.snapshot():
+        assert w.cameras == ["north"] and w.missing == []
+        frame = by_stamp.get(w.stamp_ns)
+        if frame is None or frame.seq not in truths:
+            continue
+        true_obs = [o for o in truths[frame.seq].objects if o.kind == "obstacle"]
+        fused = [o for o in w.objects if o.kind == "obstacle"]
+        assert len(fused) == len(frame.obstacles)
+        for o in fused:
+            assert o.cameras == ["north"] and o.sigma_cm > 0
+            err = min(np.hypot(o.x_cm - t.x_cm, o.y_cm - t.y_cm) for t in true_obs)
+            assert err < 1.0
+        checked += 1
+    assert checked >= 10
+
+
+def _frame(seq: int, stamp: int, seen) -> ObstacleFrame:
+    robots = [
+        RobotState(id=o.id, name=f"robot{o.id}", marker_id=o.marker_id, x_cm=o.x_cm,
+                   y_cm=o.y_cm, z_cm=o.z_cm, heading_deg=o.heading_deg, vx_cm_s=0.0,
+                   vy_cm_s=0.0, yaw_rate_deg_s=0.0, age_s=0.0, radius_cm=o.radius_cm)
+        for o in seen if o.kind == "robot"
+    ]  # fmt: skip
+    obstacles = [
+        DetectedObject(o.id, "obstacle", 0.0, 0.0, 0.0, 0.0, 1.0, o.x_cm, o.y_cm, o.z_cm,
+                       o.radius_cm, np.pi * o.radius_cm**2)
+        for o in seen if o.kind == "obstacle"
+    ]  # fmt: skip
+    return ObstacleFrame(seq=seq, stamp_ns=stamp, published_ns=time.time_ns(), frame_age_ms=0.0,
+                         calibration_version=0, robot=None, obstacles=obstacles, planner=[],
+                         robots=robots)  # fmt: skip
+
+
+def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
+    tmp_path: Path,
+) -> None:
+    """The 2×2 arena's per-camera detections (simulated measurements of the ground truth,
+    published as each camera's pose service would) through a real fusion process."""
+    seed = 909
+    specs = camera_grid(2, 2, cell_cm=CELL, seed=seed)
+    scene = GridScene(*grid_arena(2, 2, CELL), robots=4, obstacles=10, seed=seed)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    data = _base(endpoint, tmp_path)
+    data["cameras"] = [msgspec.to_builtins(s) for s in specs]
+    data["service"]["frame_timeout_s"] = 0.5
+    # a shared, loaded 2-core machine: wait up to 60 ms for a camera's frame
+    data["fusion"]["wait_ms"] = 60.0
+    cfg = _write(tmp_path / "fusion.toml", data)
+    procs = [spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")]
+    procs.append(spawn(ovis_cmd("run", "fusion", "--config", str(cfg)), tmp_path / "fusion.log"))
+    rng = np.random.default_rng(seed)
+    sigma = FusionConfig().pixel_sigma_px
+    topics = Topics("default")
+    sent_truth: dict[int, tuple] = {}
+    frames, silent_from = 240, 150
+    try:
+        with client(endpoint) as session:
+            wait_for(lambda: "fusion" in alive(session), 60, "fusion alive")
+            world = Collector(session, topics.world, WorldFrame)
+            pubs = {
+                s.name: session.declare_publisher(
+                    topics.of_camera(s.name).obstacles, encoding=ENCODING
+                )
+                for s in specs
+            }
+            start = time.monotonic()
+            for f in range(frames):
+                truth = scene.objects(f)
+                stamp = time.time_ns()
+                seen_ids: set[int] = set()
+                payloads = {}
+                for s in specs:  # the cameras capture at once, then publish
+                    if s.name == "cam11" and f >= silent_from:
+                        continue
+                    seen = measure(s.camera, truth, sigma, rng)
+                    seen_ids |= {o.id for o in seen}
+                    payloads[s.name] = encode(_frame(f, stamp, seen))
+                for name, payload in payloads.items():
+                    pubs[name].put(payload)
+                sent_truth[stamp] = (truth, seen_ids)
+                time.sleep(max(0.0, start + (f + 1) / 30.0 - time.monotonic()))
+            wait_for(lambda: len(world.snapshot()) >= frames - 2, 10, "every world frame")
+    finally:
+        stop(procs[1:])
+        stop(procs[:1])
+    log = (tmp_path / "fusion.log").read_text()
+    assert "Traceback" not in log, log
+    got = world.snapshot()
+    assert len(got) >= frames - 2
+    scorer = WorldScorer()
+    for w in got:
+        truth, seen_ids = sent_truth[w.stamp_ns]
+        scorer.add(
+            [(o.id, o.x_cm, o.y_cm, tuple(o.cameras)) for o in w.objects],
+            [(o.id, o.x_cm, o.y_cm) for o in truth],
+            seen_ids,
+        )
+    score = scorer.score()
+    partial = [(w.seq, w.cameras, w.missing) for w in got if w.seq < silent_from and w.missing]
+    assert score.duplicates == 0 and score.phantoms == 0 and score.missed == 0, (
+        partial,
+        got[-1].late_frames,
+    )
+    assert score.identity_swaps == 0
+    assert score.handover_jump_cm <= 1.0 and score.world_error_cm_mean <= 0.5
+    before = [w for w in got if w.stamp_ns in sent_truth and w.seq < silent_from - 5]
+    assert all(w.cameras == ["cam00", "cam01", "cam10", "cam11"] for w in before)
+    after = got[-30:]  # cam11 silent: the world frames go on without it, not late
+    assert all("cam11" not in w.cameras for w in after)
+    assert all(w.missing == [] for w in after[-10:])  # stale now: no longer waited for
+    assert any(w.missing == ["cam11"] for w in got)  # said so while it was waited for
+    assert got[-1].late_frames == dict.fromkeys(["cam00", "cam10", "cam01", "cam11"], 0)
