@@ -43,10 +43,11 @@ GROUPS = {
     "e2e": "End to end",
     "view": "Live view",
     "robots": "Marked robots",
+    "fusion": "Fusion",
     "memory": "Memory",
     "recording": "Recording",
 }
-DEFAULT = ("pipeline", "scaling", "calibration", "e2e", "view", "recording", "robots")
+DEFAULT = ("pipeline", "scaling", "calibration", "e2e", "view", "recording", "robots", "fusion")
 
 
 def log(message: str) -> None:
@@ -91,6 +92,10 @@ def run_groups(names: list[str], quick: bool, memory_s: float) -> list[Row]:
             from benchmarks.robots import robots_rows
 
             rows += robots_rows(quick, log)
+        elif name == "fusion":
+            from benchmarks.fusion import fusion_rows
+
+            rows += fusion_rows(quick, log)
         elif name == "memory":
             from benchmarks.bus import memory_rows
 

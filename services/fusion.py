@@ -14,7 +14,7 @@ import zenoh
 
 from ovis.common.calibration.file import load_calibration
 from ovis.common.config import CameraModel, CameraSpec
-from ovis.common.fusion.accuracy import sightings_of
+from ovis.common.fusion.accuracy import AccuracyMap, sightings_of
 from ovis.common.fusion.merge import Sighting
 from ovis.common.fusion.world import WorldFrameResult, WorldFuser
 from ovis.common.messages import ObstacleFrame, WorldFrame, WorldObject
@@ -86,11 +86,15 @@ def main(service: Service) -> None:
     if not cfg.cameras:
         raise SystemExit("fusion: the configuration lists no [[cameras]]; nothing to fuse")
     models = {spec.name: camera_model(spec) for spec in cfg.cameras}
+    sigma = cfg.fusion.pixel_sigma_px
+    accuracy = {name: AccuracyMap(cam, sigma) for name, cam in models.items()}
+    for each in accuracy.values():
+        each.prepare(cfg.pose.robot_height_cm, cfg.pose.obstacle_height_cm)
     fuser = WorldFuser(list(models), cfg.fusion, stale_ns=int(cfg.service.frame_timeout_s * 1e9))
     # every camera's frames are wanted (a world frame needs them all): room for several
     # frames of each; what overflows is counted as dropped in the status
     inbox = Inbox(max(cfg.service.queue_depth, 8) * len(models))
-    service._inboxes.append(inbox)  # noqa: SLF001 (its drops count in the status)
+    service._inboxes.append(inbox)  # its drops count in the status
     for name in models:
 
         def on_sample(sample: zenoh.Sample, name: str = name) -> None:
@@ -98,7 +102,6 @@ def main(service: Service) -> None:
 
         service.session.declare_subscriber(service.topics.of_camera(name).obstacles, on_sample)
     publish = service.publisher(service.topics.world)
-    sigma = cfg.fusion.pixel_sigma_px
     seq = received = 0
 
     def emit(results: list[WorldFrameResult]) -> None:
@@ -128,7 +131,7 @@ def main(service: Service) -> None:
             service.saw_frame(received, msg.stamp_ns)  # cameras' seqs interleave: ours
             received += 1
             try:
-                found: list[Sighting] = sightings_of(name, models[name], detections(msg), sigma)
+                found: list[Sighting] = sightings_of(name, accuracy[name], detections(msg), sigma)
             except Exception as exc:  # a camera's bad frame costs that frame only
                 service.error("processing", f"camera {name}: {type(exc).__name__}: {exc}")
                 continue

@@ -11,7 +11,7 @@ import pytest
 
 from ovis.common.camera.projection import back_project, project
 from ovis.common.config import ConfigError, FusionConfig, config_from_dict, load_config
-from ovis.common.fusion.accuracy import position_covariance, sightings_of
+from ovis.common.fusion.accuracy import AccuracyMap, position_covariance, sightings_of
 from ovis.common.fusion.matching import FrameMatcher
 from ovis.common.fusion.merge import Sighting, fuse
 from ovis.common.fusion.scoring import WorldScore, WorldScorer
@@ -146,6 +146,21 @@ def test_position_covariance_is_what_noisy_pixels_give() -> None:
     assert np.isinf(np.diag(position_covariance(50.0, 40.0, 500.0, cam, sigma)[0])).all()
 
 
+def test_the_accuracy_map_is_the_covariance_within_one_percent() -> None:
+    cam = camera_grid(2, 2, cell_cm=CELL, seed=2)[3].camera
+    rng = np.random.default_rng(4)
+    x, y = rng.uniform(90, 200, 300), rng.uniform(60, 150, 300)
+    z = np.where(np.arange(300) % 2 == 0, 5.0, 7.0)
+    direct = position_covariance(x, y, z, cam, 0.3)
+    seen = np.isfinite(direct).all(axis=(1, 2))
+    assert seen.sum() > 200
+    tabulated = AccuracyMap(cam, 0.3)(x, y, z)
+    scale = np.abs(direct[seen]).max(axis=(1, 2))[:, None, None]
+    assert (np.abs(tabulated[seen] - direct[seen]) <= 0.01 * scale).all()
+    far = AccuracyMap(cam, 0.3)(np.array([1e4]), np.array([1e4]), np.array([7.0]))
+    assert np.array_equal(far, position_covariance(1e4, 1e4, 7.0, cam, 0.3))
+
+
 # --- merging ---------------------------------------------------------------------------
 
 
@@ -243,6 +258,7 @@ def run_grid(seed: int, frames: int, *, dead: str | None = None) -> tuple[WorldS
     scene = GridScene(*grid_arena(2, 2, CELL), robots=4, obstacles=10, seed=seed)
     cfg = FusionConfig()
     fuser = WorldFuser([s.name for s in specs], cfg, stale_ns=200 * MS)
+    maps = {s.name: AccuracyMap(s.camera, cfg.pixel_sigma_px) for s in specs}
     rng = np.random.default_rng(seed)
     scorer = WorldScorer()
     missing: dict[str, int] = {}
@@ -259,7 +275,7 @@ def run_grid(seed: int, frames: int, *, dead: str | None = None) -> tuple[WorldS
             dets = [msgspec.structs.asdict(o) for o in measured]
             for d in dets:
                 d["marker_id"] = d["marker_id"] if d["kind"] == "robot" else None
-            sightings = sightings_of(spec.name, spec.camera, dets, cfg.pixel_sigma_px)
+            sightings = sightings_of(spec.name, maps[spec.name], dets, cfg.pixel_sigma_px)
             ready += fuser.add(spec.name, stamp, sightings, now_ns=stamp + (k + 1) * MS)
         ready += fuser.due(stamp + 30 * MS)
         for world in ready:

@@ -10,11 +10,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ovis.common.camera.projection import pixel_jacobian, project
+from ovis.common.camera.projection import back_project, pixel_jacobian, project
 from ovis.common.config import CameraModel
 from ovis.common.fusion.merge import Sighting
 
-__all__ = ["position_covariance", "sightings_of"]
+__all__ = ["AccuracyMap", "position_covariance", "sightings_of"]
 
 FloatArray = NDArray[np.float64]
 
@@ -44,24 +44,81 @@ def position_covariance(
     return cov
 
 
+class AccuracyMap:
+    """:func:`position_covariance` of one camera tabulated on a floor grid of
+    ``step_cm`` per plane height (built on first use of a height, one vectorised call),
+    so that a frame's sightings cost a look-up, not a back-projection each: the
+    covariance changes smoothly over a few cm. Points off the grid are computed."""
+
+    def __init__(self, cam: CameraModel, pixel_sigma_px: float, step_cm: float = 2.0) -> None:
+        self.cam, self.sigma, self.step = cam, pixel_sigma_px, step_cm
+        self._grids: dict[float, tuple[float, float, FloatArray]] = {}
+
+    def _grid(self, z: float) -> tuple[float, float, FloatArray]:
+        key = round(z, 1)
+        grid = self._grids.get(key)
+        if grid is None:
+            rows, cols = self.cam.rows - 1.0, self.cam.cols - 1.0
+            r = np.array([0.0, 0.0, rows, rows, rows / 2, 0.0, rows, rows / 2])
+            c = np.array([0.0, cols, 0.0, cols, 0.0, cols / 2, cols / 2, cols])
+            b = back_project(r, c, self.cam, key)
+            x, y = np.asarray(b.x_cm)[b.valid], np.asarray(b.y_cm)[b.valid]
+            if x.size == 0:
+                grid = (0.0, 0.0, np.full((0, 0, 2, 2), np.inf))
+            else:
+                x0, y0 = float(x.min()) - self.step, float(y.min()) - self.step
+                gx = np.arange(x0, float(x.max()) + 2 * self.step, self.step)
+                gy = np.arange(y0, float(y.max()) + 2 * self.step, self.step)
+                X, Y = np.meshgrid(gx, gy, indexing="ij")
+                cov = position_covariance(X.ravel(), Y.ravel(), key, self.cam, self.sigma)
+                grid = (x0, y0, cov.reshape(len(gx), len(gy), 2, 2))
+            self._grids[key] = grid
+        return grid
+
+    def prepare(self, *heights_cm: float) -> None:
+        """Build the grids of these plane heights now (at start, not on a frame)."""
+        for z in heights_cm:
+            self._grid(z)
+
+    def __call__(self, x_cm: ArrayLike, y_cm: ArrayLike, z_cm: ArrayLike) -> FloatArray:
+        """``(n, 2, 2)`` covariances at the points (nearest grid node)."""
+        x, y, z = np.broadcast_arrays(
+            *(np.atleast_1d(np.asarray(v, float)) for v in (x_cm, y_cm, z_cm))
+        )
+        out = np.empty((x.size, 2, 2))
+        for height in np.unique(z):
+            sel = z == height
+            x0, y0, cov = self._grid(float(height))
+            i = np.rint((x[sel] - x0) / self.step).astype(int)
+            j = np.rint((y[sel] - y0) / self.step).astype(int)
+            on = (i >= 0) & (i < cov.shape[0]) & (j >= 0) & (j < cov.shape[1])
+            got = np.empty((int(sel.sum()), 2, 2))
+            got[on] = cov[i[on], j[on]]
+            if (~on).any():
+                got[~on] = position_covariance(
+                    x[sel][~on], y[sel][~on], float(height), self.cam, self.sigma
+                )
+            out[sel] = got
+        return out
+
+
 def sightings_of(
     camera: str,
-    cam: CameraModel,
+    cam: CameraModel | AccuracyMap,
     objects: list[dict[str, Any]],
     pixel_sigma_px: float,
 ) -> list[Sighting]:
     """One camera's detections (mappings with ``kind, x_cm, y_cm, z_cm, radius_cm`` and
     optionally ``marker_id``, ``heading_deg``) as sightings with that camera's position
-    covariance at each (see :func:`position_covariance`)."""
+    covariance at each (see :func:`position_covariance`; from the camera's
+    :class:`AccuracyMap` when given one, then ``pixel_sigma_px`` is the map's)."""
     if not objects:
         return []
-    cov = position_covariance(
-        [o["x_cm"] for o in objects],
-        [o["y_cm"] for o in objects],
-        [o["z_cm"] for o in objects],
-        cam,
-        pixel_sigma_px,
-    )
+    xyz = ([o[k] for o in objects] for k in ("x_cm", "y_cm", "z_cm"))
+    if isinstance(cam, AccuracyMap):
+        cov = cam(*xyz)
+    else:
+        cov = position_covariance(*xyz, cam, pixel_sigma_px)
     return [
         Sighting(
             camera=camera,

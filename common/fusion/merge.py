@@ -67,6 +67,13 @@ def weighted_mean(points: FloatArray, covs: FloatArray) -> tuple[FloatArray, Flo
 
 
 def _merge(group: list[Sighting]) -> Fused:
+    if len(group) == 1:  # seen by one camera: as it saw it
+        s = group[0]
+        xx, xy, yy = s.cov_cm2
+        largest = (xx + yy) / 2 + math.hypot((xx - yy) / 2, xy)
+        return Fused(kind=s.kind, x_cm=s.x_cm, y_cm=s.y_cm, z_cm=s.z_cm,
+                     radius_cm=s.radius_cm, sigma_cm=math.sqrt(largest), cameras=[s.camera],
+                     marker_id=s.marker_id, heading_deg=s.heading_deg)  # fmt: skip
     pts = np.array([[s.x_cm, s.y_cm] for s in group])
     covs = np.stack([_cov(s) for s in group])
     mean, P = weighted_mean(pts, covs)

@@ -1,0 +1,183 @@
+"""Several cameras fused into one world (issue 19), on the simulated 2×2 arena (4 robots,
+10 obstacles, four 640×480 cameras):
+
+* merge cost: one world frame in-process (each camera's sightings with their
+  covariances, merging, identities), p50/p99; the floor is the frame period;
+* live: the fusion service as a real process behind a router, fed each camera's
+  detections at 30 frames/s per camera (simulated measurements published on
+  ``ovis/<arena>/cam/<name>/obstacles`` as each camera's pose service would), camera
+  stamp → world frame received by a subscriber; the floor is the same camera message
+  received by that subscriber (one hop through the router, no fusion).
+
+The four capture → preprocess → label → pose chains are NOT in these numbers: ``ovis up
+--cameras`` does not exist yet (docs/cameras.md).
+"""
+
+from __future__ import annotations
+
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import zenoh
+
+from benchmarks.bus import ARENA, Fleet, free_port, write_config
+from benchmarks.core import Row, ratio, stats
+from ovis.common.config import FusionConfig, ZenohConfig, load_config
+from ovis.common.fusion.accuracy import AccuracyMap, sightings_of
+from ovis.common.fusion.world import WorldFuser
+from ovis.common.messages import ENCODING, ObstacleFrame, Topics, WorldFrame, decode, encode
+from ovis.common.sim.arena import SimObject
+from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena, measure
+from ovis.common.world.detection import DetectedObject
+from ovis.common.world.robots import RobotState
+from ovis.services.bus import zenoh_config
+
+__all__ = ["detections_frame", "fusion_rows"]
+
+PREFIX = "Fusion"
+CELL = (100.0, 75.0)
+SEED = 9190
+FPS = 30.0
+
+
+def detections_frame(seq: int, stamp_ns: int, seen: list[SimObject]) -> ObstacleFrame:
+    """What a camera's pose service publishes for ``seen`` (measured objects)."""
+    robots = [
+        RobotState(id=o.id, name=f"robot{o.id}", marker_id=o.marker_id or 0, x_cm=o.x_cm,
+                   y_cm=o.y_cm, z_cm=o.z_cm, heading_deg=o.heading_deg, vx_cm_s=o.vx_cm_s,
+                   vy_cm_s=o.vy_cm_s, yaw_rate_deg_s=0.0, age_s=0.0, radius_cm=o.radius_cm)
+        for o in seen if o.kind == "robot"
+    ]  # fmt: skip
+    obstacles = [
+        DetectedObject(o.id, "obstacle", 0.0, 0.0, 0.0, 0.0, 1.0, o.x_cm, o.y_cm, o.z_cm,
+                       o.radius_cm, np.pi * o.radius_cm**2)
+        for o in seen if o.kind == "obstacle"
+    ]  # fmt: skip
+    return ObstacleFrame(seq=seq, stamp_ns=stamp_ns, published_ns=time.time_ns(),
+                         frame_age_ms=0.0, calibration_version=0, robot=None,
+                         obstacles=obstacles, planner=[], robots=robots)  # fmt: skip
+
+
+def _grid():
+    specs = camera_grid(2, 2, cell_cm=CELL, seed=SEED)
+    scene = GridScene(*grid_arena(2, 2, CELL), robots=4, obstacles=10, seed=SEED)
+    return specs, scene
+
+
+def _merge_cost(frames: int) -> tuple[float, float]:
+    specs, scene = _grid()
+    cfg = FusionConfig()
+    fuser = WorldFuser([s.name for s in specs], cfg, stale_ns=10**9)
+    rng = np.random.default_rng(SEED)
+    maps = {s.name: AccuracyMap(s.camera, cfg.pixel_sigma_px) for s in specs}
+    for m in maps.values():
+        m.prepare(5.0, 7.0)  # robot and obstacle tops, as the service does at start
+    samples = []
+    for f in range(frames):
+        truth = scene.objects(f)
+        dets = []
+        for s in specs:
+            found = [msgspec.structs.asdict(o) for o in measure(s.camera, truth, 0.3, rng)]
+            for d in found:
+                d["marker_id"] = d["marker_id"] if d["kind"] == "robot" else None
+            dets.append(found)
+        stamp = f * 33_333_333
+        t0 = time.perf_counter()
+        for s, found in zip(specs, dets, strict=True):
+            fuser.add(s.name, stamp, sightings_of(s.name, maps[s.name], found, 0.3), stamp)
+        samples.append((time.perf_counter() - t0) * 1e3)
+    st = stats(samples[5:])
+    return st.p50, st.p99
+
+
+def _live(frames: int, log=print) -> tuple[list[float], list[float], int]:
+    specs, scene = _grid()
+    with tempfile.TemporaryDirectory(prefix="ovis-bench-fusion-") as tmp:
+        work = Path(tmp)
+        port = free_port()
+        config = msgspec.structs.replace(
+            load_config(),
+            cameras=specs,
+            fusion=msgspec.structs.replace(FusionConfig(), wait_ms=20.0),
+        )
+        cfg_file = write_config(work / "fusion.toml", config, port)
+        fleet = Fleet(work)
+        fleet.start("router", ["router", "--listen", f"tcp/127.0.0.1:{port}"])
+        time.sleep(0.5)
+        fleet.start("fusion", ["run", "fusion", "--config", str(cfg_file)])
+        zc = zenoh_config(ZenohConfig(connect=[f"tcp/127.0.0.1:{port}"]))
+        topics = Topics(ARENA)
+        world_ms: list[float] = []
+        hop_ms: list[float] = []
+        lock = threading.Lock()
+
+        def on_world(sample: zenoh.Sample) -> None:
+            now = time.time_ns()
+            msg = decode(sample.payload.to_bytes(), WorldFrame)
+            with lock:
+                world_ms.append((now - msg.stamp_ns) / 1e6)
+
+        def on_hop(sample: zenoh.Sample) -> None:
+            now = time.time_ns()
+            msg = decode(sample.payload.to_bytes(), ObstacleFrame)
+            with lock:
+                hop_ms.append((now - msg.stamp_ns) / 1e6)
+
+        try:
+            with zenoh.open(zc) as sub, zenoh.open(zc) as pub_session:
+                sub.declare_subscriber(topics.world, on_world)
+                sub.declare_subscriber(topics.of_camera(specs[0].name).obstacles, on_hop)
+                deadline = time.monotonic() + 60
+                while not any(
+                    r.ok is not None
+                    for r in sub.liveliness().get(topics.alive("fusion"), timeout=1.0)
+                ):
+                    fleet.check("fusion")
+                    if time.monotonic() > deadline:
+                        raise RuntimeError("fusion not alive after 60 s")
+                pubs = {
+                    s.name: pub_session.declare_publisher(
+                        topics.of_camera(s.name).obstacles, encoding=zenoh.Encoding(ENCODING)
+                    )
+                    for s in specs
+                }
+                rng = np.random.default_rng(SEED)
+                start = time.monotonic()
+                for f in range(frames):
+                    truth = scene.objects(f)
+                    seen = {s.name: measure(s.camera, truth, 0.3, rng) for s in specs}
+                    stamp = time.time_ns()  # the cameras' common capture instant
+                    for s in specs:
+                        pubs[s.name].put(encode(detections_frame(f, stamp, seen[s.name])))
+                    time.sleep(max(0.0, start + (f + 1) / FPS - time.monotonic()))
+                time.sleep(0.5)
+        finally:
+            fleet.stop_all()
+        with lock:
+            return list(world_ms), list(hop_ms), frames
+
+
+def fusion_rows(quick: bool, log=print) -> list[Row]:
+    frames = 150 if quick else 600
+    p50, p99 = _merge_cost(frames)
+    period = 1e3 / FPS
+    log(f"[fusion] merge p50 {p50:.2f} ms, p99 {p99:.2f} ms")
+    world, hop, sent = _live(frames, log)
+    w, h = stats(world), stats(hop)
+    log(f"[fusion] live p50 {w.p50:.2f} ms p99 {w.p99:.2f} ms ({w.n}/{sent}), hop p50 {h.p50:.2f}")
+    label = "2×2 arena, 4 robots, 10 obstacles"
+    return [
+        Row(f"{PREFIX} merge one world frame in-process ({label}) p50 (p99 {p99:.2f} ms)",
+            "ms", p50, period, ratio(p50, period), "ratio ≤ 0.25", p50 <= 0.25 * period),
+        Row(f"{PREFIX} live, 4 cameras at 30 frames/s: camera stamp → world p50 "
+            f"({w.n}/{sent} world frames; chains not included)", "ms", w.p50, h.p50,
+            ratio(w.p50, h.p50), "≤ 8 ms", w.p50 <= 8.0),
+        Row(f"{PREFIX} live, 4 cameras at 30 frames/s: camera stamp → world p99", "ms", w.p99,
+            h.p99, ratio(w.p99, h.p99), "≤ 20 ms", w.p99 <= 20.0),
+        Row(f"{PREFIX} live: world frames lost ({label}, {sent} sent)", "frames",
+            float(sent - w.n), None, None, "0", sent == w.n),
+    ]  # fmt: skip
