@@ -170,14 +170,14 @@ def fusion_rows(quick: bool, log=print) -> list[Row]:
     w, h = stats(world), stats(hop)
     log(f"[fusion] live p50 {w.p50:.2f} ms p99 {w.p99:.2f} ms ({w.n}/{sent}), hop p50 {h.p50:.2f}")
     label = "2×2 arena, 4 robots, 10 obstacles"
+    # No targets: the issue's (capture → world p50 ≤ 8 ms, p99 ≤ 20 ms, no frame lost)
+    # are for the four chains plus fusion, which these rows do not run (docs/cameras.md).
     return [
-        Row(f"{PREFIX} merge one world frame in-process ({label}) p50 (p99 {p99:.2f} ms)",
-            "ms", p50, period, ratio(p50, period), "ratio ≤ 0.25", p50 <= 0.25 * period),
-        Row(f"{PREFIX} live, 4 cameras at 30 frames/s: camera stamp → world p50 "
-            f"({w.n}/{sent} world frames; chains not included)", "ms", w.p50, h.p50,
-            ratio(w.p50, h.p50), "≤ 8 ms", w.p50 <= 8.0),
-        Row(f"{PREFIX} live, 4 cameras at 30 frames/s: camera stamp → world p99", "ms", w.p99,
-            h.p99, ratio(w.p99, h.p99), "≤ 20 ms", w.p99 <= 20.0),
-        Row(f"{PREFIX} live: world frames lost ({label}, {sent} sent)", "frames",
-            float(sent - w.n), None, None, "0", sent == w.n),
+        Row(f"{PREFIX} merge one world frame in-process ({label}) p50 (p99 {p99:.2f} ms; "
+            "floor: the frame period)", "ms", p50, period, ratio(p50, period)),
+        Row(f"{PREFIX} live, 4 cameras' detections at 30 frames/s: camera stamp → world p50 "
+            f"(fusion only, chains not included; {w.n}/{sent} world frames received)", "ms",
+            w.p50, h.p50, ratio(w.p50, h.p50)),
+        Row(f"{PREFIX} live, 4 cameras' detections at 30 frames/s: camera stamp → world p99 "
+            "(fusion only)", "ms", w.p99, h.p99, ratio(w.p99, h.p99)),
     ]  # fmt: skip
