@@ -308,3 +308,16 @@ def test_a_dead_camera_leaves_its_area_uncovered_and_the_rest_flowing() -> None:
     assert score.missed == 0  # what the others see is still reported
     # reported missing only while it was still waited for (then stale: not live)
     assert 0 < counts["missing"].get("cam11", 0) <= 8
+
+
+def test_per_camera_topics_and_the_world_topic() -> None:
+    from ovis.common.messages import Topics
+
+    one = Topics("lab")
+    cam = one.of_camera("cam01")
+    assert (one.obstacles, one.world) == ("ovis/lab/obstacles", "ovis/lab/world")
+    assert cam.obstacles == "ovis/lab/cam/cam01/obstacles"
+    assert cam.status("pose") == "ovis/lab/cam/cam01/status/pose"
+    assert cam.world == one.world  # one world, whatever camera
+    with pytest.raises(ValueError, match="camera name 'a/b'"):
+        one.of_camera("a/b")

@@ -44,6 +44,8 @@ from ovis.common.messages import (
     StreamHealth,
     Topics,
     TruthFrame,
+    WorldFrame,
+    WorldObject,
     decode,
     encode,
     message_schema,
@@ -62,6 +64,7 @@ MESSAGE_TYPES = [
     CalibrationUpdate,
     ServiceStatus,
     StreamHealth,
+    WorldFrame,
 ]
 
 
@@ -273,6 +276,39 @@ def sample_messages() -> dict[str, Any]:
             calibration_version=2,
         ),
         "health-waiting": StreamHealth(state="waiting", published_ns=1),
+        "world": WorldFrame(
+            seq=3,
+            stamp_ns=1_700_000_000_000_000_000,
+            published_ns=1_700_000_000_004_000_000,
+            arena="lab",
+            objects=[
+                WorldObject(
+                    id=1,
+                    kind="robot",
+                    x_cm=50.0,
+                    y_cm=40.0,
+                    z_cm=5.0,
+                    radius_cm=9.0,
+                    sigma_cm=0.05,
+                    cameras=["cam00", "cam10"],
+                    marker_id=0,
+                    heading_deg=-30.0,
+                ),
+                WorldObject(
+                    id=1000,
+                    kind="obstacle",
+                    x_cm=120.0,
+                    y_cm=60.0,
+                    z_cm=7.0,
+                    radius_cm=5.0,
+                    sigma_cm=0.07,
+                    cameras=["cam10"],
+                ),
+            ],  # fmt: skip
+            cameras=["cam00", "cam10"],
+            missing=["cam11"],
+            late_frames={"cam00": 0, "cam10": 2, "cam11": 0},
+        ),
     }
 
 
