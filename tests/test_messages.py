@@ -304,7 +304,7 @@ def sample_messages() -> dict[str, Any]:
                     sigma_cm=0.07,
                     cameras=["cam10"],
                 ),
-            ],  # fmt: skip
+            ],
             cameras=["cam00", "cam10"],
             missing=["cam11"],
             late_frames={"cam00": 0, "cam10": 2, "cam11": 0},
