@@ -17,7 +17,7 @@ from ovis.common.config import CameraModel, CameraSpec
 from ovis.common.fusion.accuracy import AccuracyMap, sightings_of
 from ovis.common.fusion.merge import Sighting
 from ovis.common.fusion.world import WorldFrameResult, WorldFuser
-from ovis.common.messages import ObstacleFrame, WorldFrame, WorldObject
+from ovis.common.messages import CalibrationUpdate, ObstacleFrame, WorldFrame, WorldObject
 from ovis.services.inbox import Inbox
 from ovis.services.service import Service
 
@@ -81,6 +81,31 @@ def world_message(r: WorldFrameResult, seq: int, arena: str, late: dict[str, int
     )
 
 
+def follow_calibrations(service: Service, accuracy: dict[str, AccuracyMap]) -> None:
+    """Each camera's newer calibration (``ovis/<arena>/cam/<name>/calibration``, from its
+    chain's calibrator) replaces that camera's accuracy map only, built off the network
+    thread; the other cameras are not touched."""
+    cfg = service.config
+    versions = dict.fromkeys(accuracy, 0)
+
+    def rebuild(name: str, update: CalibrationUpdate) -> None:
+        fresh = AccuracyMap(update.calibration.camera, cfg.fusion.pixel_sigma_px)
+        fresh.prepare(cfg.pose.robot_height_cm, cfg.pose.obstacle_height_cm)
+        accuracy[name] = fresh  # one assignment: the loop sees the old map or the new
+        service.log.info("camera %s: calibration v%d", name, update.calibration.version)
+
+    for name in accuracy:
+
+        def on_sample(sample: zenoh.Sample, name: str = name) -> None:
+            update = service.decode(sample.payload.to_bytes(), CalibrationUpdate, "calibration")
+            if update is None or update.calibration.version <= versions[name]:
+                return
+            versions[name] = update.calibration.version
+            threading.Thread(target=rebuild, args=(name, update), daemon=True).start()
+
+        service.session.declare_subscriber(service.topics.of_camera(name).calibration, on_sample)
+
+
 def main(service: Service) -> None:
     cfg = service.config
     if not cfg.cameras:
@@ -93,6 +118,7 @@ def main(service: Service) -> None:
     fuser = WorldFuser(list(models), cfg.fusion, stale_ns=int(cfg.service.frame_timeout_s * 1e9))
     # every camera's frames are wanted (a world frame needs them all): room for several
     # frames of each; what overflows is counted as dropped in the status
+    follow_calibrations(service, accuracy)
     inbox = Inbox(max(cfg.service.queue_depth, 8) * len(models))
     service._inboxes.append(inbox)  # its drops count in the status
     for name in models:

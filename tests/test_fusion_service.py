@@ -11,12 +11,15 @@ from pathlib import Path
 
 import msgspec
 import numpy as np
+import pytest
 from zenoh_helpers import alive, client, free_port, ovis_cmd, spawn, stop, wait_for
 
+from ovis.common.calibration.file import calibration_from_config
 from ovis.common.config import FusionConfig, dump_toml, load_config
 from ovis.common.fusion.scoring import WorldScorer
 from ovis.common.messages import (
     ENCODING,
+    CalibrationUpdate,
     ObstacleFrame,
     Topics,
     TruthFrame,
@@ -151,7 +154,17 @@ def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
     sigma = FusionConfig().pixel_sigma_px
     topics = Topics("default")
     sent_truth: dict[int, tuple] = {}
-    frames, silent_from = 240, 150
+    frames, silent_from, recalibrated_at = 240, 150, 100
+    # cam00 recalibrated half-way: a focal length half as long, so each of its pixels
+    # covers twice the floor and its sightings' sigma doubles; the others are untouched
+    first = specs[0].camera
+    halved = msgspec.structs.replace(first, fx=first.fx / 2, fy=first.fy / 2)
+    recalibration = CalibrationUpdate(
+        calibration=msgspec.structs.replace(
+            calibration_from_config(msgspec.structs.replace(load_config(), camera=halved)),
+            version=1,
+        )
+    )
     try:
         with client(endpoint) as session:
             wait_for(lambda: "fusion" in alive(session), 60, "fusion alive")
@@ -165,6 +178,12 @@ def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
             start = time.monotonic()
             for f in range(frames):
                 truth = scene.objects(f)
+                if f == recalibrated_at:
+                    session.put(
+                        topics.of_camera("cam00").calibration,
+                        encode(recalibration),
+                        encoding=ENCODING,
+                    )
                 stamp = time.time_ns()
                 seen_ids: set[int] = set()
                 payloads = {}
@@ -209,3 +228,16 @@ def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
     assert all(w.missing == [] for w in after[-10:])  # stale now: no longer waited for
     assert any(w.missing == ["cam11"] for w in got)  # said so while it was waited for
     assert got[-1].late_frames == dict.fromkeys(["cam00", "cam10", "cam01", "cam11"], 0)
+
+    # recalibration of cam00 changed cam00's weights only
+    def sigmas(cams: list[str], seqs: range) -> dict[int, float]:
+        return {o.id: o.sigma_cm for w in got if w.seq in seqs for o in w.objects
+                if o.kind == "obstacle" and o.cameras == cams}  # fmt: skip
+
+    before0, after0 = sigmas(["cam00"], range(50, 95)), sigmas(["cam00"], range(110, 145))
+    before1, after1 = sigmas(["cam10"], range(50, 95)), sigmas(["cam10"], range(110, 145))
+    assert before0.keys() & after0.keys() and before1.keys() & after1.keys()
+    for k in before0.keys() & after0.keys():
+        assert after0[k] / before0[k] == pytest.approx(2.0, rel=0.05)
+    for k in before1.keys() & after1.keys():
+        assert after1[k] == pytest.approx(before1[k], rel=1e-6)
