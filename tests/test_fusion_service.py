@@ -241,3 +241,91 @@ def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
         assert after0[k] / before0[k] == pytest.approx(2.0, rel=0.05)
     for k in before1.keys() & after1.keys():
         assert after1[k] == pytest.approx(before1[k], rel=1e-6)
+
+
+def test_two_real_chains_fused_and_a_killed_chain_recovers(tmp_path: Path) -> None:
+    """Two cameras over two halves of a floor (the east camera 300 cm along X), each
+    with its real capture → preprocess → label → pose chain, unsynchronised; fusion
+    gives one world of both; the east pose killed, the west keeps flowing, then the
+    east chain is back in the world."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    west = _base(endpoint, tmp_path)
+    west["service"].update(camera_name="west", fps=15.0, seed=11)
+    east = _base(endpoint, tmp_path)
+    east["camera"]["X0_cm"] += 300.0
+    east["simulator"]["arena_x_cm"] = [x + 300.0 for x in east["simulator"]["arena_x_cm"]]
+    east["service"].update(camera_name="east", fps=15.0, seed=12)
+    fusion = _base(endpoint, tmp_path)
+    fusion["cameras"] = [
+        {"name": "west", "camera": west["camera"]},
+        {"name": "east", "camera": east["camera"]},
+    ]
+    # unsynchronised cameras at 15 frames/s: frames within half a period are one instant
+    fusion["fusion"] = {"match_window_ms": 33.0, "wait_ms": 40.0}
+    fusion["service"]["frame_timeout_s"] = 1.0
+    files = {n: _write(tmp_path / f"{n}.toml", d) for n, d in
+             (("west", west), ("east", east), ("fusion", fusion))}  # fmt: skip
+    stages = ("capture", "preprocess", "label", "pose")
+    procs = {"router": spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")}
+    for cam in ("west", "east"):
+        for s in stages:
+            procs[f"{cam}-{s}"] = spawn(
+                ovis_cmd("run", s, "--config", str(files[cam])), tmp_path / f"{cam}-{s}.log"
+            )
+    procs["fusion"] = spawn(
+        ovis_cmd("run", "fusion", "--config", str(files["fusion"])), tmp_path / "fusion.log"
+    )
+    topics = Topics("default")
+    try:
+        with client(endpoint) as session:
+            wait_for(lambda: "fusion" in alive(session), 60, "fusion alive")
+            world = Collector(session, topics.world, WorldFrame)
+            per_cam = {
+                c: Collector(session, topics.of_camera(c).obstacles, ObstacleFrame)
+                for c in ("west", "east")
+            }
+
+            def both(since: int) -> int:
+                return sum(w.cameras == ["east", "west"] for w in world.snapshot()[since:])
+
+            wait_for(lambda: both(0) >= 20, 90, "20 world frames of both cameras")
+            stop([procs["east-pose"]], timeout=0.1)  # SIGTERM, then kill
+            killed_at = len(world.snapshot())
+            wait_for(
+                lambda: sum(w.cameras == ["west"] and w.missing == []
+                            for w in world.snapshot()[killed_at:]) >= 10,
+                30, "west alone, east no longer waited for",
+            )  # fmt: skip
+            procs["east-pose"] = spawn(
+                ovis_cmd("run", "pose", "--config", str(files["east"])),
+                tmp_path / "east-pose-2.log",
+            )
+            back_at = len(world.snapshot())
+            wait_for(lambda: both(back_at) >= 10, 60, "east back in the world")
+    finally:
+        stop([p for n, p in procs.items() if n != "router"])
+        stop([procs["router"]])
+    for log in tmp_path.glob("*.log"):
+        assert "Traceback" not in log.read_text(), log.name
+    got = world.snapshot()
+    frames = {c: {m.stamp_ns: m for m in col.snapshot()} for c, col in per_cam.items()}
+    checked = 0
+    for w in got:
+        for o in w.objects:
+            assert o.cameras in (["west"], ["east"])  # the halves do not overlap
+            assert (o.x_cm > 250.0) == (o.cameras == ["east"])
+        if w.cameras != ["east", "west"]:
+            continue
+        # every object of each camera's frame is in the world, once, where it saw it
+        mine = [f for c in ("west", "east") for f in frames[c].values()
+                if abs(f.stamp_ns - w.stamp_ns) <= 33_000_000]  # fmt: skip
+        if len(mine) != 2:
+            continue
+        seen = sorted((round(o.x_cm, 6), round(o.y_cm, 6)) for f in mine for o in f.obstacles)
+        fused = sorted((round(o.x_cm, 6), round(o.y_cm, 6)) for o in w.objects
+                       if o.kind == "obstacle")  # fmt: skip
+        assert fused == seen
+        checked += 1
+    assert checked >= 10
+    seqs = [w.seq for w in got]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
