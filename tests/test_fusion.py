@@ -9,14 +9,13 @@ import msgspec
 import numpy as np
 import pytest
 
+from ovis.common.analysis.multicam import simulate_grid
 from ovis.common.camera.projection import back_project, project
 from ovis.common.config import ConfigError, FusionConfig, config_from_dict, load_config
-from ovis.common.fusion.accuracy import AccuracyMap, position_covariance, sightings_of
+from ovis.common.fusion.accuracy import AccuracyMap, position_covariance
 from ovis.common.fusion.matching import FrameMatcher
 from ovis.common.fusion.merge import Sighting, fuse
-from ovis.common.fusion.scoring import WorldScore, WorldScorer
-from ovis.common.fusion.world import WorldFuser
-from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena, measure
+from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena
 
 CELL = (100.0, 75.0)
 MS = 1_000_000
@@ -252,62 +251,29 @@ def test_frames_leave_in_stamp_order() -> None:
 # --- the whole: simulated 2×2 arena against ground truth -------------------------------
 
 
-def run_grid(seed: int, frames: int, *, dead: str | None = None) -> tuple[WorldScore, dict]:
-    """Fuse ``frames`` frames of the simulated 2×2 arena (4 robots, 10 obstacles)."""
-    specs = camera_grid(2, 2, cell_cm=CELL, seed=seed)
-    scene = GridScene(*grid_arena(2, 2, CELL), robots=4, obstacles=10, seed=seed)
-    cfg = FusionConfig()
-    fuser = WorldFuser([s.name for s in specs], cfg, stale_ns=200 * MS)
-    maps = {s.name: AccuracyMap(s.camera, cfg.pixel_sigma_px) for s in specs}
-    rng = np.random.default_rng(seed)
-    scorer = WorldScorer()
-    missing: dict[str, int] = {}
-    for f in range(frames):
-        truth = scene.objects(f)
-        stamp = f * 33_333_333
-        seen: set[int] = set()
-        ready = []
-        for k, spec in enumerate(specs):
-            if spec.name == dead and f >= frames // 2:
-                continue
-            measured = measure(spec.camera, truth, cfg.pixel_sigma_px, rng)
-            seen |= {o.id for o in measured}
-            dets = [msgspec.structs.asdict(o) for o in measured]
-            for d in dets:
-                d["marker_id"] = d["marker_id"] if d["kind"] == "robot" else None
-            sightings = sightings_of(spec.name, maps[spec.name], dets, cfg.pixel_sigma_px)
-            ready += fuser.add(spec.name, stamp, sightings, now_ns=stamp + (k + 1) * MS)
-        ready += fuser.due(stamp + 30 * MS)
-        for world in ready:
-            for name in world.missing:
-                missing[name] = missing.get(name, 0) + 1
-            scorer.add(
-                [(o.id, o.obj.x_cm, o.obj.y_cm, tuple(o.obj.cameras)) for o in world.objects],
-                [(o.id, o.x_cm, o.y_cm) for o in truth],
-                seen,
-            )
-    return scorer.score(), {"late": fuser.matcher.late, "missing": missing}
-
-
 @pytest.mark.parametrize("seed", [101, 202, 303])
 def test_fused_world_on_unseen_seeds_meets_the_issue_numbers(seed: int) -> None:
-    score, counts = run_grid(seed, 600)
+    run = simulate_grid(2, 2, frames=600, seed=seed)
+    score = run.world
     assert score.frames == 600
     assert score.duplicates == 0 and score.phantoms == 0 and score.missed == 0
     assert score.identity_swaps == 0
     assert score.handovers >= 20  # robots did cross between views
     assert score.handover_jump_cm <= 1.0
     assert score.world_error_cm_mean <= 0.5
-    assert counts["late"] == dict.fromkeys(["cam00", "cam10", "cam01", "cam11"], 0)
+    assert all(c.captured == c.processed == 600 and c.dropped == 0 for c in run.cameras.values())
 
 
 def test_a_dead_camera_leaves_its_area_uncovered_and_the_rest_flowing() -> None:
-    score, counts = run_grid(404, 200, dead="cam11")
+    run = simulate_grid(2, 2, frames=200, seed=404, dead="cam11")
+    score = run.world
     assert score.frames == 200  # no world frame lost
     assert score.duplicates == 0 and score.identity_swaps == 0 and score.phantoms == 0
     assert score.missed == 0  # what the others see is still reported
-    # reported missing only while it was still waited for (then stale: not live)
-    assert 0 < counts["missing"].get("cam11", 0) <= 8
+    assert run.cameras["cam11"].captured == 100
+    assert run.cameras["cam00"].processed == 200
+    with pytest.raises(ValueError, match="no camera 'cam99'"):
+        simulate_grid(2, 2, frames=1, seed=1, dead="cam99")
 
 
 def test_per_camera_topics_and_the_world_topic() -> None:

@@ -40,7 +40,7 @@ LAYERS: dict[str, set[str]] = {
     "capture": {"config", "atomic", "camera", "sim", "vision"},
     "messages": {"config", "camera", "vision", "world", "calibration", "sim"},
     "pipeline": FOUNDATION,
-    "analysis": FOUNDATION,
+    "analysis": FOUNDATION | {"fusion"},
     "view": {"config", "camera", "calibration", "messages"},
     "fusion": {"config", "camera"},
 }

@@ -31,7 +31,16 @@ app = typer.Typer(
 )
 
 # One module per command group; each registers its commands.
-from ovis.services.cli import analysis, camera, export, launcher, offline, recording, view  # noqa: E402
+from ovis.services.cli import (  # noqa: E402
+    analysis,
+    camera,
+    cameras,
+    export,
+    launcher,
+    offline,
+    recording,
+    view,
+)
 
 offline.register(app)
 launcher.register(app)
@@ -40,6 +49,7 @@ export.register(app)
 view.register(app)
 recording.register(app)
 camera.register(app)
+cameras.register(app)
 
 
 def main() -> None:
