@@ -26,40 +26,20 @@ import zenoh
 
 from benchmarks.bus import ARENA, Fleet, free_port, write_config
 from benchmarks.core import Row, ratio, stats
+from ovis.common.analysis.multicam import detections_frame
 from ovis.common.config import FusionConfig, ZenohConfig, load_config
 from ovis.common.fusion.accuracy import AccuracyMap, sightings_of
 from ovis.common.fusion.world import WorldFuser
 from ovis.common.messages import ENCODING, ObstacleFrame, Topics, WorldFrame, decode, encode
-from ovis.common.sim.arena import SimObject
 from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena, measure
-from ovis.common.world.detection import DetectedObject
-from ovis.common.world.robots import RobotState
 from ovis.services.bus import zenoh_config
 
-__all__ = ["detections_frame", "fusion_rows"]
+__all__ = ["fusion_rows"]
 
 PREFIX = "Fusion"
 CELL = (100.0, 75.0)
 SEED = 9190
 FPS = 30.0
-
-
-def detections_frame(seq: int, stamp_ns: int, seen: list[SimObject]) -> ObstacleFrame:
-    """What a camera's pose service publishes for ``seen`` (measured objects)."""
-    robots = [
-        RobotState(id=o.id, name=f"robot{o.id}", marker_id=o.marker_id or 0, x_cm=o.x_cm,
-                   y_cm=o.y_cm, z_cm=o.z_cm, heading_deg=o.heading_deg, vx_cm_s=o.vx_cm_s,
-                   vy_cm_s=o.vy_cm_s, yaw_rate_deg_s=0.0, age_s=0.0, radius_cm=o.radius_cm)
-        for o in seen if o.kind == "robot"
-    ]  # fmt: skip
-    obstacles = [
-        DetectedObject(o.id, "obstacle", 0.0, 0.0, 0.0, 0.0, 1.0, o.x_cm, o.y_cm, o.z_cm,
-                       o.radius_cm, np.pi * o.radius_cm**2)
-        for o in seen if o.kind == "obstacle"
-    ]  # fmt: skip
-    return ObstacleFrame(seq=seq, stamp_ns=stamp_ns, published_ns=time.time_ns(),
-                         frame_age_ms=0.0, calibration_version=0, robot=None,
-                         obstacles=obstacles, planner=[], robots=robots)  # fmt: skip
 
 
 def _grid():

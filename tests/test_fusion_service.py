@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from zenoh_helpers import alive, client, free_port, ovis_cmd, spawn, stop, wait_for
 
+from ovis.common.analysis.multicam import detections_frame
 from ovis.common.calibration.file import calibration_from_config
 from ovis.common.config import FusionConfig, dump_toml, load_config
 from ovis.common.fusion.scoring import WorldScorer
@@ -28,8 +29,6 @@ from ovis.common.messages import (
     encode,
 )
 from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena, measure
-from ovis.common.world.detection import DetectedObject
-from ovis.common.world.robots import RobotState
 
 CELL = (100.0, 75.0)
 
@@ -116,23 +115,6 @@ def test_a_real_camera_chain_on_its_own_topics_is_fused_into_the_world(tmp_path:
     assert checked >= 10
 
 
-def _frame(seq: int, stamp: int, seen) -> ObstacleFrame:
-    robots = [
-        RobotState(id=o.id, name=f"robot{o.id}", marker_id=o.marker_id, x_cm=o.x_cm,
-                   y_cm=o.y_cm, z_cm=o.z_cm, heading_deg=o.heading_deg, vx_cm_s=0.0,
-                   vy_cm_s=0.0, yaw_rate_deg_s=0.0, age_s=0.0, radius_cm=o.radius_cm)
-        for o in seen if o.kind == "robot"
-    ]  # fmt: skip
-    obstacles = [
-        DetectedObject(o.id, "obstacle", 0.0, 0.0, 0.0, 0.0, 1.0, o.x_cm, o.y_cm, o.z_cm,
-                       o.radius_cm, np.pi * o.radius_cm**2)
-        for o in seen if o.kind == "obstacle"
-    ]  # fmt: skip
-    return ObstacleFrame(seq=seq, stamp_ns=stamp, published_ns=time.time_ns(), frame_age_ms=0.0,
-                         calibration_version=0, robot=None, obstacles=obstacles, planner=[],
-                         robots=robots)  # fmt: skip
-
-
 def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
     tmp_path: Path,
 ) -> None:
@@ -192,7 +174,7 @@ def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
                         continue
                     seen = measure(s.camera, truth, sigma, rng)
                     seen_ids |= {o.id for o in seen}
-                    payloads[s.name] = encode(_frame(f, stamp, seen))
+                    payloads[s.name] = encode(detections_frame(f, stamp, seen))
                 for name, payload in payloads.items():
                     pubs[name].put(payload)
                 sent_truth[stamp] = (truth, seen_ids)

@@ -15,9 +15,13 @@ from ovis.common.config import FusionConfig
 from ovis.common.fusion.accuracy import AccuracyMap, sightings_of
 from ovis.common.fusion.scoring import WorldScore, WorldScorer
 from ovis.common.fusion.world import WorldFuser
+from ovis.common.messages import ObstacleFrame
+from ovis.common.sim.arena import SimObject
 from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena, measure
+from ovis.common.world.detection import DetectedObject
+from ovis.common.world.robots import RobotState
 
-__all__ = ["CameraCounts", "GridRun", "simulate_grid"]
+__all__ = ["CameraCounts", "GridRun", "detections_frame", "simulate_grid"]
 
 MS = 1_000_000
 FRAME_NS = 33_333_333  # 30 frames/s
@@ -117,3 +121,21 @@ def simulate_grid(
         fuse_ms_p50=float(np.percentile(per_frame, 50)) if per_frame.size else 0.0,
         fuse_ms_p99=float(np.percentile(per_frame, 99)) if per_frame.size else 0.0,
     )
+
+
+def detections_frame(seq: int, stamp_ns: int, seen: list[SimObject]) -> ObstacleFrame:
+    """What a camera's pose service publishes for ``seen`` (measured objects)."""
+    robots = [
+        RobotState(id=o.id, name=f"robot{o.id}", marker_id=o.marker_id or 0, x_cm=o.x_cm,
+                   y_cm=o.y_cm, z_cm=o.z_cm, heading_deg=o.heading_deg, vx_cm_s=o.vx_cm_s,
+                   vy_cm_s=o.vy_cm_s, yaw_rate_deg_s=0.0, age_s=0.0, radius_cm=o.radius_cm)
+        for o in seen if o.kind == "robot"
+    ]  # fmt: skip
+    obstacles = [
+        DetectedObject(o.id, "obstacle", 0.0, 0.0, 0.0, 0.0, 1.0, o.x_cm, o.y_cm, o.z_cm,
+                       o.radius_cm, np.pi * o.radius_cm**2)
+        for o in seen if o.kind == "obstacle"
+    ]  # fmt: skip
+    return ObstacleFrame(seq=seq, stamp_ns=stamp_ns, published_ns=time.time_ns(),
+                         frame_age_ms=0.0, calibration_version=0, robot=None,
+                         obstacles=obstacles, planner=[], robots=robots)  # fmt: skip
