@@ -81,6 +81,16 @@ def world_message(r: WorldFrameResult, seq: int, arena: str, late: dict[str, int
     )
 
 
+def camera_state(missing: list[str], silent: list[str]) -> str:
+    """The fusion service's state: "ok", or which cameras' areas are not covered."""
+    parts = []
+    if silent:
+        parts.append(f"no frames from {', '.join(silent)} (area uncovered)")
+    if missing:
+        parts.append(f"late: {', '.join(missing)}")
+    return "; ".join(parts) or "ok"
+
+
 def follow_calibrations(service: Service, accuracy: dict[str, AccuracyMap]) -> None:
     """Each camera's newer calibration (``ovis/<arena>/cam/<name>/calibration``, from its
     chain's calibrator) replaces that camera's accuracy map only, built off the network
@@ -138,7 +148,8 @@ def main(service: Service) -> None:
             publish(out)
             service.sent()
             service.last_latency_ms = (out.published_ns - out.stamp_ns) / 1e6
-            service.state = "ok" if not r.missing else f"missing {', '.join(r.missing)}"
+            silent = sorted(set(models) - set(fuser.matcher.live(time.time_ns())))
+            service.state = camera_state(r.missing, silent)
 
     def loop() -> None:
         service.ready()

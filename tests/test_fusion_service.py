@@ -22,6 +22,7 @@ from ovis.common.messages import (
     ENCODING,
     CalibrationUpdate,
     ObstacleFrame,
+    ServiceStatus,
     Topics,
     TruthFrame,
     WorldFrame,
@@ -278,6 +279,9 @@ def test_two_real_chains_fused_and_a_killed_chain_recovers(tmp_path: Path) -> No
                             for w in world.snapshot()[killed_at:]) >= 10,
                 30, "west alone, east no longer waited for",
             )  # fmt: skip
+            replies = session.get(topics.status("fusion"), timeout=2.0)
+            states = [decode(r.ok.payload.to_bytes(), ServiceStatus).state for r in replies if r.ok]
+            assert states == ["no frames from east (area uncovered)"]
             procs["east-pose"] = spawn(
                 ovis_cmd("run", "pose", "--config", str(files["east"])),
                 tmp_path / "east-pose-2.log",
