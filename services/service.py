@@ -250,4 +250,24 @@ def run(name: str, config: OvisConfig, main: Callable[[Service], None]) -> int:
         finally:
             service.stop.set()
             service.log.info("stopped: %s", msgspec.json.encode(service.status()).decode())
+            exit_anyway_after(EXIT_GRACE_S, service.log)
     return 0
+
+
+#: Seconds a stopped service may take to close its Zenoh session and exit.
+EXIT_GRACE_S = 2.0
+
+
+def exit_anyway_after(seconds: float, logger: logging.Logger) -> None:
+    """Once a service has stopped (its state logged), make sure the process ends: a Zenoh
+    session whose close, or an interpreter shutdown, hangs (seen on loaded hosts) would
+    otherwise leave the supervisor to SIGKILL it and report an abnormal exit."""
+
+    def force() -> None:
+        logger.warning("closing took over %g s: exiting now", seconds)
+        logging.shutdown()
+        os._exit(0)
+
+    timer = threading.Timer(seconds, force)
+    timer.daemon = True
+    timer.start()
