@@ -259,8 +259,10 @@ def up(
     time.sleep(0.5)
     if view:
         from ovis.services.cli.view import DEFAULT_LISTEN
+        from ovis.services.placement import off_path_option
 
-        fleet.start("view", ["view", "--connect", listen, "--arena", topics.arena])
+        view_args = ["view", "--connect", listen, "--arena", topics.arena]
+        fleet.start("view", [*view_args, *off_path_option(cpus)])
         where = os.environ.get("OVIS_VIEW_LISTEN", DEFAULT_LISTEN)
         print(f"ovis up: live view on http://{where}/ (log: {log_dir / 'view.log'})", file=out)
 
