@@ -272,13 +272,14 @@ class StreamHealth(_Msg, tag="health", kw_only=True):
     whether frames flow or not, so that a consumer can tell "no obstacles" (an
     ObstacleFrame with an empty list) from "no data" (``state`` "stalled")."""
 
-    state: Literal["waiting", "ok", "stalled"]
+    state: Literal["waiting", "ok", "stalled", "degraded", "failing"]
     published_ns: Stamp
     last_seq: int = -1
     seconds_since_frame: float | None = None  # by the publisher's clock, since receipt
     last_frame_age_ms: float | None = None  # capture → publication of the last frame
     frames_dropped: int = 0
     calibration_version: int = 0
+    reason: str = ""  # why "degraded" or "failing"
 
 
 class TruthFrame(_Msg, tag="truth", kw_only=True):
@@ -336,6 +337,10 @@ class ServiceStatus(_Msg, tag="status", kw_only=True):
     last_frame_age_s: float | None = None
     rss_mb: float = 0.0
     restarts: int = 0  # times `ovis up` restarted this service
+    reason: str = ""  # why the state is "degraded" or "failing"
+    calibration_epoch: str = ""  # the calibrator's store id of the calibration in use
+    seq_jumps: int = 0  # sequence jumps beyond the plausible gap (not counted as dropped)
+    stream_restarts: int = 0  # times the capture's stream identity changed
 
 
 Message = (

@@ -14,10 +14,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import msgspec
 import zenoh
 
 from ovis.common.calibration.problem import InfeasibleCalibrationError, calibrate
 from ovis.common.calibration.store import CalibrationStore
+from ovis.common.calibration.validity import calibration_problem
 from ovis.common.config import ControlPoint, load_points
 from ovis.common.messages import (
     ENCODING,
@@ -29,6 +31,7 @@ from ovis.common.messages import (
     TruthFrame,
     encode,
 )
+from ovis.common.pipeline.following import label
 from ovis.common.pipeline.recalibration import (
     FrameKeeper,
     calibrate_reply,
@@ -67,9 +70,14 @@ def main(service: Service) -> None:
     saved, problems = store.latest()
     for problem in problems:
         service.error("bad_saved_calibration", f"skipped {problem}")
+    epoch = store.epoch()
+    if saved is not None and service.refused(
+        "bad_saved_calibration", calibration_problem(saved, cfg)
+    ):
+        saved = None
     if saved is not None:
-        service.calibration = saved
-        service.log.info("loaded calibration v%d from %s", saved.version, store.folder)
+        service.calibration = msgspec.structs.replace(saved, epoch=saved.epoch or epoch)
+        service.log.info("loaded calibration %s from %s", label(service.calibration), store.folder)
     file_points: list[ControlPoint] | None = None
     if cfg.service.points != "simulator":
         file_points = load_points(cfg.service.points).points
@@ -129,13 +137,17 @@ def main(service: Service) -> None:
             return CalibrateReply(ok=False, frame_seq=seq, error=str(exc))
         finally:
             service.state = "ok"
+        problem = calibration_problem(calib, cfg)
+        if problem is not None:  # never published: the stages would refuse it anyway
+            service.error("calibration", f"calibration on frame {seq}: {problem}")
+            return CalibrateReply(ok=False, frame_seq=seq, error=problem)
         calib = store.save(calib)
         service.calibration = calib
         publish(CalibrationUpdate(calibration=calib))
         service.sent()
         service.log.info(
-            "calibration v%d on frame %d: DIPE %.3f px (%.4f mm) in %.2f s",
-            calib.version,
+            "calibration %s on frame %d: DIPE %.3f px (%.4f mm) in %.2f s",
+            label(calib),
             seq,
             calib.dipe_px,
             calib.dipe_mm,

@@ -39,12 +39,15 @@ def main(service: Service) -> None:
     watch = StreamWatch(service.config.service.frame_timeout_s)
     counters = service.counters
     while not service.stop.wait(service.config.service.status_period_s):
-        dropped = service.status().dropped
+        status = service.status()
+        dropped = status.dropped
         since = counters.seconds_since_frame()
         if watch.update(since):
             log = service.log.warning if watch.state == "stalled" else service.log.info
             log("frames %s (last seq %s, %.1f s ago)", watch.state, counters.last_seq, since or 0.0)
             service.state = SERVICE_STATE[watch.state]
+        if status.state in ("degraded", "failing"):
+            service.log.warning("%s: %s", status.state, status.reason)
         publish_health(
             watch.message(
                 last_seq=counters.last_seq,
@@ -52,5 +55,6 @@ def main(service: Service) -> None:
                 last_frame_age_ms=service.last_latency_ms,
                 frames_dropped=dropped,
                 calibration_version=service.calibration.version,
+                verdict=(status.state, status.reason),
             )
         )

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from ovis.common.analysis.evaluation import match_objects
-from ovis.common.calibration.file import Calibration, calibration_from_config, wrong_arena
+from ovis.common.calibration.file import Calibration, calibration_from_config
+from ovis.common.calibration.validity import calibration_problem
 from ovis.common.config import ControlPoint, load_config
 from ovis.common.messages import (
     BinaryFrame,
@@ -173,12 +174,12 @@ def test_frames_refused_before_processing() -> None:
 def test_calibration_of_another_image_size_is_refused() -> None:
     calib = calibration_from_config(CFG)
     assert (calib.version, calib.camera, calib.image) == (0, CFG.camera, CFG.image)
-    assert wrong_arena(calib, CFG) is None
+    assert calibration_problem(calib, CFG) is None
     small = load_config(preset="paper")
     other = msgspec.structs.replace(calib, camera=small.camera, version=3)
-    assert wrong_arena(other, CFG) == (
-        f"refused calibration v3: it is for {small.camera.cols}x{small.camera.rows}, "
-        f"this arena is {CFG.camera.cols}x{CFG.camera.rows}"
+    assert calibration_problem(other, CFG) == (
+        f"calibration v3 refused: it is for {small.camera.cols}x{small.camera.rows} images, "
+        f"this arena's camera is {CFG.camera.cols}x{CFG.camera.rows}"
     )
 
 
