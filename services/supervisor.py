@@ -20,7 +20,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ovis.common.messages import ServiceStatus
 from ovis.common.pipeline.restarts import RestartBudget, describe_exit
+from ovis.common.pipeline.totals import CounterTotals, ServiceTotals
 
 __all__ = ["Child", "Supervisor", "die_with_parent"]
 
@@ -57,6 +59,7 @@ class Supervisor:
         self.children: dict[str, Child] = {}
         self.events: list[str] = []
         self.stopping = False
+        self.counters = CounterTotals()  # every status seen, summed over restarts
 
     def start(self, name: str, args: list[str]) -> None:
         if name not in self.children:
@@ -128,6 +131,15 @@ class Supervisor:
 
     def gave_up(self) -> list[str]:
         return [c.gave_up for c in self.children.values() if c.gave_up]
+
+    def record(self, statuses: dict[str, ServiceStatus]) -> None:
+        """Keep the children's latest statuses: their counters survive restarts."""
+        for status in statuses.values():
+            self.counters.record(status)
+
+    def totals(self) -> dict[str, ServiceTotals]:
+        """Each child's counters over all of its processes."""
+        return self.counters.totals()
 
     def restarts(self) -> dict[str, int]:
         return {n: c.budget.restarts for n, c in self.children.items()}

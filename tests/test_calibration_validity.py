@@ -36,7 +36,9 @@ def test_border_pixels_walk_the_four_sides() -> None:
     }  # fmt: skip
 
 
-@pytest.mark.parametrize("cfg", [PAPER, PINHOLE, load_config()], ids=["paper", "pinhole", "default"])
+@pytest.mark.parametrize(
+    "cfg", [PAPER, PINHOLE, load_config()], ids=["paper", "pinhole", "default"]
+)
 def test_the_presets_nominal_cameras_are_valid(cfg) -> None:
     assert calibration_problem(calibration_from_config(cfg), cfg) is None
 

@@ -244,6 +244,7 @@ def up(
                 )
             if not stop.is_set():
                 start("capture")
+            polling = _poll_counters(fleet, session, topics)
             view.run(
                 stop,
                 until=(started + duration) if duration is not None else None,
@@ -251,10 +252,14 @@ def up(
                 supervise=fleet.supervise,
                 quiet=json,
             )
+            polling.set()
             statuses = view.poll_status(session)
+            fleet.record(statuses)
     finally:
         codes = fleet.stop()
-    summary = view.score.summary(statuses, codes, time.monotonic() - started, fleet.restarts())
+    summary = view.score.summary(
+        statuses, codes, time.monotonic() - started, fleet.restarts(), fleet.totals()
+    )
     if json:
         sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
     else:
@@ -265,6 +270,26 @@ def up(
     if bad or fleet.gave_up():
         reasons = "; ".join(fleet.gave_up()) or f"process(es) {', '.join(bad)} exited abnormally"
         raise UserError(f"{reasons}; see the logs in {log_dir}", 1)
+
+
+def _poll_counters(fleet, session, topics, period_s: float = 1.0) -> threading.Event:
+    """Every ``period_s`` until the event returned is set, give the supervisor the
+    stages' statuses (a thread): their counters then survive a restart in its totals."""
+    import zenoh
+
+    from ovis.services.cli.watching import query_statuses
+
+    done = threading.Event()
+
+    def poll() -> None:
+        while not done.wait(period_s):
+            try:
+                fleet.record(query_statuses(session, topics, timeout=period_s))
+            except zenoh.ZError:  # the session is closing
+                return
+
+    threading.Thread(target=poll, name="status-poll", daemon=True).start()
+    return done
 
 
 def _wait_listening(fleet, session, topics, stages: tuple[str, ...], stop) -> set[str]:
