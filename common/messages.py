@@ -296,6 +296,7 @@ class CalibrateRequest(_Msg, tag="calibrate", kw_only=True):
     seed: Seq | None = None
     population: Annotated[int, msgspec.Meta(ge=2, le=10000)] | None = None
     generations: Annotated[int, msgspec.Meta(ge=1, le=10000)] | None = None
+    cancel: bool = False  # cancel the calibration that runs (nothing else is done)
 
 
 class CalibrateReply(_Msg, tag="calibrate-reply", kw_only=True):
@@ -311,6 +312,9 @@ class CalibrateReply(_Msg, tag="calibrate-reply", kw_only=True):
     parameters: dict[str, float] = {}
     saved_to: str = ""
     error: str = ""
+    busy: bool = False  # a calibration runs: this query was not started (see error)
+    progress: float = 0.0  # of the running calibration, 0..1, when busy
+    eta_s: float | None = None  # seconds the running calibration still needs, when busy
 
 
 class CalibrationUpdate(_Msg, tag="calibration", kw_only=True):

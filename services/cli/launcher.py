@@ -365,17 +365,21 @@ def recalibrate(
     seed: Annotated[int | None, typer.Option(min=0, help="GA seed.")] = None,
     timeout: Annotated[float, typer.Option(min=0.1, help="Seconds to wait for it.")] = 60.0,
     json: JsonOpt = False,
+    cancel: Annotated[
+        bool, typer.Option("--cancel", help="Cancel the calibration that runs instead.")
+    ] = False,
 ) -> None:
     """Ask the calibrator (a Zenoh query) to recalibrate on the latest frame, or --frame.
 
-    Shows the new calibration's DIPE, parameters and version.
+    Shows the new calibration's DIPE, parameters and version. While a calibration runs,
+    the calibrator answers at once that it is busy (progress and ETA); --cancel stops it.
     """
     from ovis.common.messages import CalibrateReply, CalibrateRequest, decode, encode
     from ovis.services.bus import open_session
 
     cfg = _config(config, connect=connect, arena=arena)
     topics = _topics(cfg)
-    request = encode(CalibrateRequest(frame_seq=frame, seed=seed))
+    request = encode(CalibrateRequest(frame_seq=frame, seed=seed, cancel=cancel))
     with open_session(cfg.zenoh, wait=False) as session:
         replies = list(session.get(topics.calibrate, payload=request, timeout=timeout))
     if not replies:
@@ -394,6 +398,9 @@ def recalibrate(
     answer = decode(reply.ok.payload.to_bytes(), CalibrateReply)
     if json:
         sys.stdout.write(msgspec.json.encode(answer).decode() + "\n")
+    if cancel:
+        print(answer.error, file=sys.stderr)
+        return
     if not answer.ok:
         raise UserError(f"recalibration failed: {answer.error}", 3)
     if not json:
