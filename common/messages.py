@@ -78,6 +78,9 @@ class Frame(_Msg, tag="frame", kw_only=True):
     dtype: Literal["uint8"] = "uint8"
     data: bytes
     source: str = ""
+    #: the capture's stream identity (random, new each time the capture starts): a new
+    #: one means sequence numbers start again, not that frames were lost
+    stream: str = ""
 
     def __post_init__(self) -> None:
         expected = self.rows * self.cols * self.channels
@@ -101,6 +104,7 @@ class Frame(_Msg, tag="frame", kw_only=True):
         stamp_ns: int,
         source: str = "",
         copy: bool = True,
+        stream: str = "",
     ) -> Frame:
         """A frame of ``image``. ``copy=False`` keeps a read-only view of a C-contiguous
         image instead of a copy of its bytes, for a frame that is encoded at once (capture
@@ -125,6 +129,7 @@ class Frame(_Msg, tag="frame", kw_only=True):
             channels=channels,
             data=data,  # type: ignore[arg-type]  (a memoryview encodes as bytes do)
             source=source,
+            stream=stream,
         )
 
 
@@ -135,6 +140,7 @@ class FrameHeader(_Msg, tag="frame", kw_only=True):
     stamp_ns: Stamp
     rows: Side
     cols: Side
+    stream: str = ""
 
 
 class BinaryFrame(_Msg, tag="binary", kw_only=True):
@@ -147,6 +153,7 @@ class BinaryFrame(_Msg, tag="binary", kw_only=True):
     bits: bytes
     threshold: Annotated[int, msgspec.Meta(ge=0, le=255)]
     calibration_version: Annotated[int, msgspec.Meta(ge=0)]
+    stream: str = ""  # the capture's stream identity (Frame.stream)
 
     def __post_init__(self) -> None:
         expected = (self.rows * self.cols + 7) // 8
@@ -223,6 +230,7 @@ class BlobList(_Msg, tag="blobs", kw_only=True):
     calibration_version: Annotated[int, msgspec.Meta(ge=0)]
     blobs: Annotated[list[BlobMeasure], msgspec.Meta(max_length=100000)]
     maps: FloorMaps | None = None
+    stream: str = ""  # the capture's stream identity (Frame.stream)
 
     def __post_init__(self) -> None:
         if self.maps is None:

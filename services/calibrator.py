@@ -102,7 +102,7 @@ def main(service: Service) -> None:
         payload = sample.payload.to_bytes()
         header = service.decode(payload, FrameHeader, "frame")
         if header is not None:
-            service.saw_frame(header.seq, header.stamp_ns)
+            service.saw_frame(header.seq, header.stamp_ns, header.stream)
             keeper.add_frame(header.seq, payload)
 
     def on_truth(sample: zenoh.Sample) -> None:

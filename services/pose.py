@@ -26,7 +26,7 @@ def main(service: Service) -> None:
         msg = service.decode(payload, BlobList, "blobs")
         if msg is None:
             return
-        service.saw_frame(msg.seq, msg.stamp_ns)
+        service.saw_frame(msg.seq, msg.stamp_ns, msg.stream)
         version = service.calibration.version
         out = obstacle_frame(msg, detector, version, service.topics.arena, time.time_ns())
         publish(out)

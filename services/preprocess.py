@@ -28,7 +28,7 @@ def main(service: Service) -> None:
         except ImageError as exc:
             service.error("bad_frame", f"frame {frame.seq}: {exc}")
             return
-        service.saw_frame(frame.seq, frame.stamp_ns)
+        service.saw_frame(frame.seq, frame.stamp_ns, frame.stream)
         service.publish_result(publish, binary_frame(frame, gray, calib))
 
     service.serve(service.inbox(service.topics.frames), handle)

@@ -71,6 +71,7 @@ def binary_frame(frame: Frame, gray: GrayImage, calib: Calibration) -> BinaryFra
         bits=np.packbits(binary).tobytes(),
         threshold=params.threshold,
         calibration_version=calib.version,
+        stream=frame.stream,
     )
 
 
@@ -106,6 +107,7 @@ def blob_list(frame: BinaryFrame, calib: Calibration, min_area_px: float) -> Blo
         calibration_version=calib.version,
         blobs=BlobList.measures(blobs),
         maps=FloorMaps(obstacle=PlaneMap.of(floor), robot=PlaneMap.of(top)),
+        stream=frame.stream,
     )
 
 
