@@ -337,18 +337,18 @@ def test_points_ga_and_reply_of_a_request() -> None:
 # --- the supervisor's restart rule ----------------------------------------------------------
 
 
-def test_restart_backoff_doubles_to_its_cap_and_resets_after_a_good_run() -> None:
+def test_first_restart_is_immediate_then_backoff_doubles_to_its_cap_and_resets() -> None:
     b = RestartBudget(max_restarts=100, window_s=60.0)
     delays = []
     for i in range(6):
         delays.append(b.died(now=float(i)))
         b.restarted(now=float(i))
-    assert delays == [1.0, 2.0, 4.0, 8.0, BACKOFF_MAX_S, BACKOFF_MAX_S]
+    assert delays == [0.0, BACKOFF_START_S, 2.0, 4.0, 8.0, BACKOFF_MAX_S]
     assert b.restarts == 6
     b.running(now=100.0, started_at=100.0 - HEALTHY_S / 2)
     assert b.backoff == BACKOFF_MAX_S  # not long enough
     b.running(now=100.0, started_at=100.0 - HEALTHY_S - 1)
-    assert b.backoff == BACKOFF_START_S
+    assert b.backoff == 0.0  # the next restart is immediate again
 
 
 def test_restart_budget_is_per_window() -> None:

@@ -323,6 +323,6 @@ def test_up_restarts_a_stage_that_dies(tmp_path: Path) -> None:
     assert up.returncode == 0, err.read_text()
     summary = json.loads(out)
     assert summary["restarts"] == {"label": 1}
-    assert "label died (killed by SIGKILL); restarting in 1 s" in err.read_text()
+    assert "label died (killed by SIGKILL); restarting in 0 s" in err.read_text()
     assert resumed < 40
     assert pids_with(log_dir) == []

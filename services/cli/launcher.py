@@ -186,8 +186,8 @@ def up(
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
 
-    A process that dies is restarted (back-off 1 s doubling to 10 s, at most
-    --max-restarts a minute) and the reason logged. Ctrl-C or SIGTERM (or --duration)
+    A process that dies is restarted (at once, then after a back-off of 1 s doubling to
+    10 s, at most --max-restarts a minute) and the reason logged. Ctrl-C or SIGTERM (or --duration)
     stops everything cleanly; logs of each process are in a temporary folder named at the
     start.
     """

@@ -212,7 +212,7 @@ class LiveView:
                 elif not quiet and time.monotonic() - last_print > 5.0 and self.score.latest:
                     last_print = time.monotonic()
                     console.print(render(), highlight=False)
-                stop.wait(0.25)
+                stop.wait(0.1)  # the supervisor's tick: a dead stage restarts this soon
 
     def poll_status(self, session: zenoh.Session) -> dict[str, ServiceStatus]:
         return {r.service: r.status for r in collect_status(session, self.topics) if r.status}
