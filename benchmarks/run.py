@@ -42,8 +42,9 @@ GROUPS = {
     "calibration": "GA calibration",
     "e2e": "End to end",
     "memory": "Memory",
+    "recovery": "Recovery",
 }
-DEFAULT = ("pipeline", "scaling", "calibration", "e2e")
+DEFAULT = ("pipeline", "scaling", "calibration", "e2e", "recovery")
 
 
 def log(message: str) -> None:
@@ -76,6 +77,10 @@ def run_groups(names: list[str], quick: bool, memory_s: float) -> list[Row]:
             from benchmarks.bus import e2e_rows
 
             rows += e2e_rows(quick, log)
+        elif name == "recovery":
+            from benchmarks.recovery import recovery_rows
+
+            rows += recovery_rows(quick, log)
         elif name == "memory":
             from benchmarks.bus import memory_rows
 

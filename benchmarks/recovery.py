@@ -1,0 +1,182 @@
+"""Recovery from a killed stage (issue 15).
+
+``ovis up`` (simulated arena, 30 fps) runs as a child; this process subscribes to the
+obstacles and the ground truth over Zenoh. Each stage of the frame path is SIGKILLed in
+turn; for each kill: the time from the kill to the first obstacle message of a frame
+captured after it (the stream is back), and the frames lost (ground truths published
+in between whose obstacles never came). The floor is the frame period: a stream can
+not come back faster than the next frame.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from statistics import median
+
+import msgspec
+import zenoh
+
+from benchmarks.bus import free_port
+from benchmarks.core import Row
+from ovis.common.config import ZenohConfig
+from ovis.services.bus import zenoh_config
+
+__all__ = ["recovery_rows"]
+
+FPS = 30.0
+VICTIMS = ("preprocess", "label", "pose")
+#: The stream must be back within this after a kill (s).
+TARGET_S = 1.5
+
+
+class _Seq(msgspec.Struct):
+    seq: int
+
+
+class _Arrivals:
+    """Obstacle and truth sequence numbers, with this process's receipt time."""
+
+    def __init__(self) -> None:
+        self.obstacles: list[tuple[float, int]] = []
+        self.truths: list[tuple[float, int]] = []
+        self.lock = threading.Lock()
+        self._decode = msgspec.msgpack.Decoder(_Seq)
+
+    def listener(self, store: list[tuple[float, int]]):
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                seq = self._decode.decode(sample.payload.to_bytes()).seq
+            except msgspec.MsgspecError:
+                return
+            with self.lock:
+                store.append((time.monotonic(), seq))
+
+        return on_sample
+
+
+def _pid_of(stage: str, log_dir: str) -> int | None:
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if f"run {stage} --config {log_dir}" in cmd:
+            return int(entry.name)
+    return None
+
+
+def _wait(predicate, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.02)
+    raise RuntimeError(f"timed out waiting for {what}")
+
+
+def measure_kills(rounds: int, log=print) -> list[tuple[str, float, int]]:
+    """(stage, seconds until the stream is back, frames lost) for each kill."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    state = tempfile.mkdtemp(prefix="ovis-recovery-")
+    up = subprocess.Popen(
+        [sys.executable, "-m", "ovis.services.cli", "up", "--listen", endpoint, "--json",
+         "--fps", str(FPS), "--state-dir", state, "--max-restarts", "100"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )  # fmt: skip
+    results: list[tuple[str, float, int]] = []
+    try:
+        first = up.stderr.readline() if up.stderr else ""
+        found = re.search(r"logs in (\S+)", first)
+        if not found:
+            raise RuntimeError(f"ovis up said: {first!r}")
+        log_dir = found.group(1)
+        arrivals = _Arrivals()
+        session = zenoh.open(zenoh_config(ZenohConfig(connect=[endpoint]), wait=True))
+        try:
+            session.declare_subscriber(
+                "ovis/default/obstacles", arrivals.listener(arrivals.obstacles)
+            )
+            session.declare_subscriber("ovis/default/truth", arrivals.listener(arrivals.truths))
+            _wait(lambda: len(arrivals.obstacles) > 60, 120, "obstacles from ovis up")
+            for k in range(rounds):
+                stage = VICTIMS[k % len(VICTIMS)]
+                pid = _wait(lambda stage=stage: _pid_of(stage, log_dir), 30, stage)
+                time.sleep(3.0)  # steady state
+                with arrivals.lock:
+                    last_truth = arrivals.truths[-1][1]
+                os.kill(pid, signal.SIGKILL)
+                t_kill = time.monotonic()
+
+                def back(t_kill=t_kill, last_truth=last_truth) -> tuple[float, int] | None:
+                    with arrivals.lock:
+                        return next(
+                            (
+                                (t, s)
+                                for t, s in arrivals.obstacles
+                                if t > t_kill and s > last_truth
+                            ),
+                            None,
+                        )
+
+                t_back, seq_back = _wait(back, 30, f"obstacles after killing {stage}")
+                time.sleep(1.0)
+                with arrivals.lock:
+                    sent = {s for t, s in arrivals.truths if last_truth < s <= seq_back}
+                    got = {s for _, s in arrivals.obstacles}
+                lost = len(sent - got)
+                results.append((stage, t_back - t_kill, lost))
+                log(f"  killed {stage}: stream back in {t_back - t_kill:.2f} s, {lost} frames lost")
+        finally:
+            session.close()
+    finally:
+        up.send_signal(signal.SIGTERM)
+        try:
+            up.wait(60)
+        except subprocess.TimeoutExpired:
+            up.kill()
+            up.wait()
+    return results
+
+
+def recovery_rows(quick: bool, log=print) -> list[Row]:
+    results = measure_kills(3 if quick else 6, log)
+    back = [s for _, s, _ in results]
+    lost = [n for _, _, n in results]
+    worst = max(back)
+    period = 1.0 / FPS
+    return [
+        Row(
+            name=f"Recovery: a killed stage's stream back, worst of {len(results)} kills "
+            f"({', '.join(sorted(set(VICTIMS)))} in turn; ovis up, {FPS:g} fps; floor: the "
+            "frame period)",
+            unit="s",
+            value=worst,
+            floor=period,
+            ratio=worst / period,
+            target=f"< {TARGET_S:g} s",
+            met=worst < TARGET_S,
+        ),
+        Row(
+            name=f"Recovery: median time back over {len(results)} kills",
+            unit="s",
+            value=median(back),
+        ),
+        Row(
+            name=f"Recovery: frames lost per kill (median; worst {max(lost)}) at {FPS:g} fps",
+            unit="frames",
+            value=float(median(lost)),
+        ),
+    ]
