@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -278,8 +279,24 @@ class Service:
                 self.follower.worked(calib)
 
 
+def wait_for_activation() -> bool:
+    """A spare started by the supervisor (``OVIS_STANDBY=1``) waits here, its imports
+    done, until the supervisor writes the restart count on its stdin (it then takes
+    over from a stage that died); False when the supervisor closes stdin first."""
+    if os.environ.get("OVIS_STANDBY") != "1":
+        return True
+    line = sys.stdin.readline().strip()
+    if not line.isdigit():
+        return False
+    os.environ["OVIS_RESTARTS"] = line
+    os.environ.pop("OVIS_STANDBY")
+    return True
+
+
 def run(name: str, config: OvisConfig, main: Callable[[Service], None]) -> int:
     """Open a session, build the service, run ``main`` until SIGINT/SIGTERM, close."""
+    if not wait_for_activation():
+        return 0
     logging.basicConfig(
         level=os.environ.get("OVIS_LOG", "INFO").upper(),
         format="%(asctime)s %(name)s %(levelname)s %(message)s",

@@ -21,6 +21,9 @@ __all__ = ["register"]
 
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+#: Stages of the frame path that `ovis up` keeps a spare process ready for: a killed one
+#: is replaced without an interpreter start (the cost: one idle process each).
+STANDBY = ("preprocess", "label", "pose")
 #: `ovis up` starts the capture once the other stages are alive, or after this long.
 STARTUP_S = 30.0
 
@@ -221,7 +224,8 @@ def up(
     time.sleep(0.5)
 
     def start(stage: str) -> None:
-        fleet.start(stage, ["run", stage, "--config", str(cfg_path), *cpus_option(stage, cpus)])
+        args = ["run", stage, "--config", str(cfg_path), *cpus_option(stage, cpus)]
+        fleet.start(stage, args, standby=stage in STANDBY)
 
     downstream = ("calibrator", "pose", "label", "preprocess")
     for stage in downstream:
