@@ -28,6 +28,7 @@ from benchmarks.bus import free_port
 from benchmarks.core import Row
 from ovis.common.config import ZenohConfig
 from ovis.services.bus import zenoh_config
+from ovis.services.supervisor import SPARE_AFTER_S
 
 __all__ = ["recovery_rows"]
 
@@ -114,7 +115,7 @@ def measure_kills(rounds: int, log=print) -> list[tuple[str, float, int]]:
             for k in range(rounds):
                 stage = VICTIMS[k % len(VICTIMS)]
                 pid = _wait(lambda stage=stage: _pid_of(stage, log_dir), 30, stage)
-                time.sleep(3.0)  # steady state
+                time.sleep(SPARE_AFTER_S + 1.0)  # steady state, its spare ready
                 with arrivals.lock:
                     last_truth = arrivals.truths[-1][1]
                 os.kill(pid, signal.SIGKILL)

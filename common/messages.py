@@ -203,7 +203,14 @@ class PlaneMap(msgspec.Struct):
         return cls(*(np.asarray(f).tolist() for f in j))
 
     def jacobian(self) -> PixelJacobian:
-        return PixelJacobian(*(np.array(getattr(self, f)) for f in PixelJacobian._fields))
+        """The map as arrays: floats, and ``valid`` as booleans even when there is no
+        blob (an empty list would otherwise be a float array, and pose would fail)."""
+        return PixelJacobian(
+            *(
+                np.array(getattr(self, f), dtype=bool if f == "valid" else np.float64)
+                for f in PixelJacobian._fields
+            )
+        )
 
     def entries(self) -> int | None:
         """How many blobs the columns describe (None if they differ in length)."""

@@ -28,6 +28,9 @@ __all__ = ["Child", "Supervisor", "die_with_parent"]
 
 log = logging.getLogger("ovis.up")
 
+#: A spare is started this long after its stage (not while everything starts at once).
+SPARE_AFTER_S = 5.0
+
 
 def die_with_parent() -> None:
     """In the child: get SIGTERM when the launching process dies (no orphans)."""
@@ -73,16 +76,15 @@ class Supervisor:
         child = self.children[name]
         child.started_at = time.monotonic()
         child.proc = self._spawn(child)
-        if child.standby:
-            child.spare = self._spawn(child, spare=True)
 
     def _spawn(self, child: Child, *, spare: bool = False) -> subprocess.Popen[bytes]:
         logfile = open(self.log_dir / f"{child.name}.log", "ab")  # noqa: SIM115 (the child keeps it)
         env = dict(os.environ, OVIS_RESTARTS=str(child.budget.restarts))
-        if spare:
-            env["OVIS_STANDBY"] = "1"
+        args = child.args
+        if spare:  # `ovis run --standby STAGE …`
+            args = [args[0], "--standby", *args[1:]]
         proc = subprocess.Popen(
-            [sys.executable, "-m", "ovis.services.cli", *child.args],
+            [sys.executable, "-m", "ovis.services.cli", *args],
             stdout=logfile,
             stderr=subprocess.STDOUT,
             stdin=subprocess.PIPE if spare else subprocess.DEVNULL,
@@ -104,8 +106,6 @@ class Supervisor:
                 spare = None
         if child.proc is not spare:
             child.proc = self._spawn(child)
-        if child.standby:
-            child.spare = self._spawn(child, spare=True)
 
     def _tail(self, name: str, lines: int = 3) -> str:
         try:
@@ -133,6 +133,8 @@ class Supervisor:
             code = child.proc.poll()
             if code is None:
                 child.budget.running(now, child.started_at)
+                if child.standby and child.spare is None and now - child.started_at > SPARE_AFTER_S:
+                    child.spare = self._spawn(child, spare=True)
                 continue
             child.last_exit = describe_exit(code)
             backoff = child.budget.died(now)

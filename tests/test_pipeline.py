@@ -143,6 +143,21 @@ def test_pose_ignores_maps_made_with_another_calibration(scene) -> None:
     )
 
 
+def test_pose_takes_a_frame_with_no_blob_over_the_wire(scene) -> None:
+    """A frame where nothing passes the size filter: its maps have empty columns, which
+    must still decode to a boolean ``valid`` (pose failed on every such frame with a
+    TypeError, issue 15)."""
+    _, image, _, calib = scene
+    frame = Frame.from_image(np.zeros_like(image), seq=3, stamp_ns=time.time_ns())
+    binary = binary_frame(frame, as_gray(frame.image()), calib)
+    blobs = _wire(blob_list(binary, calib, 0.0), BlobList)
+    assert blobs.blobs == [] and blobs.maps is not None
+    assert blobs.maps.obstacle.jacobian().valid.dtype == bool
+    detector = Detector(calib.camera, calib.image, calib.pose)
+    out = obstacle_frame(blobs, detector, calib.version, "a", time.time_ns())
+    assert out.robot is None and out.obstacles == [] and out.planner == []
+
+
 def test_size_filter_is_computed_once_per_calibration_version(scene) -> None:
     _, _, _, calib = scene
     sf = SizeFilter()

@@ -96,7 +96,9 @@ def test_kill_during_save_always_leaves_the_last_good_calibration(tmp_path: Path
         assert current.version in (calib.version, calib.version - 1)
     assert last > 12
     # Temporary files of interrupted saves never shadow a version.
-    assert all(p.name.startswith((".", "calibration-v", "current")) for p in tmp_path.iterdir())
+    assert all(
+        p.name.startswith((".", "calibration-v", "current", "epoch")) for p in tmp_path.iterdir()
+    )
 
 
 def test_corrupt_or_hand_edited_calibration_is_refused_and_the_previous_kept(

@@ -131,6 +131,10 @@ def run(
             "(default: [service] cpus, else any)."
         ),
     ] = None,
+    standby: Annotated[
+        bool,
+        typer.Option(hidden=True, help="Wait, imports done, for `ovis up` to activate it."),
+    ] = False,
 ) -> None:
     """Run one service in this process until Ctrl-C/SIGTERM.
 
@@ -155,6 +159,8 @@ def run(
     )
     _topics(cfg)
     module = importlib.import_module(f"ovis.services.{stage}")
+    if standby:
+        os.environ["OVIS_STANDBY"] = "1"
     run_service(stage, cfg, module.main)
 
 
