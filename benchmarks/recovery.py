@@ -48,8 +48,16 @@ class _Arrivals:
     def __init__(self) -> None:
         self.obstacles: list[tuple[float, int]] = []
         self.truths: list[tuple[float, int]] = []
-        self.lock = threading.Lock()
+        self.lock = threading.Condition()  # notified at every arrival
         self._decode = msgspec.msgpack.Decoder(_Seq)
+
+    def wait(self, predicate, timeout: float, what: str):
+        """Until ``predicate()`` (called with the lock held) is true: its value."""
+        with self.lock:
+            value = self.lock.wait_for(predicate, timeout)
+        if not value:
+            raise RuntimeError(f"timed out after {timeout:g} s waiting for {what}")
+        return value
 
     def listener(self, store: list[tuple[float, int]]):
         def on_sample(sample: zenoh.Sample) -> None:
@@ -59,6 +67,7 @@ class _Arrivals:
                 return
             with self.lock:
                 store.append((time.monotonic(), seq))
+                self.lock.notify_all()
 
         return on_sample
 
@@ -74,16 +83,6 @@ def _pid_of(stage: str, log_dir: str) -> int | None:
         if f"run {stage} --config {log_dir}" in cmd:
             return int(entry.name)
     return None
-
-
-def _wait(predicate, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.02)
-    raise RuntimeError(f"timed out waiting for {what}")
 
 
 def measure_kills(rounds: int, log=print) -> list[tuple[str, float, int]]:
@@ -111,28 +110,23 @@ def measure_kills(rounds: int, log=print) -> list[tuple[str, float, int]]:
                 "ovis/default/obstacles", arrivals.listener(arrivals.obstacles)
             )
             session.declare_subscriber("ovis/default/truth", arrivals.listener(arrivals.truths))
-            _wait(lambda: len(arrivals.obstacles) > 60, 120, "obstacles from ovis up")
+            arrivals.wait(lambda: len(arrivals.obstacles) > 60, 120, "obstacles from ovis up")
             for k in range(rounds):
                 stage = VICTIMS[k % len(VICTIMS)]
-                pid = _wait(lambda stage=stage: _pid_of(stage, log_dir), 30, stage)
                 time.sleep(SPARE_AFTER_S + 1.0)  # steady state, its spare ready
+                pid = _pid_of(stage, log_dir)
+                if pid is None:
+                    raise RuntimeError(f"no {stage} process under ovis up")
                 with arrivals.lock:
                     last_truth = arrivals.truths[-1][1]
                 os.kill(pid, signal.SIGKILL)
                 t_kill = time.monotonic()
 
                 def back(t_kill=t_kill, last_truth=last_truth) -> tuple[float, int] | None:
-                    with arrivals.lock:
-                        return next(
-                            (
-                                (t, s)
-                                for t, s in arrivals.obstacles
-                                if t > t_kill and s > last_truth
-                            ),
-                            None,
-                        )
+                    after = ((t, s) for t, s in arrivals.obstacles if t > t_kill)
+                    return next(((t, s) for t, s in after if s > last_truth), None)
 
-                t_back, seq_back = _wait(back, 30, f"obstacles after killing {stage}")
+                t_back, seq_back = arrivals.wait(back, 30, f"obstacles after killing {stage}")
                 time.sleep(1.0)
                 with arrivals.lock:
                     sent = {s for t, s in arrivals.truths if last_truth < s <= seq_back}

@@ -1,5 +1,6 @@
 """The attacks of issue 15, played by independent clients that know only Zenoh and
-MessagePack (no ovis import: what anyone on the bus could do) against the five services
+MessagePack (no ovis import, here or in the helpers used: what anyone on the bus could
+do) against the five services
 running as real processes on loopback. Each test asserts the new behaviour.
 
 (The operator login that can no longer publish calibrations or frames in the secure
@@ -11,18 +12,18 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import msgpack
 import pytest
 import zenoh
+from zenoh_helpers import free_port, wait_for
 
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
 ROOT = "ovis/default"
@@ -32,13 +33,8 @@ RECONCILE_S = 2.0
 SLACK_S = 2.0
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _ovis(*args: str, log: Path) -> subprocess.Popen[bytes]:
+    """An ovis command as a child process (the services under attack)."""
     with open(log, "wb") as fh:
         return subprocess.Popen(
             [sys.executable, "-m", "ovis.services.cli", *args],
@@ -46,16 +42,6 @@ def _ovis(*args: str, log: Path) -> subprocess.Popen[bytes]:
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
         )
-
-
-def _wait(predicate: Callable[[], Any], timeout: float, what: str) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
 
 
 def _pack(message: dict[str, Any]) -> bytes:
@@ -109,7 +95,7 @@ class Attacker:
     def wait_calibrating(self) -> None:
         """Until the calibrator's status says it calibrates (asking it to calibrate
         instead could start a calibration of our own first)."""
-        _wait(
+        wait_for(
             lambda: self.status("calibrator")["state"].startswith("calibrating"),
             30,
             "the calibrator to be calibrating",
@@ -129,7 +115,7 @@ class Deployment:
 @pytest.fixture(scope="module")
 def deployment(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Deployment]:
     tmp = tmp_path_factory.mktemp("adversarial")
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = tmp / "config.toml"
     config.write_text(
         f'[service]\nfps = 15\nstate_dir = "{tmp / "state"}"\n[zenoh]\nconnect = ["{endpoint}"]\n'
@@ -139,17 +125,17 @@ def deployment(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Deployment]
         procs[stage] = _ovis("run", stage, "--config", str(config), log=tmp / f"{stage}.log")
     try:
         router_log = tmp / "router.log"
-        _wait(lambda: "listening" in router_log.read_text(), 30, "the router")
+        wait_for(lambda: "listening" in router_log.read_text(), 30, "the router")
         attacker = Attacker(endpoint)
         try:
-            _wait(
+            wait_for(
                 lambda: all(
                     attacker.ask(f"status/{s}", timeout=1.0) for s in ("pose", "calibrator")
                 ),
                 60,
                 "the services",
             )
-            _wait(
+            wait_for(
                 lambda: any(m["calibration_version"] >= 1 for m in attacker.since(0)),
                 90,
                 "calibrated obstacles",
@@ -201,7 +187,7 @@ def test_a_forged_high_version_calibration_never_sticks(attacker: Attacker) -> N
     reply = attacker.calibrate(seed=5)
     assert reply["ok"], reply
     assert reply["version"] == genuine["version"] + 1
-    _wait(
+    wait_for(
         lambda: attacker.status("pose")["calibration_version"] == reply["version"],
         RECONCILE_S + SLACK_S,
         "pose on the genuine recalibration",
@@ -222,7 +208,7 @@ def test_a_huge_query_is_refused_and_queries_are_answered_while_one_runs(
     )
     worker.start()
     attacker.wait_calibrating()
-    busy = _wait(
+    busy = wait_for(
         lambda: (r := attacker.calibrate(timeout=5)) and r.get("busy") and r.get("eta_s") and r,
         30,
         "a busy answer with an ETA",
@@ -287,7 +273,7 @@ def test_a_stage_that_gets_input_but_makes_no_output_says_failing_within_2_s(
     threading.Thread(target=flood, daemon=True).start()
     t0 = time.monotonic()
     try:
-        st = _wait(
+        st = wait_for(
             lambda: (s := attacker.status("preprocess"))["state"] == "failing" and s,
             2.0,
             "preprocess to say it is failing",
@@ -296,7 +282,7 @@ def test_a_stage_that_gets_input_but_makes_no_output_says_failing_within_2_s(
         stop.set()
     assert time.monotonic() - t0 < 2.0
     assert "inputs failed" in st["reason"] and "64x48" in st["reason"], st
-    _wait(lambda: attacker.status("preprocess")["state"] == "ok", 5, "preprocess ok again")
+    wait_for(lambda: attacker.status("preprocess")["state"] == "ok", 5, "preprocess ok again")
 
 
 def test_sigterm_stops_a_calibrating_worker_within_1_s(
@@ -308,7 +294,7 @@ def test_sigterm_stops_a_calibrating_worker_within_1_s(
     )
     worker.start()
     attacker.wait_calibrating()
-    _wait(lambda: attacker.calibrate(timeout=5).get("eta_s"), 30, "the calibration to run")
+    wait_for(lambda: attacker.calibrate(timeout=5).get("eta_s"), 30, "the calibration to run")
     calibrator = deployment.procs["calibrator"]
     t0 = time.monotonic()
     calibrator.send_signal(signal.SIGTERM)
@@ -335,7 +321,7 @@ def test_an_impossible_calibration_is_refused_and_the_stream_goes_on(
     attacker.put("calibration", answer)
     n = len(attacker.since(0))
     for stage in ("preprocess", "label", "pose"):
-        st = _wait(
+        st = wait_for(
             lambda stage=stage: (s := attacker.status(stage))["state"] == "degraded" and s,
             RECONCILE_S + SLACK_S,
             f"{stage} to refuse it",
@@ -343,7 +329,7 @@ def test_an_impossible_calibration_is_refused_and_the_stream_goes_on(
         assert "not above the floor" in st["reason"], st
         assert st["calibration_version"] == before[stage]["calibration_version"]
         assert st["errors"].get("bad_calibration", 0) >= 1
-    _wait(lambda: len(attacker.since(n)) >= 10, 10, "obstacles still flowing")
+    wait_for(lambda: len(attacker.since(n)) >= 10, 10, "obstacles still flowing")
     assert {m["calibration_version"] for m in attacker.since(n)} == {genuine}
 
 
