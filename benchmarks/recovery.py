@@ -11,7 +11,6 @@ not come back faster than the next frame.
 from __future__ import annotations
 
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -27,7 +26,10 @@ import zenoh
 from benchmarks.bus import free_port
 from benchmarks.core import Row
 from ovis.common.config import ZenohConfig
+from ovis.common.messages import Topics
+from ovis.common.pipeline.restarts import BACKOFF_START_S, HEALTHY_S
 from ovis.services.bus import zenoh_config
+from ovis.services.cli.watching import query_statuses
 from ovis.services.supervisor import SPARE_AFTER_S
 
 __all__ = ["recovery_rows"]
@@ -72,17 +74,23 @@ class _Arrivals:
         return on_sample
 
 
-def _pid_of(stage: str, log_dir: str) -> int | None:
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
+def _pid_of(session: zenoh.Session, stage: str) -> int | None:
+    """The pid of the stage's running process, from its status (a spare that took over
+    has the command line of a spare)."""
+    status = query_statuses(session, Topics("default"), timeout=2.0).get(stage)
+    return status.pid if status is not None else None
+
+
+def _connect(endpoint: str, timeout: float = 30.0) -> zenoh.Session:
+    """A client session of ``ovis up``'s router, once it listens."""
+    deadline = time.monotonic() + timeout
+    while True:
         try:
-            cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-        except OSError:
-            continue
-        if f"run {stage} --config {log_dir}" in cmd:
-            return int(entry.name)
-    return None
+            return zenoh.open(zenoh_config(ZenohConfig(connect=[endpoint]), wait=False))
+        except zenoh.ZError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)
 
 
 def measure_kills(rounds: int, log=print) -> list[tuple[str, float, int]]:
@@ -93,18 +101,12 @@ def measure_kills(rounds: int, log=print) -> list[tuple[str, float, int]]:
         [sys.executable, "-m", "ovis.services.cli", "up", "--listen", endpoint, "--json",
          "--fps", str(FPS), "--state-dir", state, "--max-restarts", "100"],
         stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
+        stderr=open(Path(state) / "up.err", "wb"),  # noqa: SIM115 (the child keeps it)
     )  # fmt: skip
     results: list[tuple[str, float, int]] = []
     try:
-        first = up.stderr.readline() if up.stderr else ""
-        found = re.search(r"logs in (\S+)", first)
-        if not found:
-            raise RuntimeError(f"ovis up said: {first!r}")
-        log_dir = found.group(1)
         arrivals = _Arrivals()
-        session = zenoh.open(zenoh_config(ZenohConfig(connect=[endpoint]), wait=True))
+        session = _connect(endpoint)
         try:
             session.declare_subscriber(
                 "ovis/default/obstacles", arrivals.listener(arrivals.obstacles)
@@ -114,7 +116,7 @@ def measure_kills(rounds: int, log=print) -> list[tuple[str, float, int]]:
             for k in range(rounds):
                 stage = VICTIMS[k % len(VICTIMS)]
                 time.sleep(SPARE_AFTER_S + 1.0)  # steady state, its spare ready
-                pid = _pid_of(stage, log_dir)
+                pid = _pid_of(session, stage)
                 if pid is None:
                     raise RuntimeError(f"no {stage} process under ovis up")
                 with arrivals.lock:
@@ -147,16 +149,19 @@ def measure_kills(rounds: int, log=print) -> list[tuple[str, float, int]]:
 
 
 def recovery_rows(quick: bool, log=print) -> list[Row]:
-    results = measure_kills(3 if quick else 6, log)
-    back = [s for _, s, _ in results]
-    lost = [n for _, _, n in results]
+    """The first kill of each stage (restarted at once, from its spare), and with the
+    full run a second kill of each within ``HEALTHY_S``: that restart waits for the
+    back-off (``BACKOFF_START_S``), the cost of a stage that keeps dying."""
+    results = measure_kills(len(VICTIMS) if quick else 2 * len(VICTIMS), log)
+    first, again = results[: len(VICTIMS)], results[len(VICTIMS) :]
+    back = [s for _, s, _ in first]
+    lost = [n for _, _, n in first]
     worst = max(back)
     period = 1.0 / FPS
-    return [
+    rows = [
         Row(
-            name=f"Recovery: a killed stage's stream back, worst of {len(results)} kills "
-            f"({', '.join(sorted(set(VICTIMS)))} in turn; ovis up, {FPS:g} fps; floor: the "
-            "frame period)",
+            name=f"Recovery: a killed stage's stream back, worst of the first kill of each "
+            f"of {', '.join(VICTIMS)} (ovis up, {FPS:g} fps; floor: the frame period)",
             unit="s",
             value=worst,
             floor=period,
@@ -165,13 +170,20 @@ def recovery_rows(quick: bool, log=print) -> list[Row]:
             met=worst < TARGET_S,
         ),
         Row(
-            name=f"Recovery: median time back over {len(results)} kills",
-            unit="s",
-            value=median(back),
-        ),
-        Row(
-            name=f"Recovery: frames lost per kill (median; worst {max(lost)}) at {FPS:g} fps",
+            name=f"Recovery: frames lost per kill (median of the first kills; worst "
+            f"{max(lost)}) at {FPS:g} fps",
             unit="frames",
             value=float(median(lost)),
         ),
     ]
+    if again:
+        rows.append(
+            Row(
+                name=f"Recovery: stream back after a second kill within {HEALTHY_S:g} s "
+                f"(worst of {len(again)}; the restart waits the {BACKOFF_START_S:g} s "
+                f"back-off; median frames lost {median(n for _, _, n in again):g})",
+                unit="s",
+                value=max(s for _, s, _ in again),
+            )
+        )
+    return rows

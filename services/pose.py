@@ -38,6 +38,7 @@ def main(service: Service) -> None:
     publish_health = service.publisher(service.topics.health, drop=False)
     watch = StreamWatch(service.config.service.frame_timeout_s)
     counters = service.counters
+    said: str | None = None  # the verdict last logged
     while not service.stop.wait(service.config.service.status_period_s):
         status = service.status()
         dropped = status.dropped
@@ -46,8 +47,11 @@ def main(service: Service) -> None:
             log = service.log.warning if watch.state == "stalled" else service.log.info
             log("frames %s (last seq %s, %.1f s ago)", watch.state, counters.last_seq, since or 0.0)
             service.state = SERVICE_STATE[watch.state]
-        if status.state in ("degraded", "failing"):
-            service.log.warning("%s: %s", status.state, status.reason)
+        if status.state != said and status.state in ("degraded", "failing", "ok"):
+            if said is not None or status.state != "ok":  # a change of the verdict
+                log = service.log.info if status.state == "ok" else service.log.warning
+                log("%s%s", status.state, f": {status.reason}" if status.reason else "")
+            said = status.state
         publish_health(
             watch.message(
                 last_seq=counters.last_seq,
