@@ -46,8 +46,9 @@ GROUPS = {
     "robots": "Marked robots",
     "memory": "Memory",
     "recording": "Recording",
+    "recovery": "Recovery",
 }
-DEFAULT = ("pipeline", "scaling", "calibration", "e2e", "view", "recording", "robots")
+DEFAULT = ("pipeline", "scaling", "calibration", "e2e", "view", "recording", "robots", "recovery")
 
 
 def log(message: str) -> None:
@@ -92,6 +93,10 @@ def run_groups(names: list[str], quick: bool, memory_s: float) -> list[Row]:
             from benchmarks.robots import robots_rows
 
             rows += robots_rows(quick, log)
+        elif name == "recovery":
+            from benchmarks.recovery import recovery_rows
+
+            rows += recovery_rows(quick, log)
         elif name == "memory":
             from benchmarks.bus import memory_rows
 
