@@ -9,6 +9,9 @@ every individual, one at a time, smooths, thresholds and labels the frame itself
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 import time
 from statistics import median
 
@@ -60,6 +63,63 @@ def _ga(fitness, config: OvisConfig, generations: int, dedupe: bool) -> tuple[GA
     t0 = time.perf_counter()
     result = run_ga(fitness, bounds, ga, dedupe=dedupe, feasible_below=INFEASIBLE)
     return result, time.perf_counter() - t0
+
+
+#: Measures one calibration in a fresh process and prints its peak memory (ru_maxrss).
+_PEAK_SCRIPT = """
+import json, resource, sys, time
+from ovis.common.config import load_config, with_ga
+from ovis.common.calibration.problem import calibrate
+from ovis.common.sim.arena import Arena, control_points
+population, generations = int(sys.argv[1]), int(sys.argv[2])
+config = load_config()
+frame, truth = Arena(config, 0).render()
+base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+config = with_ga(config, population=population, generations=generations)
+t0 = time.perf_counter()
+calibrate(frame, control_points(truth), config)
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print(json.dumps({"peak_mb": peak, "base_mb": base, "s": time.perf_counter() - t0}))
+"""
+
+#: The largest calibration's peak memory must stay within this (MB).
+PEAK_LIMIT_MB = 1024.0
+
+
+def largest_calibration_rows(quick: bool, log=print) -> list[Row]:
+    """Peak memory of the largest calibration the calibrator accepts
+    (``[service] max_population`` and ``max_evaluations`` of the default preset) on the
+    simulated arena, in a fresh process; the floor is the same process before the GA.
+    ``quick`` runs 10 generations (the population sets the memory, not the generations)."""
+    limits = load_config().service
+    population = limits.max_population
+    generations = 10 if quick else limits.max_evaluations // population
+    out = subprocess.run(
+        [sys.executable, "-c", _PEAK_SCRIPT, str(population), str(generations)],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=1800,
+    )
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    peak, base = got["peak_mb"], got["base_mb"]
+    log(
+        f"  largest allowed calibration P={population}, G={generations}: peak {peak:.0f} MB "
+        f"(before the GA {base:.0f} MB) in {got['s']:.1f} s"
+    )
+    return [
+        Row(
+            name=f"GA calibration: peak memory of the largest allowed calibration "
+            f"(P={population}, G={generations}, simulated arena; floor: the process "
+            "before the GA)",
+            unit="MB",
+            value=peak,
+            floor=base,
+            ratio=peak / base,
+            target=f"≤ {PEAK_LIMIT_MB:.0f} MB",
+            met=peak <= PEAK_LIMIT_MB,
+        )
+    ]
 
 
 def calibration_rows(quick: bool, log=print) -> list[Row]:
@@ -125,6 +185,7 @@ def calibration_rows(quick: bool, log=print) -> list[Row]:
     log(f"  from scratch: {naive_s:.1f} s ({how}); identical best string: {identical}")
     speedup = naive_s / fast_s
     return [
+        *largest_calibration_rows(quick, log),
         Row(
             name=f"GA calibration 640×480 ({label}) wall time of calibrate() "
             "(GA, then threshold centring and least-squares polish when configured)",
@@ -145,11 +206,7 @@ def calibration_rows(quick: bool, log=print) -> list[Row]:
             unit="s",
             value=naive_s,
         ),
-        Row(
-            name="GA calibration speed-up: from scratch / the GA alone",
-            unit="×",
-            value=speedup,
-        ),
+        Row(name="GA calibration speed-up: from scratch / the GA alone", unit="×", value=speedup),
         Row(
             name="GA calibration identical best string with and without the speed-up"
             + (f" ({generations} generations)" if extrapolated else ""),

@@ -22,6 +22,7 @@ from websockets.sync.client import connect
 
 from benchmarks.bus import ARENA, LATENCY_FPS, PIPELINE, PRERENDER, Bench, free_port
 from benchmarks.core import Row, ratio, scaled_config
+from ovis.services.placement import off_path_option
 
 __all__ = ["view_rows"]
 
@@ -98,6 +99,7 @@ def view_rows(quick: bool, log=print) -> list[Row]:
                             ARENA,
                             "--listen",
                             f"127.0.0.1:{port}",
+                            *off_path_option(bench.cpus),  # as `ovis up --view` places it
                         ],
                     )
                     _wait_http(f"http://127.0.0.1:{port}/api/state")

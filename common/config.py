@@ -513,6 +513,12 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     #: control points: "simulator" (the simulated frame's ground truth) or a points file
     points: str = "simulator"
     auto_calibrate: bool = True  # calibrate on the first frame when nothing is saved
+    #: the largest GA the calibrator runs (its configured one and any a query asks for):
+    #: population (memory grows with it), population × generations (time grows with
+    #: it), and the seconds one calibration may take before it is cancelled
+    max_population: Annotated[int, msgspec.Meta(ge=2, le=100000)] = 1000
+    max_evaluations: Annotated[int, msgspec.Meta(ge=2, le=10**9)] = 200_000
+    calibration_budget_s: Annotated[float, msgspec.Meta(gt=0.0, le=86400.0)] = 120.0
     status_period_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 1.0
     frame_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 2.0
     queue_depth: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 2

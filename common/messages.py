@@ -84,6 +84,9 @@ class Frame(_Msg, tag="frame", kw_only=True):
     dtype: Literal["uint8"] = "uint8"
     data: bytes
     source: str = ""
+    #: the capture's stream identity (random, new each time the capture starts): a new
+    #: one means sequence numbers start again, not that frames were lost
+    stream: str = ""
 
     def __post_init__(self) -> None:
         expected = self.rows * self.cols * self.channels
@@ -107,6 +110,7 @@ class Frame(_Msg, tag="frame", kw_only=True):
         stamp_ns: int,
         source: str = "",
         copy: bool = True,
+        stream: str = "",
     ) -> Frame:
         """A frame of ``image``. ``copy=False`` keeps a read-only view of a C-contiguous
         image instead of a copy of its bytes, for a frame that is encoded at once (capture
@@ -131,6 +135,7 @@ class Frame(_Msg, tag="frame", kw_only=True):
             channels=channels,
             data=data,  # type: ignore[arg-type]  (a memoryview encodes as bytes do)
             source=source,
+            stream=stream,
         )
 
 
@@ -141,6 +146,7 @@ class FrameHeader(_Msg, tag="frame", kw_only=True):
     stamp_ns: Stamp
     rows: Side
     cols: Side
+    stream: str = ""
 
 
 class MarkerCorners(msgspec.Struct):
@@ -182,6 +188,7 @@ class BinaryFrame(_Msg, tag="binary", kw_only=True):
     #: markers decoded in the grey frame (None: none looked for, no robot configured)
     markers: MarkerList | None = None
     markers_at_border: Annotated[int, msgspec.Meta(ge=0)] = 0
+    stream: str = ""  # the capture's stream identity (Frame.stream)
 
     def __post_init__(self) -> None:
         expected = (self.rows * self.cols + 7) // 8
@@ -231,7 +238,14 @@ class PlaneMap(msgspec.Struct):
         return cls(*(np.asarray(f).tolist() for f in j))
 
     def jacobian(self) -> PixelJacobian:
-        return PixelJacobian(*(np.array(getattr(self, f)) for f in PixelJacobian._fields))
+        """The map as arrays: floats, and ``valid`` as booleans even when there is no
+        blob (an empty list would otherwise be a float array, and pose would fail)."""
+        return PixelJacobian(
+            *(
+                np.array(getattr(self, f), dtype=bool if f == "valid" else np.float64)
+                for f in PixelJacobian._fields
+            )
+        )
 
     def entries(self) -> int | None:
         """How many blobs the columns describe (None if they differ in length)."""
@@ -261,6 +275,7 @@ class BlobList(_Msg, tag="blobs", kw_only=True):
     #: the binary frame's markers, passed on to the pose service
     markers: MarkerList | None = None
     markers_at_border: Annotated[int, msgspec.Meta(ge=0)] = 0
+    stream: str = ""  # the capture's stream identity (Frame.stream)
 
     def __post_init__(self) -> None:
         if self.maps is None:
@@ -322,13 +337,14 @@ class StreamHealth(_Msg, tag="health", kw_only=True):
     whether frames flow or not, so that a consumer can tell "no obstacles" (an
     ObstacleFrame with an empty list) from "no data" (``state`` "stalled")."""
 
-    state: Literal["waiting", "ok", "stalled"]
+    state: Literal["waiting", "ok", "stalled", "degraded", "failing"]
     published_ns: Stamp
     last_seq: int = -1
     seconds_since_frame: float | None = None  # by the publisher's clock, since receipt
     last_frame_age_ms: float | None = None  # capture → publication of the last frame
     frames_dropped: int = 0
     calibration_version: int = 0
+    reason: str = ""  # why "degraded" or "failing"
 
 
 class WorldObject(msgspec.Struct, kw_only=True):
@@ -381,6 +397,7 @@ class CalibrateRequest(_Msg, tag="calibrate", kw_only=True):
     seed: Seq | None = None
     population: Annotated[int, msgspec.Meta(ge=2, le=10000)] | None = None
     generations: Annotated[int, msgspec.Meta(ge=1, le=10000)] | None = None
+    cancel: bool = False  # cancel the calibration that runs (nothing else is done)
 
 
 class CalibrateReply(_Msg, tag="calibrate-reply", kw_only=True):
@@ -396,6 +413,9 @@ class CalibrateReply(_Msg, tag="calibrate-reply", kw_only=True):
     parameters: dict[str, float] = {}
     saved_to: str = ""
     error: str = ""
+    busy: bool = False  # a calibration runs: this query was not started (see error)
+    progress: float = 0.0  # of the running calibration, 0..1, when busy
+    eta_s: float | None = None  # seconds the running calibration still needs, when busy
 
 
 class CalibrationUpdate(_Msg, tag="calibration", kw_only=True):
@@ -422,6 +442,10 @@ class ServiceStatus(_Msg, tag="status", kw_only=True):
     last_frame_age_s: float | None = None
     rss_mb: float = 0.0
     restarts: int = 0  # times `ovis up` restarted this service
+    reason: str = ""  # why the state is "degraded" or "failing"
+    calibration_epoch: str = ""  # the calibrator's store id of the calibration in use
+    seq_jumps: int = 0  # sequence jumps beyond the plausible gap (not counted as dropped)
+    stream_restarts: int = 0  # times the capture's stream identity changed
 
 
 Message = (

@@ -3,22 +3,31 @@
 A query runs the GA (paper §4) on the latest frame, or on the frame named in the query,
 with the configured control points (a points file, or for the simulated arena the
 frame's ground truth, which the capture sends just after the frame: the latest frame
-that has it, and a named frame's is waited for up to ``TRUTH_WAIT_S``); the result is
-saved atomically as a new version, published on ``ovis/<arena>/calibration`` (the other
-services switch to it without restarting) and returned in the reply.
-``ovis/<arena>/calibration`` is also a queryable returning the current calibration, so
-late starters pick it up.
+that has it, and a named frame's is waited for up to ``TRUTH_WAIT_S``); the result,
+checked by :func:`calibration_problem`, is saved atomically as a new version of the
+store (with its epoch), published on ``ovis/<arena>/calibration`` and returned in the
+reply. ``ovis/<arena>/calibration`` is also a queryable returning the current
+calibration: the stages take only its answer (they ask it on every publication and
+every few seconds).
+
+One calibration runs at a time, within the limits of ``[service]`` (``max_population``,
+``max_evaluations``, ``calibration_budget_s``); a query while it runs is answered at
+once ("busy", with its progress and ETA); a cancel request or SIGTERM stops it after
+the current generation.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
+import msgspec
 import zenoh
 
 from ovis.common.calibration.file import dipe_text
+from ovis.common.calibration.ga import GenerationStats
 from ovis.common.calibration.problem import InfeasibleCalibrationError, calibrate
 from ovis.common.calibration.store import CalibrationStore
+from ovis.common.calibration.validity import calibration_problem
 from ovis.common.config import ControlPoint, load_points
 from ovis.common.messages import (
     ENCODING,
@@ -30,11 +39,15 @@ from ovis.common.messages import (
     TruthFrame,
     encode,
 )
+from ovis.common.pipeline.following import label
 from ovis.common.pipeline.recalibration import (
+    CalibrationCancelledError,
+    CalibrationJob,
     FrameKeeper,
     calibrate_reply,
     config_for_request,
     points_for,
+    too_big,
 )
 from ovis.common.vision.preprocess import ImageError
 from ovis.services.inbox import Inbox
@@ -46,16 +59,20 @@ INITIAL_RETRY_S = 2.0
 def initial_calibration(
     service: Service,
     keeper: FrameKeeper,
+    job: CalibrationJob,
     run_calibration: Callable[[CalibrateRequest], CalibrateReply],
 ) -> None:
     """Calibrate on the newest usable frame once frames flow, retrying every
     ``INITIAL_RETRY_S`` until it works (a scene may be infeasible for a while); queries
-    are served only after."""
+    meanwhile are answered "busy"."""
     service.log.info("no saved calibration: calibrating on the first usable frame")
     while not service.stop.is_set():
-        if not keeper.first_frame.wait(0.2):
+        if not keeper.first_frame.wait(0.2) or not job.claim():
             continue
-        reply = run_calibration(CalibrateRequest())
+        try:
+            reply = run_calibration(CalibrateRequest())
+        finally:
+            job.done()
         if reply.ok:
             return
         service.log.warning("initial calibration failed: %s; retrying", reply.error)
@@ -68,9 +85,14 @@ def main(service: Service) -> None:
     saved, problems = store.latest()
     for problem in problems:
         service.error("bad_saved_calibration", f"skipped {problem}")
+    epoch = store.epoch()
+    if saved is not None and service.refused(
+        "bad_saved_calibration", calibration_problem(saved, cfg)
+    ):
+        saved = None
     if saved is not None:
-        service.calibration = saved
-        service.log.info("loaded calibration v%d from %s", saved.version, store.folder)
+        service.calibration = msgspec.structs.replace(saved, epoch=saved.epoch or epoch)
+        service.log.info("loaded calibration %s from %s", label(service.calibration), store.folder)
     file_points: list[ControlPoint] | None = None
     if cfg.service.points != "simulator":
         file_points = load_points(cfg.service.points).points
@@ -81,7 +103,7 @@ def main(service: Service) -> None:
         payload = sample.payload.to_bytes()
         header = service.decode(payload, FrameHeader, "frame")
         if header is not None:
-            service.saw_frame(header.seq, header.stamp_ns)
+            service.saw_frame(header.seq, header.stamp_ns, header.stream)
             keeper.add_frame(header.seq, payload)
 
     def on_truth(sample: zenoh.Sample) -> None:
@@ -103,10 +125,48 @@ def main(service: Service) -> None:
             )
 
     service.session.declare_queryable(service.topics.calibration, on_current)
-    queries = Inbox(depth=8)
-    service.session.declare_queryable(service.topics.calibrate, queries.put)
+    job = CalibrationJob()
+    accepted = Inbox(depth=2)  # (query, request): at most one, the job being claimed
+
+    def reply_to(query: zenoh.Query, reply: CalibrateReply) -> None:
+        query.reply(service.topics.calibrate, encode(reply), encoding=zenoh.Encoding(ENCODING))
+
+    def on_calibrate(query: zenoh.Query) -> None:
+        """Every query is answered at once here (bad, too big, cancel, busy), or
+        accepted for the loop, which answers when the calibration is done."""
+        try:
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            request = CalibrateRequest()
+            if payload:
+                request = service.decode(payload, CalibrateRequest, "calibrate_request")
+            if request is None:
+                reply_to(
+                    query, CalibrateReply(ok=False, error=f"bad request: {service.last_error}")
+                )
+            elif request.cancel:
+                cancelled = job.cancel("cancelled by a query")
+                text = "cancelling the running calibration" if cancelled else "nothing to cancel"
+                reply_to(query, CalibrateReply(ok=False, error=text))
+            elif problem := too_big(config_for_request(cfg, request)):
+                service.error("calibrate_request_too_big", problem)
+                reply_to(query, CalibrateReply(ok=False, error=problem))
+            elif not job.claim():
+                reply_to(query, job.busy_reply())
+            else:
+                accepted.put((query, request))
+        except Exception as exc:  # never let a query kill the calibrator
+            service.error("processing", f"calibrate query failed: {type(exc).__name__}: {exc}")
+
+    def after_generation(stats: GenerationStats) -> None:
+        if service.stop.is_set():
+            job.cancel("the calibrator is stopping")
+        job.after_generation(stats.generation)
 
     def run_calibration(request: CalibrateRequest) -> CalibrateReply:
+        run_cfg = config_for_request(cfg, request)
+        problem = too_big(run_cfg)
+        if problem is not None:
+            return CalibrateReply(ok=False, error=problem)
         picked = keeper.pick(request.frame_seq)
         if picked.seq is None:
             return CalibrateReply(ok=False, error=picked.error)
@@ -121,50 +181,57 @@ def main(service: Service) -> None:
         points = points_for(seq, file_points, picked.truth)
         if isinstance(points, str):
             return CalibrateReply(ok=False, frame_seq=seq, error=points)
-        run_cfg = config_for_request(cfg, request)
         service.state = f"calibrating on frame {seq}"
+        job.start(seq, run_cfg.ga.generations, cfg.service.calibration_budget_s)
         try:
-            calib, _ = calibrate(frame.image(), points, run_cfg, source=f"frame {seq}")
-        except (InfeasibleCalibrationError, ImageError, ValueError) as exc:
+            calib, _ = calibrate(
+                frame.image(),
+                points,
+                run_cfg,
+                source=f"frame {seq}",
+                on_generation=after_generation,
+            )
+        except (
+            InfeasibleCalibrationError,
+            ImageError,
+            ValueError,
+            CalibrationCancelledError,
+        ) as exc:
             service.error("calibration", f"calibration on frame {seq} failed: {exc}")
             return CalibrateReply(ok=False, frame_seq=seq, error=str(exc))
         finally:
             service.state = "ok"
+        problem = calibration_problem(calib, cfg)
+        if problem is not None:  # never published: the stages would refuse it anyway
+            service.error("calibration", f"calibration on frame {seq}: {problem}")
+            return CalibrateReply(ok=False, frame_seq=seq, error=problem)
         calib = store.save(calib)
         service.calibration = calib
         publish(CalibrationUpdate(calibration=calib))
         service.sent()
         service.log.info(
-            "calibration v%d on frame %d: DIPE %s in %.2f s",
-            calib.version,
+            "calibration %s on frame %d: DIPE %s in %.2f s",
+            label(calib),
             seq,
             dipe_text(calib.dipe_px, calib.dipe_mm),
             calib.elapsed_s,
         )
         return calibrate_reply(calib, seq, str(store.path(calib.version)))
 
-    def answer(query: zenoh.Query) -> None:
-        payload = query.payload.to_bytes() if query.payload is not None else b""
-        request: CalibrateRequest | None = CalibrateRequest()
-        if payload:
-            request = service.decode(payload, CalibrateRequest, "calibrate_request")
-        if request is None:
-            reply = CalibrateReply(ok=False, error=f"bad request: {service.last_error}")
-        else:
-            reply = run_calibration(request)
-        query.reply(service.topics.calibrate, encode(reply), encoding=zenoh.Encoding(ENCODING))
-
+    service.session.declare_queryable(service.topics.calibrate, on_calibrate)
     service.state = "ok" if service.calibration.version > 0 else "no calibration"
     service.ready()
     if saved is None and cfg.service.auto_calibrate:
-        initial_calibration(service, keeper, run_calibration)
+        initial_calibration(service, keeper, job, run_calibration)
     while not service.stop.is_set():
-        query = queries.get(timeout=0.2)
-        if query is None:
+        item = accepted.get(timeout=0.2)
+        if item is None:
             continue
+        query, request = item
         try:
-            answer(query)
+            reply_to(query, run_calibration(request))
         except Exception as exc:
             service.error("processing", f"calibrate query failed: {type(exc).__name__}: {exc}")
         finally:
-            del query  # the reply is final when the query is dropped
+            job.done()
+            del query, item  # the reply is final when the query is dropped

@@ -1,9 +1,11 @@
-"""Capture service: frames from the configured source, stamped with a sequence number
-and capture time, published on ``ovis/<arena>/frames`` (and, for the simulated arena,
-the ground truth on ``ovis/<arena>/truth``). A source that fails is retried."""
+"""Capture service: frames from the configured source, stamped with a sequence number,
+the capture time and the stream's identity (random, new at each start), published on
+``ovis/<arena>/frames`` (and, for the simulated arena, the ground truth on
+``ovis/<arena>/truth``). A source that fails is retried."""
 
 from __future__ import annotations
 
+import secrets
 import time
 
 from ovis.common.capture.sources import FrameSource, SourceError, open_source
@@ -25,6 +27,8 @@ def main(service: Service) -> None:
     pacer = Pacer(cfg.fps)
     source: FrameSource | None = None
     seq = 0
+    stream = secrets.token_hex(8)  # sequence numbers start again with a new stream
+    service.log.info("stream %s", stream)
     service.ready()
     try:
         while not service.stop.is_set():
@@ -45,12 +49,17 @@ def main(service: Service) -> None:
                 continue
             stamp = time.time_ns()
             frame = Frame.from_image(
-                image, seq=seq, stamp_ns=stamp, source=source.description, copy=False
+                image,
+                seq=seq,
+                stamp_ns=stamp,
+                source=source.description,
+                copy=False,
+                stream=stream,
             )
             publish_frame(frame)  # first: the truth is for checking, not on the frame's path
             if truth is not None:
                 publish_truth(TruthFrame(seq=seq, objects=truth.objects))
-            service.saw_frame(seq, stamp)
+            service.saw_frame(seq, stamp, stream)
             service.sent()
             seq += 1
             service.stop.wait(pacer.delay())

@@ -22,7 +22,7 @@ def main(service: Service) -> None:
         calib = service.calibration
         if not service.fits_camera(frame, "binary"):
             return
-        service.saw_frame(frame.seq, frame.stamp_ns)
+        service.saw_frame(frame.seq, frame.stamp_ns, frame.stream)
         service.publish_result(publish, blob_list(frame, calib, size_filter.min_area_px(calib)))
 
     service.serve(service.inbox(service.topics.binary), handle)

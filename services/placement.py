@@ -74,3 +74,10 @@ def pin_to_cpus(cpus: list[int], log: logging.Logger) -> bool:
         )
         return False
     return True
+
+
+def off_path_option(cpus: list[int]) -> list[str]:
+    """The ``--cpus`` arguments that keep a helper process (the live view) off the frame
+    path's cores ``cpus``: the other cores this process may use; none if there are none."""
+    others = sorted(set(os.sched_getaffinity(0)) - set(cpus)) if cpus else []
+    return ["--cpus", ",".join(map(str, others))] if others else []

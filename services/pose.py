@@ -26,7 +26,7 @@ def main(service: Service) -> None:
         msg = service.decode(payload, BlobList, "blobs")
         if msg is None:
             return
-        service.saw_frame(msg.seq, msg.stamp_ns)
+        service.saw_frame(msg.seq, msg.stamp_ns, msg.stream)
         version = service.calibration.version
         out = obstacle_frame(msg, detector, version, service.topics.arena, time.time_ns())
         publish(out)
@@ -38,13 +38,20 @@ def main(service: Service) -> None:
     publish_health = service.publisher(service.topics.health, drop=False)
     watch = StreamWatch(service.config.service.frame_timeout_s)
     counters = service.counters
+    said: str | None = None  # the verdict last logged
     while not service.stop.wait(service.config.service.status_period_s):
-        dropped = service.status().dropped
+        status = service.status()
+        dropped = status.dropped
         since = counters.seconds_since_frame()
         if watch.update(since):
             log = service.log.warning if watch.state == "stalled" else service.log.info
             log("frames %s (last seq %s, %.1f s ago)", watch.state, counters.last_seq, since or 0.0)
             service.state = SERVICE_STATE[watch.state]
+        if status.state != said and status.state in ("degraded", "failing", "ok"):
+            if said is not None or status.state != "ok":  # a change of the verdict
+                log = service.log.info if status.state == "ok" else service.log.warning
+                log("%s%s", status.state, f": {status.reason}" if status.reason else "")
+            said = status.state
         publish_health(
             watch.message(
                 last_seq=counters.last_seq,
@@ -52,5 +59,6 @@ def main(service: Service) -> None:
                 last_frame_age_ms=service.last_latency_ms,
                 frames_dropped=dropped,
                 calibration_version=service.calibration.version,
+                verdict=(status.state, status.reason),
             )
         )

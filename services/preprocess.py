@@ -30,7 +30,7 @@ def main(service: Service) -> None:
         except ImageError as exc:
             service.error("bad_frame", f"frame {frame.seq}: {exc}")
             return
-        service.saw_frame(frame.seq, frame.stamp_ns)
+        service.saw_frame(frame.seq, frame.stamp_ns, frame.stream)
         service.publish_result(
             publish,
             binary_frame(

@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -20,7 +21,7 @@ from typing import Any
 import msgspec
 import zenoh
 
-from ovis.common.calibration.file import Calibration, calibration_from_config, wrong_arena
+from ovis.common.calibration.file import Calibration, calibration_from_config
 from ovis.common.config import OvisConfig
 from ovis.common.messages import (
     ENCODING,
@@ -32,6 +33,12 @@ from ovis.common.messages import (
     encode,
 )
 from ovis.common.pipeline.counters import StageCounters, worth_logging
+from ovis.common.pipeline.following import (
+    RECONCILE_S,
+    CalibrationFollower,
+    identity,
+    label,
+)
 from ovis.common.pipeline.stages import wrong_size
 from ovis.services.bus import open_session
 from ovis.services.inbox import Inbox
@@ -59,6 +66,7 @@ class Service:
         self._inboxes: list[Inbox] = []
         self.calibration: Calibration = calibration_from_config(config)
         self._calibration_listeners: list[Callable[[Calibration], None]] = []
+        self.follower: CalibrationFollower | None = None  # set by follow_calibration()
         self._token: zenoh.LivelinessToken | None = None  # declared by ready()
         self._status_q = session.declare_queryable(self.topics.status(name), self._on_status)
 
@@ -104,9 +112,10 @@ class Service:
         and log a ``bad_<kind>`` error."""
         return not self.refused(f"bad_{kind}", wrong_size(frame, self.calibration.camera, kind))
 
-    def saw_frame(self, seq: int, stamp_ns: int) -> None:
-        """Count an input frame; a gap in sequence numbers counts as dropped upstream."""
-        self.counters.saw_frame(seq, stamp_ns)
+    def saw_frame(self, seq: int, stamp_ns: int, stream: str = "") -> None:
+        """Count an input frame of the capture's ``stream``; a plausible gap in sequence
+        numbers counts as dropped upstream (:meth:`StageCounters.saw_frame`)."""
+        self.counters.saw_frame(seq, stamp_ns, stream)
 
     def sent(self) -> None:
         self.counters.sent()
@@ -131,44 +140,82 @@ class Service:
 
     # --- calibration --------------------------------------------------------------
     def follow_calibration(self, on_change: Callable[[Calibration], None] | None = None) -> None:
-        """Track the published calibration (fetch the current one, then every update)."""
+        """Use the calibrator's current calibration (:mod:`ovis.common.pipeline.following`):
+        ask its queryable now, every ``RECONCILE_S``, and whenever a calibration is
+        pushed on the topic (the push itself is never taken: anyone can publish there)."""
         if on_change:
             self._calibration_listeners.append(on_change)
+        self.follower = CalibrationFollower(self.config, self.calibration)
+        ask = threading.Event()
 
-        def accept(payload: bytes) -> None:
-            update = self.decode(payload, CalibrationUpdate, "calibration")
-            if update is None:
-                return
-            calib = update.calibration
-            if calib.version <= self.calibration.version:
-                return
-            if self.refused("bad_calibration", wrong_arena(calib, self.config)):
-                return
-            self.calibration = calib
-            self.log.info("using calibration v%d (DIPE %.3f px)", calib.version, calib.dipe_px)
-            for listener in self._calibration_listeners:
-                listener(calib)
+        def on_push(sample: zenoh.Sample) -> None:
+            if self.decode(sample.payload.to_bytes(), CalibrationUpdate, "calibration"):
+                ask.set()
 
-        self.session.declare_subscriber(
-            self.topics.calibration, lambda s: accept(s.payload.to_bytes())
-        )
+        self.session.declare_subscriber(self.topics.calibration, on_push)
 
-        def fetch() -> None:
-            # Until a calibration is known: a calibrator not reachable yet (starting, or a
-            # peer still being discovered) answers nothing; one without a calibration
-            # answers nothing until it has one (and then also publishes it).
-            delay = 0.25
-            while not self.stop.is_set() and self.calibration.version == 0:
+        def reconcile() -> None:
+            delay = 0.25  # quick retries until the calibrator first answers
+            while not self.stop.is_set():
+                ask.clear()
                 try:
-                    for reply in self.session.get(self.topics.calibration, timeout=2.0):
-                        if reply.ok is not None:
-                            accept(reply.ok.payload.to_bytes())
+                    answered = self.reconcile_calibration()
                 except zenoh.ZError:  # the session is closing
                     return
-                self.stop.wait(delay)
-                delay = min(2 * delay, 5.0)
+                if answered:
+                    delay = RECONCILE_S
+                ask.wait(delay)
+                delay = min(2 * delay, RECONCILE_S)
 
-        threading.Thread(target=fetch, name=f"{self.name}-calibration", daemon=True).start()
+        threading.Thread(target=reconcile, name=f"{self.name}-calibration", daemon=True).start()
+
+    def reconcile_calibration(self, timeout: float = 2.0) -> bool:
+        """Ask the calibrator for its calibration and use it if it differs from ours and
+        is valid; False when nobody answered."""
+        answers: dict[tuple[str, int], Calibration] = {}
+        for reply in self.session.get(self.topics.calibration, timeout=timeout):
+            if reply.ok is None:
+                continue
+            update = self.decode(reply.ok.payload.to_bytes(), CalibrationUpdate, "calibration")
+            if update is not None:
+                answers[identity(update.calibration)] = update.calibration
+        if len(answers) > 1:
+            self.error(
+                "calibration_conflict",
+                f"{len(answers)} different answers to the current calibration "
+                f"({', '.join(map(label, answers.values()))}); keeping "
+                f"{label(self.calibration)}: more than one queryable serves "
+                f"{self.topics.calibration} (use the secure profile)",
+            )
+            return True
+        if not answers:
+            return False
+        calib = next(iter(answers.values()))
+        adopted, problem = self.follower.offer(calib)
+        if problem is not None:
+            self.error("bad_calibration", problem)
+        if adopted:
+            self._use(calib, f"using calibration {label(calib)} (DIPE {calib.dipe_px:.3f} px)")
+        return True
+
+    def _use(self, calib: Calibration, message: str) -> None:
+        self.calibration = calib
+        self.log.info("%s", message)
+        for listener in self._calibration_listeners:
+            listener(calib)
+
+    def _frame_failed(self, calib: Calibration, error: str) -> None:
+        """Roll back, at once, a calibration that made this stage fail on a frame."""
+        if self.follower is None:
+            return
+        back = self.follower.failed(calib, error)
+        if back is not None:
+            message = (
+                f"calibration {label(calib)} failed on a frame ({error}): rolled back to "
+                f"{label(back)}"
+            )
+            self.error("calibration_rollback", message)
+            self._use(back, message)
 
     # --- status -------------------------------------------------------------------
     def status(self) -> ServiceStatus:
@@ -178,6 +225,8 @@ class Service:
             state=self.state,
             dropped_here=sum(b.dropped for b in self._inboxes),
             calibration_version=self.calibration.version,
+            calibration_epoch=self.calibration.epoch,
+            problem=self.follower.problem() if self.follower is not None else None,
         )
 
     def _on_status(self, query: zenoh.Query) -> None:
@@ -215,14 +264,39 @@ class Service:
             item = inbox.get(timeout=0.2)
             if item is None:
                 continue
+            calib, sent = self.calibration, self.counters.frames_out
             try:
                 handle(*item)
             except Exception as exc:
-                self.error("processing", f"{type(exc).__name__}: {exc}")
+                error = f"{type(exc).__name__}: {exc}"
+                self.error("processing", error)
+                self.counters.outcome(False)
+                self._frame_failed(calib, error)
+                continue
+            worked = self.counters.frames_out > sent
+            self.counters.outcome(worked)
+            if worked and self.follower is not None:
+                self.follower.worked(calib)
+
+
+def wait_for_activation() -> bool:
+    """A spare started by the supervisor (``OVIS_STANDBY=1``) waits here, its imports
+    done, until the supervisor writes the restart count on its stdin (it then takes
+    over from a stage that died); False when the supervisor closes stdin first."""
+    if os.environ.get("OVIS_STANDBY") != "1":
+        return True
+    line = sys.stdin.readline().strip()
+    if not line.isdigit():
+        return False
+    os.environ["OVIS_RESTARTS"] = line
+    os.environ.pop("OVIS_STANDBY")
+    return True
 
 
 def run(name: str, config: OvisConfig, main: Callable[[Service], None]) -> int:
     """Open a session, build the service, run ``main`` until SIGINT/SIGTERM, close."""
+    if not wait_for_activation():
+        return 0
     logging.basicConfig(
         level=os.environ.get("OVIS_LOG", "INFO").upper(),
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
@@ -250,4 +324,24 @@ def run(name: str, config: OvisConfig, main: Callable[[Service], None]) -> int:
         finally:
             service.stop.set()
             service.log.info("stopped: %s", msgspec.json.encode(service.status()).decode())
+            exit_anyway_after(EXIT_GRACE_S, service.log)
     return 0
+
+
+#: Seconds a stopped service may take to close its Zenoh session and exit.
+EXIT_GRACE_S = 2.0
+
+
+def exit_anyway_after(seconds: float, logger: logging.Logger) -> None:
+    """Once a service has stopped (its state logged), make sure the process ends: a Zenoh
+    session whose close, or an interpreter shutdown, hangs (seen on loaded hosts) would
+    otherwise leave the supervisor to SIGKILL it and report an abnormal exit."""
+
+    def force() -> None:
+        logger.warning("closing took over %g s: exiting now", seconds)
+        logging.shutdown()
+        os._exit(0)
+
+    timer = threading.Timer(seconds, force)
+    timer.daemon = True
+    timer.start()

@@ -20,11 +20,16 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ovis.common.messages import ServiceStatus
 from ovis.common.pipeline.restarts import RestartBudget, describe_exit
+from ovis.common.pipeline.totals import CounterTotals, ServiceTotals
 
 __all__ = ["Child", "Supervisor", "die_with_parent"]
 
 log = logging.getLogger("ovis.up")
+
+#: A spare is started this long after its stage (not while everything starts at once).
+SPARE_AFTER_S = 5.0
 
 
 def die_with_parent() -> None:
@@ -45,6 +50,8 @@ class Child:
     restart_at: float | None = None
     gave_up: str = ""
     last_exit: str = ""
+    standby: bool = False  # keep a spare process ready (imports done) to take over
+    spare: subprocess.Popen[bytes] | None = None
 
 
 class Supervisor:
@@ -57,27 +64,48 @@ class Supervisor:
         self.children: dict[str, Child] = {}
         self.events: list[str] = []
         self.stopping = False
+        self.counters = CounterTotals()  # every status seen, summed over restarts
 
-    def start(self, name: str, args: list[str]) -> None:
+    def start(self, name: str, args: list[str], *, standby: bool = False) -> None:
+        """Start child ``name``; with ``standby``, also a spare that has done its imports
+        and waits (:func:`ovis.services.service.wait_for_activation`) to replace it at
+        once if it dies: its first restart then costs no interpreter start."""
         if name not in self.children:
             budget = RestartBudget(self.max_restarts, self.window_s)
-            self.children[name] = Child(name, args, budget)
+            self.children[name] = Child(name, args, budget, standby=standby)
         child = self.children[name]
         child.started_at = time.monotonic()
-        self._spawn(child)
+        child.proc = self._spawn(child)
 
-    def _spawn(self, child: Child) -> None:
+    def _spawn(self, child: Child, *, spare: bool = False) -> subprocess.Popen[bytes]:
         logfile = open(self.log_dir / f"{child.name}.log", "ab")  # noqa: SIM115 (the child keeps it)
         env = dict(os.environ, OVIS_RESTARTS=str(child.budget.restarts))
-        child.proc = subprocess.Popen(
-            [sys.executable, "-m", "ovis.services.cli", *child.args],
+        args = child.args
+        if spare:  # `ovis run --standby STAGE …`
+            args = [args[0], "--standby", *args[1:]]
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "ovis.services.cli", *args],
             stdout=logfile,
             stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
+            stdin=subprocess.PIPE if spare else subprocess.DEVNULL,
             preexec_fn=die_with_parent,
             env=env,
         )
         logfile.close()
+        return proc
+
+    def _restart(self, child: Child) -> None:
+        """Activate the spare (the restart count on its stdin), or spawn a process."""
+        spare, child.spare = child.spare, None
+        if spare is not None and spare.poll() is None and spare.stdin is not None:
+            try:
+                spare.stdin.write(f"{child.budget.restarts}\n".encode())
+                spare.stdin.close()
+                child.proc = spare
+            except OSError:
+                spare = None
+        if child.proc is not spare:
+            child.proc = self._spawn(child)
 
     def _tail(self, name: str, lines: int = 3) -> str:
         try:
@@ -99,12 +127,14 @@ class Supervisor:
                     child.budget.restarted(now)
                     child.restart_at = None
                     child.started_at = now
-                    self._spawn(child)
+                    self._restart(child)
                     news.append(f"{child.name} restarted (restart {child.budget.restarts})")
                 continue
             code = child.proc.poll()
             if code is None:
                 child.budget.running(now, child.started_at)
+                if child.standby and child.spare is None and now - child.started_at > SPARE_AFTER_S:
+                    child.spare = self._spawn(child, spare=True)
                 continue
             child.last_exit = describe_exit(code)
             backoff = child.budget.died(now)
@@ -129,6 +159,15 @@ class Supervisor:
     def gave_up(self) -> list[str]:
         return [c.gave_up for c in self.children.values() if c.gave_up]
 
+    def record(self, statuses: dict[str, ServiceStatus]) -> None:
+        """Keep the children's latest statuses: their counters survive restarts."""
+        for status in statuses.values():
+            self.counters.record(status)
+
+    def totals(self) -> dict[str, ServiceTotals]:
+        """Each child's counters over all of its processes."""
+        return self.counters.totals()
+
     def restarts(self) -> dict[str, int]:
         return {n: c.budget.restarts for n, c in self.children.items()}
 
@@ -137,6 +176,10 @@ class Supervisor:
         self.stopping = True
         codes: dict[str, int] = {}
         stages = [n for n in self.children if n != "router"]
+        for child in self.children.values():
+            if child.spare is not None and child.spare.poll() is None:
+                child.spare.kill()  # only waiting: nothing to stop cleanly
+                child.spare.wait()
         for group in (stages, [n for n in self.children if n == "router"]):
             for name in group:
                 p = self.children[name].proc

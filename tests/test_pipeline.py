@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from ovis.common.analysis.evaluation import match_objects
-from ovis.common.calibration.file import Calibration, calibration_from_config, wrong_arena
+from ovis.common.calibration.file import Calibration, calibration_from_config
+from ovis.common.calibration.validity import calibration_problem
 from ovis.common.config import ControlPoint, load_config
 from ovis.common.messages import (
     BinaryFrame,
@@ -142,6 +143,21 @@ def test_pose_ignores_maps_made_with_another_calibration(scene) -> None:
     )
 
 
+def test_pose_takes_a_frame_with_no_blob_over_the_wire(scene) -> None:
+    """A frame where nothing passes the size filter: its maps have empty columns, which
+    must still decode to a boolean ``valid`` (pose failed on every such frame with a
+    TypeError, issue 15)."""
+    _, image, _, calib = scene
+    frame = Frame.from_image(np.zeros_like(image), seq=3, stamp_ns=time.time_ns())
+    binary = binary_frame(frame, as_gray(frame.image()), calib)
+    blobs = _wire(blob_list(binary, calib, 0.0), BlobList)
+    assert blobs.blobs == [] and blobs.maps is not None
+    assert blobs.maps.obstacle.jacobian().valid.dtype == bool
+    detector = Detector(calib.camera, calib.image, calib.pose)
+    out = obstacle_frame(blobs, detector, calib.version, "a", time.time_ns())
+    assert out.robot is None and out.obstacles == [] and out.planner == []
+
+
 def test_size_filter_is_computed_once_per_calibration_version(scene) -> None:
     _, _, _, calib = scene
     sf = SizeFilter()
@@ -173,12 +189,12 @@ def test_frames_refused_before_processing() -> None:
 def test_calibration_of_another_image_size_is_refused() -> None:
     calib = calibration_from_config(CFG)
     assert (calib.version, calib.camera, calib.image) == (0, CFG.camera, CFG.image)
-    assert wrong_arena(calib, CFG) is None
+    assert calibration_problem(calib, CFG) is None
     small = load_config(preset="paper")
     other = msgspec.structs.replace(calib, camera=small.camera, version=3)
-    assert wrong_arena(other, CFG) == (
-        f"refused calibration v3: it is for {small.camera.cols}x{small.camera.rows}, "
-        f"this arena is {CFG.camera.cols}x{CFG.camera.rows}"
+    assert calibration_problem(other, CFG) == (
+        f"calibration v3 refused: it is for {small.camera.cols}x{small.camera.rows} images, "
+        f"this arena's camera is {CFG.camera.cols}x{CFG.camera.rows}"
     )
 
 
@@ -336,18 +352,18 @@ def test_points_ga_and_reply_of_a_request() -> None:
 # --- the supervisor's restart rule ----------------------------------------------------------
 
 
-def test_restart_backoff_doubles_to_its_cap_and_resets_after_a_good_run() -> None:
+def test_first_restart_is_immediate_then_backoff_doubles_to_its_cap_and_resets() -> None:
     b = RestartBudget(max_restarts=100, window_s=60.0)
     delays = []
     for i in range(6):
         delays.append(b.died(now=float(i)))
         b.restarted(now=float(i))
-    assert delays == [1.0, 2.0, 4.0, 8.0, BACKOFF_MAX_S, BACKOFF_MAX_S]
+    assert delays == [0.0, BACKOFF_START_S, 2.0, 4.0, 8.0, BACKOFF_MAX_S]
     assert b.restarts == 6
     b.running(now=100.0, started_at=100.0 - HEALTHY_S / 2)
     assert b.backoff == BACKOFF_MAX_S  # not long enough
     b.running(now=100.0, started_at=100.0 - HEALTHY_S - 1)
-    assert b.backoff == BACKOFF_START_S
+    assert b.backoff == 0.0  # the next restart is immediate again
 
 
 def test_restart_budget_is_per_window() -> None:

@@ -96,7 +96,9 @@ def test_kill_during_save_always_leaves_the_last_good_calibration(tmp_path: Path
         assert current.version in (calib.version, calib.version - 1)
     assert last > 12
     # Temporary files of interrupted saves never shadow a version.
-    assert all(p.name.startswith((".", "calibration-v", "current")) for p in tmp_path.iterdir())
+    assert all(
+        p.name.startswith((".", "calibration-v", "current", "epoch")) for p in tmp_path.iterdir()
+    )
 
 
 def test_corrupt_or_hand_edited_calibration_is_refused_and_the_previous_kept(
@@ -323,6 +325,6 @@ def test_up_restarts_a_stage_that_dies(tmp_path: Path) -> None:
     assert up.returncode == 0, err.read_text()
     summary = json.loads(out)
     assert summary["restarts"] == {"label": 1}
-    assert "label died (killed by SIGKILL); restarting in 1 s" in err.read_text()
+    assert "label died (killed by SIGKILL); restarting in 0 s" in err.read_text()
     assert resumed < 40
     assert pids_with(log_dir) == []

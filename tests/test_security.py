@@ -1,7 +1,8 @@
 """The secure profile (deploy/secure/) end to end: certificates and passwords made by its
 scripts, `ovis router` with the committed router.json5 (TLS, user/password, access
-control), the five services as real processes with the operator's credentials; then who
-may connect, watch, recalibrate and inject frames. No mocks: real TLS on loopback."""
+control), the five services as real processes, each with its own credentials; then who
+may connect, watch, recalibrate and inject frames or calibrations. No mocks: real TLS on
+loopback."""
 
 from __future__ import annotations
 
@@ -130,7 +131,8 @@ def secure(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Secure]:
     root = tmp_path_factory.mktemp("secure")
     deploy = root / "deploy" / "secure"
     deploy.mkdir(parents=True)
-    for name in ("router.json5", "router.toml", "operator.toml", "viewer.toml"):
+    tomls = [f"{name}.toml" for name in ("router", "operator", "viewer", *STAGES)]
+    for name in ("router.json5", *tomls):
         shutil.copy(SECURE / name, deploy / name)
     for script in ("make-certs.sh", "make-passwords.sh"):
         subprocess.run(
@@ -147,7 +149,7 @@ def secure(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Secure]:
         procs.append(_spawn(ovis_cmd(*router_args), root, root / "router.log"))
         wait_for(lambda: "listening" in (root / "router.log").read_text(), 20, "the router")
         for stage in STAGES:
-            args = ["run", stage, "-c", "deploy/secure/operator.toml", "--connect", endpoint]
+            args = ["run", stage, "-c", f"deploy/secure/{stage}.toml", "--connect", endpoint]
             args += ["--fps", "10", "--state-dir", str(root / "state")]
             procs.append(_spawn(ovis_cmd(*args), root, root / f"{stage}.log"))
         deployment = Secure(root, endpoint)
@@ -317,10 +319,12 @@ def test_viewer_watches_but_cannot_recalibrate_inject_or_impersonate(secure: Sec
         assert b"spoofed obstacles" not in obstacles_seen and len(obstacles_seen) > 5
         assert not any(m.seq == FORGED_SEQ for m in received)
 
-        # control: the same garbage from the operator does reach preprocess, refused there
-        for _ in range(3):
-            op.put("ovis/default/frames", b"\xc1garbage" * 100)
-            time.sleep(0.1)
+        # control: the same garbage with the capture's credentials does reach preprocess,
+        # refused there
+        with secure.session("capture") as capture:
+            for _ in range(3):
+                capture.put("ovis/default/frames", b"\xc1garbage" * 100, congestion_control=BLOCK)
+                time.sleep(0.1)
         wait_for(
             lambda: (
                 _status(op, "preprocess").errors.get("bad_frame", 0)
@@ -407,13 +411,14 @@ def test_the_router_itself_drops_denied_puts_and_queries(secure: Secure):
     with (
         zenoh.open(conf),
         secure.session("operator", endpoint=endpoint) as op,
+        secure.session("calibrator", endpoint=endpoint) as calibrator,
         secure.session("viewer", endpoint=endpoint) as viewer,
     ):
         got: list[str] = []
         for key in ("ovis/default/frames", "ovis/default/obstacles", "ovis/default/probe"):
             op.declare_subscriber(key, lambda s: got.append(str(s.key_expr)), allowed_origin=REMOTE)
         calls: list[int] = []
-        op.declare_queryable(
+        calibrator.declare_queryable(
             "ovis/default/calibrate", lambda q: (calls.append(1), q.reply(q.key_expr, b"done"))
         )
         time.sleep(0.5)
@@ -465,3 +470,59 @@ def test_mutual_tls_as_documented(secure: Secure):
         client.insert_json5("transport/auth/usrpwd/password", '"wrong"')
         with pytest.raises(zenoh.ZError, match="Unable to connect"):
             zenoh.open(client).close()  # a certificate does not replace the password
+
+
+def test_operator_can_no_longer_publish_calibrations_or_frames(secure: Secure):
+    """One identity per service: the operator's login (the person who recalibrates) may
+    read and ask for a recalibration, but the router drops its frames and calibrations
+    and refuses it the calibration queryable; the services go on with their jobs."""
+    with secure.session("operator") as op, secure.session("calibrator") as watcher:
+        seen: dict[str, list[bytes]] = {"frames": [], "calibration": []}
+        for topic, got in seen.items():
+            watcher.declare_subscriber(
+                f"ovis/default/{topic}",
+                lambda s, got=got: got.append(s.payload.to_bytes()),
+                allowed_origin=REMOTE,
+            )
+        genuine = _status(op, "calibrator").calibration_version
+        forged = CalibrationUpdate(
+            calibration=msgspec.structs.replace(
+                decode(
+                    next(
+                        r for r in op.get("ovis/default/calibration", timeout=3.0) if r.ok
+                    ).ok.payload.to_bytes(),
+                    CalibrationUpdate,
+                ).calibration,
+                version=999999,
+            )
+        )
+        frame = Frame(
+            seq=FORGED_SEQ,
+            stamp_ns=time.time_ns(),
+            rows=480,
+            cols=640,
+            data=bytes(480 * 640),
+            source="operator",
+        )
+        calls: list[int] = []
+        op.declare_queryable(
+            "ovis/default/calibration",
+            lambda q: (calls.append(1), q.reply(q.key_expr, encode(forged))),
+        )
+        for _ in range(30):
+            op.put("ovis/default/calibration", encode(forged), congestion_control=BLOCK)
+            op.put("ovis/default/frames", encode(frame), congestion_control=BLOCK)
+            time.sleep(0.02)
+        time.sleep(3.0)  # longer than a stage's reconcile period
+        assert not any(encode(forged) == p for p in seen["calibration"])
+        assert not any(decode(p, FrameHeader).seq == FORGED_SEQ for p in seen["frames"])
+        assert len(seen["frames"]) > 10  # the capture's frames do reach the calibrator
+        assert calls == []  # nobody asked the operator's fake queryable
+        for stage in ("preprocess", "label", "pose"):
+            status = _status(op, stage)
+            assert status.calibration_version == genuine, stage
+            assert status.state == "ok" and status.dropped < FORGED_SEQ // 2, stage
+        # and each service still does its job: obstacles keep coming, with the genuine
+        # calibration (the operator's recalibration: test_operator_recalibrates)
+        out = _status(op, "pose").frames_out
+        wait_for(lambda: _status(op, "pose").frames_out > out + 5, 10, "obstacles")

@@ -67,13 +67,14 @@ def test_scene_objects_read_todays_message_and_a_robots_list(scene) -> None:
     message = {
         "robot": msgspec.to_builtins(robot),
         "obstacles": [msgspec.to_builtins(o) for o in det.objects if o.kind == "obstacle"],
+        "robots": [],  # no marked robots: the paper's unmarked robot is the one drawn
     }
     objs = scene_objects(message)
     assert [o.kind for o in objs] == ["robot", "obstacle", "obstacle", "obstacle"]
     assert objs[0].x_cm == robot.x_cm and objs[0].row == robot.row
     truth_robot = next(o for o in truth.objects if o.kind == "robot")
     assert math.hypot(objs[0].x_cm - truth_robot.x_cm, objs[0].y_cm - truth_robot.y_cm) < 1.0
-    # A future message with several robots (ids, names, headings) is read as such, and
+    # A message with marked robots (ids, names, headings) draws those, and
     # entries without finite coordinates are skipped.
     future = {
         "robots": [

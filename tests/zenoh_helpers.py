@@ -1,4 +1,7 @@
-"""Real Zenoh on loopback for the integration tests: free ports, processes, sessions."""
+"""Real Zenoh on loopback for the integration tests: free ports, processes, sessions.
+
+ovis is imported only inside the functions that need it, so that a test that must not
+import ovis (tests/test_adversarial.py) can use the rest."""
 
 from __future__ import annotations
 
@@ -13,9 +16,6 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import zenoh
-
-from ovis.common.config import ZenohConfig
-from ovis.services.bus import zenoh_config
 
 
 def free_port() -> int:
@@ -57,6 +57,9 @@ def stop(procs: list[subprocess.Popen[bytes]], timeout: float = 10.0) -> None:
 
 @contextlib.contextmanager
 def client(endpoint: str) -> Iterator[zenoh.Session]:
+    from ovis.common.config import ZenohConfig
+    from ovis.services.bus import zenoh_config
+
     session = zenoh.open(zenoh_config(ZenohConfig(connect=[endpoint])))
     try:
         yield session

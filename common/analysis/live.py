@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import collections
 import threading
+from collections.abc import Mapping
+from typing import Protocol
 
 import msgspec
 import numpy as np
@@ -13,7 +15,17 @@ import numpy as np
 from ovis.common.analysis.evaluation import TrackingScore
 from ovis.common.messages import ObstacleFrame, ServiceStatus, TruthFrame
 
-__all__ = ["LiveScore", "RunSummary"]
+__all__ = ["UNSCORED_SHARE", "LiveScore", "RunSummary", "position_error_flag"]
+
+
+class Counts(Protocol):
+    """A service's counts: its status, or its totals over restarts
+    (:class:`ovis.common.pipeline.totals.ServiceTotals`)."""
+
+    frames_out: int
+    dropped: int
+    errors: dict[str, int]
+
 
 #: Frames (and truths) kept while waiting for their partner.
 KEEP = 512
@@ -40,6 +52,25 @@ class RunSummary(msgspec.Struct):
     restarts: dict[str, int] = {}
     #: frames with ground truth seen (the simulator's); 0: nothing to match against
     truth_frames: int = 0
+    #: services whose last status was not "ok": "degraded: why" / "failing: why"
+    health: dict[str, str] = {}
+    #: why the position error is not the whole story (objects missed or spurious), or ""
+    position_error_flag: str = ""
+
+
+#: The position error is flagged when the objects missed plus spurious exceed this share
+#: of the objects matched (it is computed over the matched ones only).
+UNSCORED_SHARE = 0.05
+
+
+def position_error_flag(matched: int, missed: int, spurious: int) -> str:
+    """Why the position error (over matched objects only) misleads, or ""."""
+    if missed + spurious <= UNSCORED_SHARE * max(matched, 1) and (matched or not missed):
+        return ""
+    return (
+        f"over {matched} matched objects only: {missed} missed and {spurious} spurious "
+        "are not in it"
+    )
 
 
 class LiveScore:
@@ -87,17 +118,20 @@ class LiveScore:
         codes: dict[str, int],
         duration: float,
         restarts: dict[str, int] | None = None,
+        totals: Mapping[str, Counts] | None = None,
     ) -> RunSummary:
-        """The run's summary, with the services' last statuses and exit codes."""
+        """The run's summary, with the services' last statuses and exit codes; counts
+        from ``totals`` (over every process of a service) where given."""
         with self._lock:
             lat = np.asarray(self.latency_ms)
             err = np.asarray(self.score.position_error_cm)
             score = self.score
-        capture = statuses.get("capture")
         versions = [s.calibration_version for s in statuses.values()]
+        counts: dict[str, Counts] = {**statuses, **(totals or {})}
+        captured = counts.get("capture")
         return RunSummary(
             duration_s=round(duration, 2),
-            frames_captured=capture.frames_out if capture else 0,
+            frames_captured=captured.frames_out if captured else 0,
             frames_processed=self.frames,
             latency_ms_p50=float(np.percentile(lat, 50)) if lat.size else None,
             latency_ms_p99=float(np.percentile(lat, 99)) if lat.size else None,
@@ -110,11 +144,17 @@ class LiveScore:
             calibration_version=(
                 self.latest.calibration_version if self.latest else max(versions, default=-1)
             ),
-            dropped={n: s.dropped for n, s in statuses.items()},
-            errors={n: s.errors for n, s in statuses.items() if s.errors},
+            dropped={n: s.dropped for n, s in counts.items()},
+            errors={n: s.errors for n, s in counts.items() if s.errors},
             exit_codes=codes,
             restarts={n: r for n, r in (restarts or {}).items() if r},
             truth_frames=self.truth_frames,
+            health={
+                n: f"{s.state}: {s.reason}"
+                for n, s in statuses.items()
+                if s.state in ("degraded", "failing")
+            },
+            position_error_flag=position_error_flag(score.matched, score.missed, score.spurious),
         )
 
 

@@ -38,7 +38,6 @@ __all__ = [
     "mm_or_none",
     "now_iso",
     "save_calibration",
-    "wrong_arena",
 ]
 
 
@@ -101,6 +100,10 @@ class Calibration(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     polish_dipe_mm: float | None = None
     #: held-out errors and which parameters the data determine (ovis.common.calibration.accuracy)
     accuracy: AccuracyReport | None = None
+    #: the calibrator's identity: its store's random id (``CalibrationStore.epoch``), so
+    #: that a version is only compared with versions of the same store ("" in files made
+    #: by ``ovis calibrate`` and before epochs existed)
+    epoch: str = ""
 
     def __post_init__(self) -> None:
         for name in ("dipe_px", "dipe_mm", "dipe_max_px", "dipe_max_mm"):
@@ -166,16 +169,4 @@ def calibration_from_config(config: OvisConfig) -> Calibration:
         pose=config.pose,
         source_image="configuration (not calibrated)",
         **no_dipe,
-    )
-
-
-def wrong_arena(calibration: Calibration, config: OvisConfig) -> str | None:
-    """Why a published calibration does not fit this arena's configured image size (a
-    service refuses it), or None when it fits."""
-    cam, want = calibration.camera, config.camera
-    if (cam.rows, cam.cols) == (want.rows, want.cols):
-        return None
-    return (
-        f"refused calibration v{calibration.version}: it is for {cam.cols}x{cam.rows}, "
-        f"this arena is {want.cols}x{want.rows}"
     )

@@ -5,6 +5,7 @@ Layout of the store folder::
     calibration-v0001.json   one file per version, never rewritten
     calibration-v0002.json
     current.json             a copy of the newest version
+    epoch                    the store's random id, made once (see ``epoch()``)
 
 Every file is written atomically, so a crash at any moment leaves the last good
 calibration loadable. Loading takes the highest version that validates; a corrupt or
@@ -14,10 +15,12 @@ hand-edited file is skipped with a message naming the problem.
 from __future__ import annotations
 
 import re
+import secrets
 from pathlib import Path
 
 import msgspec
 
+from ovis.common.atomic import write_atomic
 from ovis.common.calibration.file import (
     Calibration,
     CalibrationFileError,
@@ -28,6 +31,7 @@ from ovis.common.calibration.file import (
 __all__ = ["CalibrationStore"]
 
 _VERSION_RE = re.compile(r"^calibration-v(\d{4,})\.json$")
+_EPOCH_RE = re.compile(r"^[0-9a-f]{16}$")
 
 
 class CalibrationStore:
@@ -42,6 +46,22 @@ class CalibrationStore:
             return []
         found = (_VERSION_RE.match(p.name) for p in self.folder.iterdir())
         return sorted(int(m.group(1)) for m in found if m)
+
+    def epoch(self) -> str:
+        """The store's identity: 16 random hex digits, made the first time and kept in
+        the file ``epoch``. Every calibration saved here carries it, so that stages
+        compare versions only within one store (a calibrator that lost its folder, or a
+        forger, starts another series instead of shadowing this one)."""
+        path = self.folder / "epoch"
+        try:
+            text = path.read_text(encoding="ascii").strip()
+        except (OSError, UnicodeDecodeError):
+            text = ""
+        if _EPOCH_RE.fullmatch(text):
+            return text
+        text = secrets.token_hex(8)
+        write_atomic(path, text.encode("ascii") + b"\n")
+        return text
 
     def path(self, version: int) -> Path:
         return self.folder / f"calibration-v{version:04d}.json"
@@ -67,7 +87,7 @@ class CalibrationStore:
         """Store ``calibration`` as the next version; return it with that version set."""
         versions = self.versions()
         version = (versions[-1] if versions else 0) + 1
-        calibration = msgspec.structs.replace(calibration, version=version)
+        calibration = msgspec.structs.replace(calibration, version=version, epoch=self.epoch())
         self.folder.mkdir(parents=True, exist_ok=True)
         save_calibration(self.path(version), calibration)
         save_calibration(self.folder / "current.json", calibration)

@@ -1,6 +1,8 @@
-"""A stage's counters: frames in and out, frames lost upstream (gaps in sequence
-numbers), the recent input rate and errors by kind; and the process's memory. They make
-the :class:`~ovis.common.messages.ServiceStatus` a stage answers with."""
+"""A stage's counters: frames in and out, frames lost upstream (plausible gaps in
+sequence numbers; a jump beyond :data:`MAX_PLAUSIBLE_GAP` or a new capture stream is
+counted as such, not as lost frames), the recent input rate, the recent inputs' outcomes
+(the stage's health verdict) and errors by kind; and the process's memory. They make the
+:class:`~ovis.common.messages.ServiceStatus` a stage answers with."""
 
 from __future__ import annotations
 
@@ -12,11 +14,16 @@ import threading
 import time
 
 from ovis.common.messages import ServiceStatus
+from ovis.common.pipeline.health import Verdict, stage_verdict
 
-__all__ = ["RATE_WINDOW_S", "StageCounters", "rss_mb", "worth_logging"]
+__all__ = ["MAX_PLAUSIBLE_GAP", "RATE_WINDOW_S", "StageCounters", "rss_mb", "worth_logging"]
 
 #: The input rate is over the frames of the last this many seconds.
 RATE_WINDOW_S = 5.0
+#: A gap in sequence numbers larger than this (forward or back) is not frames lost: a
+#: forged number, or a capture that restarted. It is counted as a jump and the count
+#: goes on from the new number.
+MAX_PLAUSIBLE_GAP = 1000
 
 
 def rss_mb() -> float:
@@ -48,15 +55,28 @@ class StageCounters:
         self.last_frame_ns: int | None = None  # the last frame's capture stamp
         self.last_receipt_ns: int | None = None  # our clock, when the last frame came in
         self.last_seq: int | None = None
+        self.stream: str = ""  # the capture's stream identity of the last frame
         self.seq_gaps = 0
+        self.seq_jumps = 0
+        self.stream_restarts = 0
         self._arrivals: collections.deque[float] = collections.deque(maxlen=64)
+        self._outcomes: collections.deque[tuple[float, bool]] = collections.deque(maxlen=256)
         self._lock = threading.Lock()
 
-    def saw_frame(self, seq: int, stamp_ns: int) -> None:
-        """Count an input frame; a gap in sequence numbers counts as dropped upstream
-        (a late, older frame neither counts as a gap nor moves the last one back)."""
+    def saw_frame(self, seq: int, stamp_ns: int, stream: str = "") -> None:
+        """Count an input frame; a plausible gap in sequence numbers counts as dropped
+        upstream (a late, older frame neither counts as a gap nor moves the last one
+        back). A new ``stream`` (the capture restarted) or a jump beyond
+        :data:`MAX_PLAUSIBLE_GAP` is counted as such, and the count restarts there."""
         with self._lock:
             self.frames_in += 1
+            if stream and self.stream and stream != self.stream:
+                self.stream_restarts += 1
+                self.last_seq = None
+            self.stream = stream or self.stream
+            if self.last_seq is not None and abs(seq - self.last_seq) > MAX_PLAUSIBLE_GAP:
+                self.seq_jumps += 1
+                self.last_seq = None
             if self.last_seq is not None and seq > self.last_seq + 1:
                 self.seq_gaps += seq - self.last_seq - 1
             if self.last_seq is None or seq > self.last_seq:
@@ -68,6 +88,17 @@ class StageCounters:
     def sent(self) -> None:
         with self._lock:
             self.frames_out += 1
+
+    def outcome(self, produced: bool) -> None:
+        """One input handled: it produced an output, or not (refused, or it failed)."""
+        with self._lock:
+            self._outcomes.append((time.monotonic(), produced))
+
+    def verdict(self) -> Verdict:
+        """The stage's health from its recent inputs (:func:`stage_verdict`)."""
+        with self._lock:
+            outcomes, last_error = list(self._outcomes), self.last_error
+        return stage_verdict(outcomes, time.monotonic(), last_error)
 
     def error(self, kind: str, message: str) -> int:
         """Count an error of ``kind`` (``message`` becomes the last error); its count."""
@@ -97,10 +128,18 @@ class StageCounters:
         state: str,
         dropped_here: int,
         calibration_version: int,
+        calibration_epoch: str = "",
+        problem: str | None = None,
     ) -> ServiceStatus:
         """The status message: these counts, plus what only the service knows (its name,
-        state, the frames its inboxes dropped, its calibration)."""
+        state, the frames its inboxes dropped, its calibration, and a ``problem`` that
+        makes it "degraded" whatever its inputs say)."""
         fps = self.fps()
+        verdict = self.verdict()
+        if verdict[0] == "ok" and problem:
+            verdict = ("degraded", problem)
+        if verdict[0] != "ok":
+            state = verdict[0]
         with self._lock:
             age = None
             if self.last_frame_ns is not None:
@@ -121,4 +160,8 @@ class StageCounters:
                 last_frame_age_s=age,
                 rss_mb=rss_mb(),
                 restarts=int(os.environ.get("OVIS_RESTARTS", "0") or 0),
+                reason=verdict[1],
+                calibration_epoch=calibration_epoch,
+                seq_jumps=self.seq_jumps,
+                stream_restarts=self.stream_restarts,
             )

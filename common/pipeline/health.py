@@ -1,14 +1,61 @@
-"""The stream's health, as the pose stage publishes it on ``ovis/<arena>/health``:
-"waiting" (no frame yet), "ok" (a frame within the timeout) or "stalled", so that a
-consumer can tell "no obstacles" from "no data"."""
+"""Health that tells the truth. A stage's own verdict (:func:`stage_verdict`): input that
+yields no output, or fails mostly, makes it "failing" or "degraded" with the reason.
+And the stream's health, as the pose stage publishes it on ``ovis/<arena>/health``:
+"waiting" (no frame yet), "ok" (a frame within the timeout), "stalled", or the pose
+stage's own "degraded"/"failing", so that a consumer can tell "no obstacles" from "no
+data" and from "wrong data"."""
 
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 
 from ovis.common.messages import StreamHealth
 
-__all__ = ["SERVICE_STATE", "StreamWatch"]
+__all__ = [
+    "DEGRADED_FRACTION",
+    "FAILING_FRACTION",
+    "HEALTH_WINDOW_S",
+    "MIN_INPUTS",
+    "SERVICE_STATE",
+    "StreamWatch",
+    "Verdict",
+    "stage_verdict",
+]
+
+#: A stage's verdict is over the inputs of the last this many seconds: a stage that
+#: starts failing says so within this window plus one status period.
+HEALTH_WINDOW_S = 1.0
+#: Fewer inputs than this in the window: too few to judge (the stream's own state rules).
+MIN_INPUTS = 3
+#: Share of the window's inputs that failed above which the stage is "failing" …
+FAILING_FRACTION = 0.5
+#: … or "degraded".
+DEGRADED_FRACTION = 0.1
+
+Verdict = tuple[str, str]  # (state, reason); ("ok", "") when nothing is wrong
+
+
+def stage_verdict(
+    outcomes: Iterable[tuple[float, bool]], now: float, last_error: str = ""
+) -> Verdict:
+    """Judge a stage by its recent inputs, ``(monotonic time, produced an output?)``:
+    "failing" when none of at least :data:`MIN_INPUTS` gave an output or more than
+    :data:`FAILING_FRACTION` failed, "degraded" above :data:`DEGRADED_FRACTION`."""
+    recent = [ok for t, ok in outcomes if now - t <= HEALTH_WINDOW_S]
+    if len(recent) < MIN_INPUTS:
+        return "ok", ""
+    failed = recent.count(False)
+    share = failed / len(recent)
+    why = f" (last error: {last_error})" if last_error else ""
+    if failed == len(recent):
+        return "failing", f"{len(recent)} inputs in {HEALTH_WINDOW_S:g} s, no output{why}"
+    if share > FAILING_FRACTION:
+        return "failing", f"{failed} of {len(recent)} inputs failed{why}"
+    if share > DEGRADED_FRACTION:
+        return "degraded", f"{failed} of {len(recent)} inputs failed{why}"
+    return "ok", ""
+
 
 #: The service's state (in its status) for each stream state.
 SERVICE_STATE = {"ok": "ok", "stalled": "no frames", "waiting": "waiting"}
@@ -41,10 +88,16 @@ class StreamWatch:
         last_frame_age_ms: float | None,
         frames_dropped: int,
         calibration_version: int,
+        verdict: Verdict = ("ok", ""),
     ) -> StreamHealth:
-        """The health message for the current state."""
+        """The health message for the current state; a stage that receives frames but
+        is not "ok" itself (``verdict``) says that instead of "ok"."""
+        state, reason = self.state, ""
+        if state == "ok" and verdict[0] != "ok":
+            state, reason = verdict
         return StreamHealth(
-            state=self.state,
+            state=state,  # type: ignore[arg-type]
+            reason=reason,
             published_ns=time.time_ns(),
             last_seq=-1 if last_seq is None else last_seq,
             seconds_since_frame=seconds_since_frame,

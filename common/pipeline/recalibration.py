@@ -1,10 +1,15 @@
 """The calibrator's bookkeeping: the last frames (raw) and their ground truth, which
-frame a request calibrates on, its control points and GA settings, and the reply."""
+frame a request calibrates on, its control points and GA settings, the limits a request
+must respect, the one running calibration (its progress, cancel and time budget) and
+the replies."""
 
 from __future__ import annotations
 
 import collections
+import math
 import threading
+import time
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 from ovis.common.calibration.file import Calibration
@@ -16,12 +21,15 @@ from ovis.common.sim.arena import control_points
 __all__ = [
     "KEEP_FRAMES",
     "TRUTH_WAIT_S",
+    "CalibrationCancelledError",
+    "CalibrationJob",
     "FrameKeeper",
     "Picked",
     "calibrate_reply",
     "config_for_request",
     "missing_frame",
     "points_for",
+    "too_big",
 ]
 
 KEEP_FRAMES = 64
@@ -139,3 +147,114 @@ def calibrate_reply(calib: Calibration, seq: int, saved_to: str) -> CalibrateRep
     params["size_filter_cm2"] = calib.image.size_filter_cm2
     same = {name: getattr(calib, name) for name in _FROM_CALIBRATION}
     return CalibrateReply(ok=True, frame_seq=seq, parameters=params, saved_to=saved_to, **same)
+
+
+def too_big(config: OvisConfig) -> str | None:
+    """Why the GA of ``config`` (with a query's overrides) is larger than the
+    calibrator runs (``[service] max_population``, ``max_evaluations``), or None."""
+    ga, limits = config.ga, config.service
+    if ga.population > limits.max_population:
+        return (
+            f"refused: population {ga.population} is above this calibrator's limit "
+            f"{limits.max_population} ([service] max_population)"
+        )
+    if ga.population * ga.generations > limits.max_evaluations:
+        return (
+            f"refused: population x generations = {ga.population} x {ga.generations} = "
+            f"{ga.population * ga.generations} is above this calibrator's limit "
+            f"{limits.max_evaluations} ([service] max_evaluations)"
+        )
+    return None
+
+
+class CalibrationCancelledError(Exception):
+    """A running calibration was stopped (a cancel query, its time budget, shutdown)."""
+
+
+class CalibrationJob:
+    """The one calibration that may run at a time: claimed when a query is accepted,
+    then its progress per GA generation (for the "busy" answer to other queries), and
+    the reason to stop it, checked after every generation (thread-safe)."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self._clock = clock
+        self._lock = threading.Lock()
+        self.running = False
+        self.frame_seq: int | None = None
+        self.generations = 0
+        self.generation = 0
+        self.started = 0.0
+        self.budget_s = math.inf
+        self._stop_reason = ""
+
+    def claim(self) -> bool:
+        """Take the job for a new calibration; False when one is already running."""
+        with self._lock:
+            if self.running:
+                return False
+            self.running, self.frame_seq, self.generation, self._stop_reason = True, None, 0, ""
+            self.started = self._clock()
+            return True
+
+    def start(self, frame_seq: int, generations: int, budget_s: float) -> None:
+        """The claimed calibration starts on ``frame_seq``."""
+        with self._lock:
+            self.frame_seq, self.generations, self.budget_s = frame_seq, generations, budget_s
+            self.generation, self.started = 0, self._clock()
+
+    def done(self) -> None:
+        with self._lock:
+            self.running = False
+
+    def cancel(self, reason: str) -> bool:
+        """Ask the running calibration to stop after its current generation."""
+        with self._lock:
+            if not self.running:
+                return False
+            self._stop_reason = reason
+            return True
+
+    def after_generation(self, generation: int) -> None:
+        """Called by the GA after each generation: raises CalibrationCancelledError when
+        asked to stop, or when the time budget is spent."""
+        with self._lock:
+            self.generation = generation
+            elapsed = self._clock() - self.started
+            reason = self._stop_reason
+            if not reason and elapsed > self.budget_s:
+                reason = (
+                    f"its time budget of {self.budget_s:g} s is spent "
+                    "([service] calibration_budget_s)"
+                )
+        if reason:
+            raise CalibrationCancelledError(
+                f"calibration cancelled after {elapsed:.1f} s, generation {generation} of "
+                f"{self.generations}: {reason}"
+            )
+
+    def busy_reply(self) -> CalibrateReply:
+        """The answer to a query while a calibration runs: what it does and when it
+        should be done."""
+        with self._lock:
+            elapsed = self._clock() - self.started
+            if self.frame_seq is None or not self.generations:
+                what, progress, eta = "preparing a calibration", 0.0, None
+            else:
+                progress = min(1.0, self.generation / self.generations)
+                eta = elapsed * (1 - progress) / progress if progress > 0 else None
+                what = (
+                    f"calibrating on frame {self.frame_seq}: generation {self.generation} "
+                    f"of {self.generations}"
+                )
+        eta_text = f", about {eta:.0f} s to go" if eta is not None else ""
+        return CalibrateReply(
+            ok=False,
+            busy=True,
+            frame_seq=self.frame_seq if self.frame_seq is not None else -1,
+            progress=round(progress, 4),
+            eta_s=None if eta is None else round(eta, 2),
+            error=(
+                f"busy: {what}{eta_text}; ask again then, or send a cancel request "
+                "(`ovis recalibrate --cancel`)"
+            ),
+        )

@@ -1,7 +1,8 @@
-"""The supervisor's restart rule: a process that dies is restarted after a back-off
-(doubling from :data:`BACKOFF_START_S` up to :data:`BACKOFF_MAX_S`, reset once it has
-run well for :data:`HEALTHY_S`) while its budget lasts (``max_restarts`` within
-``window_s``)."""
+"""The supervisor's restart rule: a process that dies is restarted at once the first
+time, then after a back-off (doubling from :data:`BACKOFF_START_S` up to
+:data:`BACKOFF_MAX_S`; all reset once it has run well for :data:`HEALTHY_S`) while its
+budget lasts (``max_restarts`` within ``window_s``). The first restart costs only the
+process's start; a process that keeps dying waits 1, 2, 4 … s."""
 
 from __future__ import annotations
 
@@ -34,12 +35,12 @@ class RestartBudget:
         self.window_s = window_s
         self.restarts = 0
         self.recent: deque[float] = deque(maxlen=64)
-        self.backoff = BACKOFF_START_S
+        self.backoff = 0.0  # the first restart is immediate
 
     def running(self, now: float, started_at: float) -> None:
         """The process is alive at ``now``: a long enough run resets the back-off."""
         if now - started_at > HEALTHY_S:
-            self.backoff = BACKOFF_START_S
+            self.backoff = 0.0
 
     def died(self, now: float) -> float | None:
         """The process died at ``now``: the back-off to wait before restarting it (and the
@@ -49,7 +50,7 @@ class RestartBudget:
         if len(self.recent) >= self.max_restarts:
             return None
         delay = self.backoff
-        self.backoff = min(BACKOFF_MAX_S, self.backoff * 2)
+        self.backoff = min(BACKOFF_MAX_S, 2 * delay) if delay else BACKOFF_START_S
         return delay
 
     def restarted(self, now: float) -> None:

@@ -85,6 +85,7 @@ def binary_frame(
         calibration_version=calib.version,
         markers=None if markers is None else MarkerCorners.of(markers),
         markers_at_border=0 if markers is None else markers.partial,
+        stream=frame.stream,
     )
 
 
@@ -122,6 +123,7 @@ def blob_list(frame: BinaryFrame, calib: Calibration, min_area_px: float) -> Blo
         maps=FloorMaps(obstacle=PlaneMap.of(floor), robot=PlaneMap.of(top)),
         markers=frame.markers,
         markers_at_border=frame.markers_at_border,
+        stream=frame.stream,
     )
 
 

@@ -65,11 +65,11 @@ def _object(item: Any, default_kind: str) -> SceneObject | None:
 
 
 def scene_objects(message: Mapping[str, Any]) -> list[SceneObject]:
-    """The robots and obstacles of an obstacle message (a decoded mapping): ``robots``
-    when the message has that list, else its single ``robot``; then ``obstacles``.
-    Entries without finite ``x_cm``/``y_cm`` are skipped."""
+    """The robots and obstacles of an obstacle message (a decoded mapping): the marked
+    ``robots`` when the list has any, else its single ``robot`` (the paper's unmarked
+    one); then ``obstacles``. Entries without finite ``x_cm``/``y_cm`` are skipped."""
     robots = message.get("robots")
-    if not isinstance(robots, list):
+    if not isinstance(robots, list) or not robots:
         robot = message.get("robot")
         robots = [robot] if robot is not None else []
     obstacles = message.get("obstacles")

@@ -1,7 +1,9 @@
 #!/bin/sh
 # Passwords for ovis's secure Zenoh profile, and each user's client configuration.
 #
-#   deploy/secure/make-passwords.sh OUT_DIR [USER]...      (default users: operator viewer)
+#   deploy/secure/make-passwords.sh OUT_DIR [USER]...
+#   (default users: the five services capture preprocess label pose calibrator, each
+#   its own identity, and the people: operator viewer)
 #
 # For each USER (letters, digits, '_', '.', '-'):
 #   - OUT_DIR/passwords.txt (the router's dictionary_file, "user:password" lines, mode
@@ -14,7 +16,7 @@
 set -eu
 
 usage() {
-    sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//' >&2
+    sed -n '2,16p' "$0" | sed 's/^# \{0,1\}//' >&2
     exit 2
 }
 
@@ -22,7 +24,7 @@ usage() {
 case "$1" in -h | --help | -*) usage ;; esac
 out=$1
 shift
-[ $# -gt 0 ] || set -- operator viewer
+[ $# -gt 0 ] || set -- capture preprocess label pose calibrator operator viewer
 here=$(cd "$(dirname "$0")" && pwd)
 template="$here/client.json5"
 [ -f "$template" ] || {

@@ -21,6 +21,9 @@ __all__ = ["register"]
 
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator", "fusion")
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+#: Stages of the frame path that `ovis up` keeps a spare process ready for: a killed one
+#: is replaced without an interpreter start (the cost: one idle process each).
+STANDBY = ("preprocess", "label", "pose")
 #: `ovis up` starts the capture once the other stages are alive, or after this long.
 STARTUP_S = 30.0
 
@@ -128,6 +131,10 @@ def run(
             "(default: [service] cpus, else any)."
         ),
     ] = None,
+    standby: Annotated[
+        bool,
+        typer.Option(hidden=True, help="Wait, imports done, for `ovis up` to activate it."),
+    ] = False,
 ) -> None:
     """Run one service in this process until Ctrl-C/SIGTERM.
 
@@ -152,6 +159,8 @@ def run(
     )
     _topics(cfg)
     module = importlib.import_module(f"ovis.services.{stage}")
+    if standby:
+        os.environ["OVIS_STANDBY"] = "1"
     run_service(stage, cfg, module.main)
 
 
@@ -213,8 +222,8 @@ def up(
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
 
-    A process that dies is restarted (back-off 1 s doubling to 10 s, at most
-    --max-restarts a minute) and the reason logged. Ctrl-C or SIGTERM (or --duration)
+    A process that dies is restarted (at once, then after a back-off of 1 s doubling to
+    10 s, at most --max-restarts a minute) and the reason logged. Ctrl-C or SIGTERM (or --duration)
     stops everything cleanly; logs of each process are in a temporary folder named at the
     start.
     """
@@ -259,13 +268,16 @@ def up(
     time.sleep(0.5)
     if view:
         from ovis.services.cli.view import DEFAULT_LISTEN
+        from ovis.services.placement import off_path_option
 
-        fleet.start("view", ["view", "--connect", listen, "--arena", topics.arena])
+        view_args = ["view", "--connect", listen, "--arena", topics.arena]
+        fleet.start("view", [*view_args, *off_path_option(cpus)])
         where = os.environ.get("OVIS_VIEW_LISTEN", DEFAULT_LISTEN)
         print(f"ovis up: live view on http://{where}/ (log: {log_dir / 'view.log'})", file=out)
 
     def start(stage: str) -> None:
-        fleet.start(stage, ["run", stage, "--config", str(cfg_path), *cpus_option(stage, cpus)])
+        args = ["run", stage, "--config", str(cfg_path), *cpus_option(stage, cpus)]
+        fleet.start(stage, args, standby=stage in STANDBY)
 
     downstream = ("calibrator", "pose", "label", "preprocess")
     for stage in downstream:
@@ -292,6 +304,7 @@ def up(
                 )
             if not stop.is_set():
                 start("capture")
+            polling = _poll_counters(fleet, session, topics)
             live_view.run(
                 stop,
                 until=(started + duration) if duration is not None else None,
@@ -299,10 +312,14 @@ def up(
                 supervise=fleet.supervise,
                 quiet=json,
             )
+            polling.set()
             statuses = live_view.poll_status(session)
+            fleet.record(statuses)
     finally:
         codes = fleet.stop()
-    summary = live_view.score.summary(statuses, codes, time.monotonic() - started, fleet.restarts())
+    summary = live_view.score.summary(
+        statuses, codes, time.monotonic() - started, fleet.restarts(), fleet.totals()
+    )
     if json:
         sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
     else:
@@ -318,6 +335,26 @@ def up(
     if bad or fleet.gave_up():
         reasons = "; ".join(fleet.gave_up()) or f"process(es) {', '.join(bad)} exited abnormally"
         raise UserError(f"{reasons}; see the logs in {log_dir}", 1)
+
+
+def _poll_counters(fleet, session, topics, period_s: float = 1.0) -> threading.Event:
+    """Every ``period_s`` until the event returned is set, give the supervisor the
+    stages' statuses (a thread): their counters then survive a restart in its totals."""
+    import zenoh
+
+    from ovis.services.cli.watching import query_statuses
+
+    done = threading.Event()
+
+    def poll() -> None:
+        while not done.wait(period_s):
+            try:
+                fleet.record(query_statuses(session, topics, timeout=period_s))
+            except zenoh.ZError:  # the session is closing
+                return
+
+    threading.Thread(target=poll, name="status-poll", daemon=True).start()
+    return done
 
 
 def _wait_listening(fleet, session, topics, stages: tuple[str, ...], stop) -> set[str]:
@@ -393,10 +430,14 @@ def recalibrate(
     seed: Annotated[int | None, typer.Option(min=0, help="GA seed.")] = None,
     timeout: Annotated[float, typer.Option(min=0.1, help="Seconds to wait for it.")] = 60.0,
     json: JsonOpt = False,
+    cancel: Annotated[
+        bool, typer.Option("--cancel", help="Cancel the calibration that runs instead.")
+    ] = False,
 ) -> None:
     """Ask the calibrator (a Zenoh query) to recalibrate on the latest frame, or --frame.
 
-    Shows the new calibration's DIPE, parameters and version.
+    Shows the new calibration's DIPE, parameters and version. While a calibration runs,
+    the calibrator answers at once that it is busy (progress and ETA); --cancel stops it.
     """
     from ovis.common.calibration.file import dipe_text
     from ovis.common.messages import CalibrateReply, CalibrateRequest, decode, encode
@@ -404,7 +445,7 @@ def recalibrate(
 
     cfg = _config(config, connect=connect, arena=arena)
     topics = _topics(cfg)
-    request = encode(CalibrateRequest(frame_seq=frame, seed=seed))
+    request = encode(CalibrateRequest(frame_seq=frame, seed=seed, cancel=cancel))
     with open_session(cfg.zenoh, wait=False) as session:
         replies = list(session.get(topics.calibrate, payload=request, timeout=timeout))
     if not replies:
@@ -423,6 +464,9 @@ def recalibrate(
     answer = decode(reply.ok.payload.to_bytes(), CalibrateReply)
     if json:
         sys.stdout.write(msgspec.json.encode(answer).decode() + "\n")
+    if cancel:
+        print(answer.error, file=sys.stderr)
+        return
     if not answer.ok:
         raise UserError(f"recalibration failed: {answer.error}", 3)
     if not json:

@@ -64,6 +64,22 @@ def view(
             show_default=False,
         ),
     ] = None,
+    nice: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            max=19,
+            help="Lower this process's CPU priority by this much, so that on a busy machine "
+            "the frame path (capture → pose) wins over drawing pictures.",
+        ),
+    ] = 10,
+    cpus: Annotated[
+        str | None,
+        typer.Option(
+            help="Cores to run on, e.g. '0' (`ovis up --view` keeps it off the frame path's "
+            "cores); default any."
+        ),
+    ] = None,
 ) -> None:
     """Serve a live web page of what ovis sees: the camera frame with blobs, ids, robot
     headings and control points drawn on it (or the binarised frame), the arena from
@@ -106,6 +122,7 @@ def view(
         level=os.environ.get("OVIS_LOG", "INFO").upper(),
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
+    give_way(nice, cpus)
     with open_session(cfg.zenoh) as session:
         bus = Bus(session, arenas, discover=settings.discover)
         mode = (
@@ -127,3 +144,21 @@ def view(
 
 def register(app: typer.Typer) -> None:
     app.command()(view)
+
+
+def give_way(nice: int, cpus: str | None) -> None:
+    """Keep the view out of the frame path's way: a lower CPU priority and, if given,
+    other cores (before Zenoh and uvicorn start their threads, which inherit both)."""
+    from ovis.services.placement import pick_cpus, pin_to_cpus
+
+    log = logging.getLogger("ovis.view")
+    if nice:
+        try:
+            os.nice(nice)
+        except OSError as exc:
+            log.warning("cannot lower the view's priority (%s): running at normal priority", exc)
+    if cpus:
+        try:
+            pin_to_cpus(pick_cpus(cpus), log)
+        except ValueError as exc:
+            raise UserError(str(exc)) from None

@@ -133,10 +133,13 @@ def status_table(report: list[ServiceReport], topics: Topics):
             )
             continue
         errors = ", ".join(f"{k} {v}" for k, v in s.errors.items()) or "0"
+        state = s.state
+        if s.state in ("degraded", "failing"):
+            state = f"[red]{s.state}[/]: {s.reason}"
         t.add_row(
             r.service,
             "yes",
-            s.state,
+            state,
             f"{s.fps:.1f}",
             str(s.frames_in),
             str(s.frames_out),
@@ -209,7 +212,7 @@ class LiveView:
                 elif not quiet and time.monotonic() - last_print > 5.0 and self.score.latest:
                     last_print = time.monotonic()
                     console.print(render(), highlight=False)
-                stop.wait(0.25)
+                stop.wait(0.1)  # the supervisor's tick: a dead stage restarts this soon
 
     def poll_status(self, session: zenoh.Session) -> dict[str, ServiceStatus]:
         return {r.service: r.status for r in collect_status(session, self.topics) if r.status}
@@ -232,13 +235,19 @@ def summary_table(s: RunSummary):
             "objects matched to truth",
             f"{s.objects_matched} ({s.objects_missed} missed, {s.objects_spurious} spurious)",
         )
-        t.add_row(
-            "position error mean / max",
-            f"{fmt(s.position_error_cm_mean, 'cm', 3)} / {fmt(s.position_error_cm_max, 'cm', 3)}",
+        error = (
+            f"{fmt(s.position_error_cm_mean, 'cm', 3)} / {fmt(s.position_error_cm_max, 'cm', 3)}"
         )
+        error += f" over {s.objects_matched} matched ({s.objects_missed} missed, "
+        error += f"{s.objects_spurious} spurious)"
+        if s.position_error_flag:
+            error += f"\n[red]UNRELIABLE: {s.position_error_flag}[/]"
+        t.add_row("position error mean / max", error)
     t.add_row("calibration version", str(s.calibration_version))
     t.add_row("dropped frames", ", ".join(f"{k} {v}" for k, v in s.dropped.items()) or "0")
     errs = "; ".join(f"{k}: {v}" for k, v in s.errors.items())
     t.add_row("errors", errs or "0")
     t.add_row("restarts", ", ".join(f"{k} {v}" for k, v in s.restarts.items()) or "0")
+    health = "\n".join(f"[red]{k} {v}[/]" for k, v in s.health.items())
+    t.add_row("health", health or "ok")
     return t

@@ -115,7 +115,8 @@ function setCount(id, value) {
 
 // --- map -------------------------------------------------------------------------
 function robotsOf(m) {
-  if (Array.isArray(m.robots)) return m.robots;
+  // Marked robots when there are any, else the paper's one unmarked robot.
+  if (Array.isArray(m.robots) && m.robots.length) return m.robots;
   return m.robot ? [m.robot] : [];
 }
 
@@ -201,8 +202,15 @@ function drawPlanner(m, robots, obstacles) {
   const layer = $("planner-layer");
   if (!robot) { layer.replaceChildren(); return; }
   const byId = new Map(obstacles.map((o) => [o.id, o]));
-  const entries = (robot.planner || m.planner || []).filter(
-    (e) => e.robot_id === undefined || e.robot_id === robot.id);
+  // Marked robots: their own plans (to obstacles and to the other robots, which are
+  // obstacles to them); the unmarked robot: the message's planner list.
+  const plan = (m.robot_plans || []).find((p) => p.robot_id === robot.id);
+  let entries = m.planner || [];
+  if (plan) {
+    for (const r of robots) if (r.id !== robot.id) byId.set(`robot-${r.id}`, r);
+    entries = plan.entries.map((e) => ({ ...e,
+      obstacle_id: e.target_kind === "robot" ? `robot-${e.target_id}` : e.target_id }));
+  }
   layer.replaceChildren(...entries.filter((e) => byId.has(e.obstacle_id)).map((e) => {
     const o = byId.get(e.obstacle_id);
     const g = el("g", { class: "planner", "data-obstacle-id": e.obstacle_id,

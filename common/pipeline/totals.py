@@ -1,0 +1,74 @@
+"""Counters that survive restarts: the supervisor's totals of each service over all of
+its processes (a restarted process counts from zero again; its predecessor's last
+status is added to the total)."""
+
+from __future__ import annotations
+
+import collections
+import threading
+
+import msgspec
+
+from ovis.common.messages import ServiceStatus
+
+__all__ = ["CounterTotals", "ServiceTotals"]
+
+
+class ServiceTotals(msgspec.Struct, kw_only=True):
+    """One service's counters summed over its processes (``processes``: how many were
+    seen)."""
+
+    frames_in: int = 0
+    frames_out: int = 0
+    dropped: int = 0
+    seq_jumps: int = 0
+    stream_restarts: int = 0
+    errors: dict[str, int] = {}
+    processes: int = 0
+
+
+def _add(total: ServiceTotals, status: ServiceStatus) -> ServiceTotals:
+    errors = collections.Counter(total.errors)
+    errors.update(status.errors)
+    return ServiceTotals(
+        frames_in=total.frames_in + status.frames_in,
+        frames_out=total.frames_out + status.frames_out,
+        dropped=total.dropped + status.dropped,
+        seq_jumps=total.seq_jumps + status.seq_jumps,
+        stream_restarts=total.stream_restarts + status.stream_restarts,
+        errors=dict(errors),
+        processes=total.processes + 1,
+    )
+
+
+class CounterTotals:
+    """The last status of each service's current process, and the sum of its earlier
+    processes' last statuses (a process is told apart by pid, host and start time).
+    Fed with every status poll; what a process counted after its last poll is lost."""
+
+    def __init__(self) -> None:
+        self._current: dict[str, ServiceStatus] = {}
+        self._finished: dict[str, ServiceTotals] = {}
+        self._lock = threading.Lock()
+
+    def record(self, status: ServiceStatus) -> None:
+        def process(s: ServiceStatus) -> tuple[int, str, int]:
+            return s.pid, s.host, s.started_ns
+
+        with self._lock:
+            before = self._current.get(status.service)
+            if before is not None and process(before) != process(status):
+                done = self._finished.get(status.service, ServiceTotals())
+                self._finished[status.service] = _add(done, before)
+            self._current[status.service] = status
+
+    def totals(self) -> dict[str, ServiceTotals]:
+        """Every service's counters over all its processes."""
+        with self._lock:
+            names = self._current.keys() | self._finished.keys()
+            out = {}
+            for name in sorted(names):
+                total = self._finished.get(name, ServiceTotals())
+                current = self._current.get(name)
+                out[name] = _add(total, current) if current is not None else total
+            return out

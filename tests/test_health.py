@@ -1,0 +1,111 @@
+"""Health that tells the truth and counters no one can blow up (common/pipeline/health.py,
+counters.py, totals.py; the summary's flag in common/analysis/live.py)."""
+
+from __future__ import annotations
+
+import socket
+
+from ovis.common.analysis.live import LiveScore, position_error_flag
+from ovis.common.messages import ServiceStatus
+from ovis.common.pipeline.counters import MAX_PLAUSIBLE_GAP, StageCounters
+from ovis.common.pipeline.health import HEALTH_WINDOW_S, StreamWatch, stage_verdict
+from ovis.common.pipeline.totals import CounterTotals
+
+
+def _outcomes(pattern: str, now: float = 100.0) -> list[tuple[float, bool]]:
+    """'+' an input with an output, '-' one without, spread over half the window."""
+    step = HEALTH_WINDOW_S / 2 / max(len(pattern), 1)
+    return [(now - i * step, c == "+") for i, c in enumerate(pattern)]
+
+
+def test_a_stage_with_input_and_no_output_is_failing() -> None:
+    assert stage_verdict(_outcomes("-----"), 100.0, "TypeError: x") == (
+        "failing",
+        f"5 inputs in {HEALTH_WINDOW_S:g} s, no output (last error: TypeError: x)",
+    )
+
+
+def test_most_inputs_failing_is_failing_some_is_degraded_few_is_ok() -> None:
+    assert stage_verdict(_outcomes("+---"), 100.0) == ("failing", "3 of 4 inputs failed")
+    assert stage_verdict(_outcomes("+++-+"), 100.0) == ("degraded", "1 of 5 inputs failed")
+    assert stage_verdict(_outcomes("+" * 20 + "-"), 100.0) == ("ok", "")
+    # too few inputs to judge, and old ones forgotten
+    assert stage_verdict(_outcomes("--"), 100.0) == ("ok", "")
+    assert stage_verdict(_outcomes("-----"), 100.0 + HEALTH_WINDOW_S + 1) == ("ok", "")
+
+
+def test_the_stage_verdict_reaches_its_status_and_the_health_topic() -> None:
+    counters = StageCounters()
+    for _ in range(5):
+        counters.saw_frame(1, 0)
+        counters.error("processing", "TypeError: boom")
+        counters.outcome(False)
+    st = counters.status("pose", started_ns=0, state="ok", dropped_here=0, calibration_version=3)
+    assert st.state == "failing" and "no output (last error: TypeError: boom)" in st.reason
+    watch = StreamWatch(2.0)
+    watch.update(0.1)  # frames flow …
+    msg = watch.message(
+        last_seq=1,
+        seconds_since_frame=0.1,
+        last_frame_age_ms=1.0,
+        frames_dropped=0,
+        calibration_version=3,
+        verdict=(st.state, st.reason),
+    )
+    assert (msg.state, msg.reason) == ("failing", st.reason)  # … but nothing comes out
+    # a refused calibration makes an otherwise working stage "degraded"
+    ok = StageCounters()
+    st = ok.status(
+        "label", started_ns=0, state="ok", dropped_here=0, calibration_version=3, problem="why"
+    )
+    assert (st.state, st.reason) == ("degraded", "why")
+
+
+def test_a_forged_sequence_number_is_a_jump_not_a_billion_drops() -> None:
+    c = StageCounters()
+    for seq in range(10):
+        c.saw_frame(seq, 0, "stream-a")
+    c.saw_frame(10**9, 0, "stream-a")  # the attack
+    for seq in range(10, 20):
+        c.saw_frame(seq, 0, "stream-a")
+    assert (c.seq_gaps, c.seq_jumps) == (0, 2)  # there and back
+    c.saw_frame(19 + MAX_PLAUSIBLE_GAP, 0, "stream-a")  # within the bound: frames lost
+    assert c.seq_gaps == MAX_PLAUSIBLE_GAP - 1
+    # a capture that restarts begins at 0 again, with a new stream identity
+    c.saw_frame(0, 0, "stream-b")
+    c.saw_frame(2, 0, "stream-b")
+    assert (c.stream_restarts, c.seq_gaps) == (1, MAX_PLAUSIBLE_GAP - 1 + 1)
+    st = c.status("label", started_ns=0, state="ok", dropped_here=0, calibration_version=0)
+    assert (st.dropped, st.seq_jumps, st.stream_restarts) == (MAX_PLAUSIBLE_GAP, 2, 1)
+
+
+def _status(pid: int, started_ns: int, **counts) -> ServiceStatus:
+    return ServiceStatus(
+        service="pose",
+        pid=pid,
+        host=socket.gethostname(),
+        started_ns=started_ns,
+        state="ok",
+        **counts,
+    )
+
+
+def test_totals_survive_restarts() -> None:
+    totals = CounterTotals()
+    totals.record(_status(10, 1, frames_in=5, frames_out=4, errors={"processing": 1}))
+    totals.record(_status(10, 1, frames_in=50, frames_out=40, errors={"processing": 7}))
+    # restarted: the new process counts from zero
+    totals.record(_status(11, 2, frames_in=3, frames_out=3, dropped=2, errors={"bad": 1}))
+    t = totals.totals()["pose"]
+    assert (t.frames_in, t.frames_out, t.dropped, t.processes) == (53, 43, 2, 2)
+    assert t.errors == {"processing": 7, "bad": 1}
+
+
+def test_the_summary_flags_an_error_over_matched_objects_only() -> None:
+    assert position_error_flag(100, 0, 2) == ""
+    assert position_error_flag(120, 5782, 11523) == (
+        "over 120 matched objects only: 5782 missed and 11523 spurious are not in it"
+    )
+    assert position_error_flag(0, 10, 0) != ""
+    summary = LiveScore().summary({}, {}, 1.0)
+    assert summary.position_error_flag == "" and summary.health == {}
