@@ -109,3 +109,18 @@ def test_the_summary_flags_an_error_over_matched_objects_only() -> None:
     assert position_error_flag(0, 10, 0) != ""
     summary = LiveScore().summary({}, {}, 1.0)
     assert summary.position_error_flag == "" and summary.health == {}
+
+
+def test_the_health_message_takes_only_a_verdict_not_a_service_state() -> None:
+    """A stage's own state ("waiting for input", "no frames") is not a verdict: the
+    stream health message keeps to its schema's states (a subscriber refused it)."""
+    watch = StreamWatch(1.0)
+    watch.update(0.1)
+    common = dict(
+        last_seq=3, seconds_since_frame=0.1, last_frame_age_ms=2.0, frames_dropped=0,
+        calibration_version=1,
+    )  # fmt: skip
+    for state in ("waiting for input", "no frames", "ok"):
+        assert watch.message(**common, verdict=(state, "")).state == "ok"
+    failing = watch.message(**common, verdict=("failing", "3 of 4 inputs failed"))
+    assert (failing.state, failing.reason) == ("failing", "3 of 4 inputs failed")

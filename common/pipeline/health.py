@@ -93,8 +93,8 @@ class StreamWatch:
         """The health message for the current state; a stage that receives frames but
         is not "ok" itself (``verdict``) says that instead of "ok"."""
         state, reason = self.state, ""
-        if state == "ok" and verdict[0] != "ok":
-            state, reason = verdict
+        if state == "ok" and verdict[0] in ("degraded", "failing"):
+            state, reason = verdict  # a service state ("waiting for input", …) is no verdict
         return StreamHealth(
             state=state,  # type: ignore[arg-type]
             reason=reason,

@@ -39,6 +39,10 @@ __all__ = ["ArenaFeed", "Bus"]
 
 log = logging.getLogger("ovis.view")
 
+#: Seconds a service whose liveliness token went away shows as down, even if a
+#: replacement (``ovis up``'s spare) took over sooner: a person sees that it died.
+DIED_HOLD_S = 2.0
+
 #: Recent messages kept per arena to pair a frame with its detections.
 KEEP = 8
 
@@ -65,6 +69,9 @@ class ArenaFeed:
         self.arena = arena
         self.lock = threading.Lock()
         self.alive: set[str] = set()
+        #: when each service's liveliness token last went away (monotonic s): a stage
+        #: that died and was replaced at once still shows as down for DIED_HOLD_S
+        self.died: dict[str, float] = {}
         self.statuses: dict[str, ServiceStatus] = {}
         self.latency = LatencyWindow()
         self.stream: StreamHealth | None = None
@@ -103,6 +110,7 @@ class ArenaFeed:
             else:
                 self.alive.discard(name)
                 self.statuses.pop(name, None)
+                self.died[name] = time.monotonic()
 
     def _on_obstacles(self, sample: zenoh.Sample) -> None:
         now = time.time_ns()
@@ -205,9 +213,11 @@ class ArenaFeed:
                     self.accept_calibration(reply.ok.payload.to_bytes())
 
     def health(self) -> HealthSummary:
+        now = time.monotonic()
         with self.lock:
+            shown = {n for n in self.alive if now - self.died.get(n, -DIED_HOLD_S) >= DIED_HOLD_S}
             return summarize(
-                self.arena, self.alive, self.statuses, self.latency, self.stream, self.calibration
+                self.arena, shown, self.statuses, self.latency, self.stream, self.calibration
             )
 
     def recalibrate(self, request: CalibrateRequest, timeout: float) -> CalibrateReply:
