@@ -13,6 +13,7 @@ nothing and rewrites both tables from the two JSON files.
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import sys
@@ -66,6 +67,18 @@ def log(message: str) -> None:
     print(message, flush=True)
 
 
+#: Benchmarks measured by one ``rows(quick, log)`` function: name → (module, function).
+TIMED = {
+    "calibration": ("benchmarks.calibration", "calibration_rows"),
+    "e2e": ("benchmarks.bus", "e2e_rows"),
+    "view": ("benchmarks.view", "view_rows"),
+    "recording": ("benchmarks.recording", "recording_rows"),
+    "robots": ("benchmarks.robots", "robots_rows"),
+    "recovery": ("benchmarks.recovery", "recovery_rows"),
+    "fusion": ("benchmarks.fusion", "fusion_rows"),
+}
+
+
 def run_groups(names: list[str], quick: bool, memory_s: float) -> list[Row]:
     rows: list[Row] = []
     pipeline = None
@@ -84,34 +97,9 @@ def run_groups(names: list[str], quick: bool, memory_s: float) -> list[Row]:
             from benchmarks.pipeline import scaling_rows
 
             rows += scaling_rows(pipeline, quick, log)
-        elif name == "calibration":
-            from benchmarks.calibration import calibration_rows
-
-            rows += calibration_rows(quick, log)
-        elif name == "e2e":
-            from benchmarks.bus import e2e_rows
-
-            rows += e2e_rows(quick, log)
-        elif name == "view":
-            from benchmarks.view import view_rows
-
-            rows += view_rows(quick, log)
-        elif name == "recording":
-            from benchmarks.recording import recording_rows
-
-            rows += recording_rows(quick, log)
-        elif name == "robots":
-            from benchmarks.robots import robots_rows
-
-            rows += robots_rows(quick, log)
-        elif name == "recovery":
-            from benchmarks.recovery import recovery_rows
-
-            rows += recovery_rows(quick, log)
-        elif name == "fusion":
-            from benchmarks.fusion import fusion_rows
-
-            rows += fusion_rows(quick, log)
+        elif name in TIMED:
+            module, function = TIMED[name]
+            rows += getattr(importlib.import_module(module), function)(quick, log)
         elif name == "memory":
             from benchmarks.bus import memory_rows
 
