@@ -128,7 +128,7 @@ class RobotFilter:
 
     Rows k = 0, 1, 2 are (x, vx), (y, vy), (θ, ω): ``value``/``rate`` hold the state,
     ``p00, p01, p11`` each row's 2×2 covariance (plain floats: for three 2-state rows,
-    scalar arithmetic is several times faster than numpy's small-array calls).
+    scalar arithmetic beats numpy's small-array calls here; see benchmarks/robots.py).
     """
 
     accel: tuple[float, float, float]  # σ of the white acceleration per row
