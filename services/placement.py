@@ -7,7 +7,16 @@ import contextlib
 import logging
 import os
 
-__all__ = ["FRAME_PATH", "cpus_option", "pick_cpus", "pin_to_cpus"]
+__all__ = [
+    "ALLOWED_ENV",
+    "FRAME_PATH",
+    "allowed_cpus",
+    "cpus_option",
+    "off_path_cpus",
+    "off_path_option",
+    "pick_cpus",
+    "pin_to_cpus",
+]
 
 #: The services every frame passes through, in order.
 FRAME_PATH = ("capture", "preprocess", "label", "pose")
@@ -27,7 +36,7 @@ def pick_cpus(spec: str) -> list[int]:
     spec = spec.strip().lower()
     if spec == "none":
         return []
-    allowed = sorted(os.sched_getaffinity(0))
+    allowed = allowed_cpus()
     if spec == "auto":
         return allowed[-1:] if len(allowed) >= 2 else []
     try:
@@ -45,6 +54,21 @@ def pick_cpus(spec: str) -> list[int]:
             f"use {','.join(map(str, allowed))}"
         )
     return cpus
+
+
+#: The cores the launching process may use, for a child started on fewer (a spare of
+#: ``ovis up`` waits off the frame path but is given the frame path's core later).
+ALLOWED_ENV = "OVIS_CPUS_ALLOWED"
+
+
+def allowed_cpus() -> list[int]:
+    """The cores this process may be pinned to: its own, or its launcher's
+    (:data:`ALLOWED_ENV`) when it was started on fewer."""
+    inherited = os.environ.get(ALLOWED_ENV, "")
+    with contextlib.suppress(ValueError):
+        if inherited:
+            return sorted({int(c) for c in inherited.split(",")})
+    return sorted(os.sched_getaffinity(0))
 
 
 def cpus_option(stage: str, cpus: list[int]) -> list[str]:
@@ -76,8 +100,14 @@ def pin_to_cpus(cpus: list[int], log: logging.Logger) -> bool:
     return True
 
 
+def off_path_cpus(cpus: list[int]) -> list[int]:
+    """The cores this process may use other than the frame path's ``cpus`` ([] when the
+    frame path is not pinned, or has them all)."""
+    return sorted(set(os.sched_getaffinity(0)) - set(cpus)) if cpus else []
+
+
 def off_path_option(cpus: list[int]) -> list[str]:
     """The ``--cpus`` arguments that keep a helper process (the live view) off the frame
     path's cores ``cpus``: the other cores this process may use; none if there are none."""
-    others = sorted(set(os.sched_getaffinity(0)) - set(cpus)) if cpus else []
+    others = off_path_cpus(cpus)
     return ["--cpus", ",".join(map(str, others))] if others else []

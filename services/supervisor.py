@@ -17,12 +17,14 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ovis.common.messages import ServiceStatus
 from ovis.common.pipeline.restarts import RestartBudget, describe_exit
 from ovis.common.pipeline.totals import CounterTotals, ServiceTotals
+from ovis.services.placement import ALLOWED_ENV
 
 __all__ = ["Child", "Supervisor", "die_with_parent"]
 
@@ -36,6 +38,14 @@ def die_with_parent() -> None:
     """In the child: get SIGTERM when the launching process dies (no orphans)."""
     with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
+def _in_child(cpus: list[int]) -> None:
+    """In the child, before it runs: no orphans, and on ``cpus`` if any are given."""
+    die_with_parent()
+    if cpus:
+        with contextlib.suppress(OSError):
+            os.sched_setaffinity(0, cpus)
 
 
 @dataclass
@@ -52,6 +62,9 @@ class Child:
     last_exit: str = ""
     standby: bool = False  # keep a spare process ready (imports done) to take over
     spare: subprocess.Popen[bytes] | None = None
+    #: cores a spare does its imports on, off the frame path ([]: any); once activated,
+    #: it moves to its stage's own cores (``--cpus``, pinned by the service)
+    spare_cpus: list[int] = field(default_factory=list)
 
 
 class Supervisor:
@@ -66,13 +79,19 @@ class Supervisor:
         self.stopping = False
         self.counters = CounterTotals()  # every status seen, summed over restarts
 
-    def start(self, name: str, args: list[str], *, standby: bool = False) -> None:
+    def start(
+        self, name: str, args: list[str], *, standby: bool = False, spare_cpus: Sequence[int] = ()
+    ) -> None:
         """Start child ``name``; with ``standby``, also a spare that has done its imports
         and waits (:func:`ovis.services.service.wait_for_activation`) to replace it at
-        once if it dies: its first restart then costs no interpreter start."""
+        once if it dies: its first restart then costs no interpreter start. The spare
+        starts on ``spare_cpus`` (if given) so that its imports do not take the running
+        frame path's core."""
         if name not in self.children:
             budget = RestartBudget(self.max_restarts, self.window_s)
-            self.children[name] = Child(name, args, budget, standby=standby)
+            self.children[name] = Child(
+                name, args, budget, standby=standby, spare_cpus=list(spare_cpus)
+            )
         child = self.children[name]
         child.started_at = time.monotonic()
         child.proc = self._spawn(child)
@@ -80,15 +99,18 @@ class Supervisor:
     def _spawn(self, child: Child, *, spare: bool = False) -> subprocess.Popen[bytes]:
         logfile = open(self.log_dir / f"{child.name}.log", "ab")  # noqa: SIM115 (the child keeps it)
         env = dict(os.environ, OVIS_RESTARTS=str(child.budget.restarts))
+        if spare and child.spare_cpus:  # started off the frame path, pinned to it later
+            env[ALLOWED_ENV] = ",".join(map(str, sorted(os.sched_getaffinity(0))))
         args = child.args
         if spare:  # `ovis run --standby STAGE …`
             args = [args[0], "--standby", *args[1:]]
+        cores = child.spare_cpus if spare else []
         proc = subprocess.Popen(
             [sys.executable, "-m", "ovis.services.cli", *args],
             stdout=logfile,
             stderr=subprocess.STDOUT,
             stdin=subprocess.PIPE if spare else subprocess.DEVNULL,
-            preexec_fn=die_with_parent,
+            preexec_fn=lambda: _in_child(cores),
             env=env,
         )
         logfile.close()

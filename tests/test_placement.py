@@ -107,3 +107,42 @@ def test_bad_cpus_is_a_one_line_usage_error() -> None:
     assert "Traceback" not in proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "not available" in lines[0], proc.stderr
+
+
+@pytest.mark.skipif(len(ALLOWED) < 2, reason="needs two cores: one for the frame path")
+def test_a_spare_imports_off_the_frame_path_and_takes_its_core_when_activated(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``ovis up``'s spare of a pinned stage waits on the other cores (its imports must not
+    take the running frame path's core) and moves to the stage's core once it replaces a
+    stage that died."""
+    from ovis.services import supervisor
+
+    monkeypatch.setattr(supervisor, "SPARE_AFTER_S", 0.0)
+    path_core, off = ALLOWED[-1], ALLOWED[:-1]
+    fleet = supervisor.Supervisor(tmp_path)
+    args = ["run", "preprocess", "--connect", f"tcp/127.0.0.1:{free_port()}"]
+    fleet.start("preprocess", [*args, "--cpus", str(path_core)], standby=True, spare_cpus=off)
+    child = fleet.children["preprocess"]
+    try:
+        deadline = time.monotonic() + 30
+        while child.spare is None and time.monotonic() < deadline:
+            fleet.supervise()
+            time.sleep(0.05)
+        assert child.spare is not None
+        spare = child.spare.pid
+        assert _allowed_cpus(spare) == ",".join(map(str, off))
+        time.sleep(2.0)  # importing, then waiting: still off the frame path
+        assert _allowed_cpus(spare) == ",".join(map(str, off))
+        child.proc.kill()
+        while child.proc.pid != spare and time.monotonic() < deadline:
+            fleet.supervise()
+            time.sleep(0.05)
+        assert child.proc.pid == spare
+        while _allowed_cpus(spare) != str(path_core) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(1.0)  # Zenoh's threads, started after the pin, inherit it
+        for task in Path(f"/proc/{spare}/task").glob("*"):
+            assert f"Cpus_allowed_list:\t{path_core}\n" in (task / "status").read_text()
+    finally:
+        fleet.stop()

@@ -247,7 +247,7 @@ def up(
     cfg_path = log_dir / "config.toml"
     from ovis.common.config import dump_toml
     from ovis.services.bus import local_peers
-    from ovis.services.placement import cpus_option
+    from ovis.services.placement import cpus_option, off_path_cpus
 
     # The services share the router's machine: they talk to each other directly.
     services_cfg = msgspec.structs.replace(cfg, zenoh=local_peers(cfg.zenoh))
@@ -277,7 +277,7 @@ def up(
 
     def start(stage: str) -> None:
         args = ["run", stage, "--config", str(cfg_path), *cpus_option(stage, cpus)]
-        fleet.start(stage, args, standby=stage in STANDBY)
+        fleet.start(stage, args, standby=stage in STANDBY, spare_cpus=off_path_cpus(cpus))
 
     downstream = ("calibrator", "pose", "label", "preprocess")
     for stage in downstream:
