@@ -80,9 +80,13 @@ NS_RE = re.compile(r"^ovis-(\d+)-[0-9a-f]{4}-")
 
 
 # --- the subscriber run on a host: `python test_multihost.py probe ...` -----------------
-def probe_main(argv: list[str]) -> None:
-    """Subscribe to obstacles, truth and liveliness under ``--key`` and write one JSON
-    line per sample to ``--out`` (the test reads the file as it grows)."""
+Write = Callable[[dict[str, Any]], None]
+
+
+def run_probe(argv: list[str], subscribe: Callable[[Any, str, Write], None]) -> None:
+    """Open a session from ``--config``, let ``subscribe(session, key, write)`` declare its
+    subscribers under ``--key``, and write one JSON line per record to ``--out`` (the
+    test reads the file as it grows) until SIGTERM."""
     ap = argparse.ArgumentParser(prog="probe")
     ap.add_argument("--config", required=True, help="ovis TOML ([zenoh] section used)")
     ap.add_argument("--key", required=True, help="ovis/<arena> or ovis/*")
@@ -90,7 +94,6 @@ def probe_main(argv: list[str]) -> None:
     args = ap.parse_args(argv)
 
     from ovis.common.config import load_config
-    from ovis.common.messages import ObstacleFrame, StreamHealth, TruthFrame, decode
     from ovis.services.bus import open_session
 
     stop = threading.Event()
@@ -103,12 +106,36 @@ def probe_main(argv: list[str]) -> None:
         with lock:
             out.write(json.dumps(rec) + "\n")
 
+    with open_session(load_config(args.config).zenoh) as session:
+        subscribe(session, args.key, write)
+        write({"k": "ready", "rx": time.time_ns()})
+        stop.wait()
+    out.close()
+
+
+def decoded(sample: Any, kind: Any, write: Write) -> Any | None:
+    """The sample's message, or None with a "bad" record written."""
+    from ovis.common.messages import decode
+
+    try:
+        return decode(sample.payload.to_bytes(), kind)
+    except ValueError as exc:
+        write({"k": "bad", "key": str(sample.key_expr), "error": str(exc)})
+        return None
+
+
+def probe_main(argv: list[str]) -> None:
+    """Subscribe to obstacles, truth and liveliness under ``--key`` (see run_probe)."""
+    run_probe(argv, subscribe_arena)
+
+
+def subscribe_arena(session: Any, key: str, write: Write) -> None:
+    from ovis.common.messages import ObstacleFrame, StreamHealth, TruthFrame
+
     def on_obstacles(sample: Any) -> None:
         rx = time.time_ns()
-        try:
-            m = decode(sample.payload.to_bytes(), ObstacleFrame)
-        except ValueError as exc:
-            write({"k": "bad", "key": str(sample.key_expr), "error": str(exc)})
+        m = decoded(sample, ObstacleFrame, write)
+        if m is None:
             return
         objs = ([m.robot] if m.robot else []) + m.obstacles
         write(
@@ -126,10 +153,8 @@ def probe_main(argv: list[str]) -> None:
         )
 
     def on_truth(sample: Any) -> None:
-        try:
-            t = decode(sample.payload.to_bytes(), TruthFrame)
-        except ValueError as exc:
-            write({"k": "bad", "key": str(sample.key_expr), "error": str(exc)})
+        t = decoded(sample, TruthFrame, write)
+        if t is None:
             return
         write(
             {
@@ -141,10 +166,8 @@ def probe_main(argv: list[str]) -> None:
         )
 
     def on_health(sample: Any) -> None:
-        try:
-            h = decode(sample.payload.to_bytes(), StreamHealth)
-        except ValueError as exc:
-            write({"k": "bad", "key": str(sample.key_expr), "error": str(exc)})
+        h = decoded(sample, StreamHealth, write)
+        if h is None:
             return
         write(
             {
@@ -161,14 +184,10 @@ def probe_main(argv: list[str]) -> None:
         kind = "put" if str(sample.kind).endswith("PUT") else "delete"
         write({"k": "alive", "key": str(sample.key_expr), "kind": kind, "rx": time.time_ns()})
 
-    with open_session(load_config(args.config).zenoh) as session:
-        session.declare_subscriber(f"{args.key}/obstacles", on_obstacles)
-        session.declare_subscriber(f"{args.key}/truth", on_truth)
-        session.declare_subscriber(f"{args.key}/health", on_health)
-        session.liveliness().declare_subscriber(f"{args.key}/alive/*", on_alive, history=True)
-        write({"k": "ready", "rx": time.time_ns()})
-        stop.wait()
-    out.close()
+    session.declare_subscriber(f"{key}/obstacles", on_obstacles)
+    session.declare_subscriber(f"{key}/truth", on_truth)
+    session.declare_subscriber(f"{key}/health", on_health)
+    session.liveliness().declare_subscriber(f"{key}/alive/*", on_alive, history=True)
 
 
 class Records:
@@ -182,6 +201,7 @@ class Records:
         self.alive: list[dict[str, Any]] = []
         self.health: list[dict[str, Any]] = []
         self.bad: list[dict[str, Any]] = []
+        self.other: dict[str, list[dict[str, Any]]] = {}  # kinds of other probes
         self.ready = False
 
     def poll(self) -> Records:
@@ -207,6 +227,8 @@ class Records:
                 self.bad.append(rec)
             elif kind == "ready":
                 self.ready = True
+            else:
+                self.other.setdefault(kind, []).append(rec)
         return self
 
     def of(self, arena: str, since: int = 0) -> list[dict[str, Any]]:
@@ -322,8 +344,15 @@ def netns_unavailable() -> str | None:
 class Lab:
     """Namespaces joined by a switch, and the processes running in them."""
 
-    def __init__(self, tmp: Path) -> None:
+    def __init__(
+        self,
+        tmp: Path,
+        hosts: dict[str, int] = HOSTS,
+        router_names: dict[str, str] = ROUTER_NAMES,
+    ) -> None:
         self.tmp = tmp
+        self.hosts = hosts  # host name: last byte of its address
+        self.router_names = router_names  # name in /etc/hosts: the host it resolves to
         self.tag = f"ovis-{os.getpid()}-{secrets.token_hex(2)}"
         self.switch = f"{self.tag}-sw"
         self.namespaces: list[str] = []
@@ -345,9 +374,9 @@ class Lab:
         _ip("-n", self.switch, "link", "add", "br0", "type", "bridge")
         _ip("-n", self.switch, "link", "set", "br0", "up")
         hosts = "127.0.0.1 localhost\n" + "".join(
-            f"{NET}.{HOSTS[h]} {name}\n" for name, h in ROUTER_NAMES.items()
+            f"{NET}.{self.hosts[h]} {name}\n" for name, h in self.router_names.items()
         )
-        for host, n in HOSTS.items():
+        for host, n in self.hosts.items():
             ns = self.ns(host)
             _ip("netns", "add", ns)
             self.namespaces.append(ns)
