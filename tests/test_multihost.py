@@ -45,7 +45,7 @@ import sys
 import threading
 import time
 import tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -558,20 +558,38 @@ def calibrated(rec: Records, arena: str, n: int = 5) -> bool:
     return sum(1 for m in rec.of(arena) if m["v"] >= 1) >= n
 
 
-@pytest.fixture(scope="module")
-def lab(tmp_path_factory: pytest.TempPathFactory):
+@contextlib.contextmanager
+def running_lab(
+    factory: pytest.TempPathFactory,
+    name: str,
+    hosts: dict[str, int] = HOSTS,
+    router_names: dict[str, str] = ROUTER_NAMES,
+) -> Iterator[tuple[Lab, dict[str, Path]]]:
+    """A lab built (or the test skipped with the reason), deploy/'s files written with the
+    test settings, routers A and B running on the hosts their names resolve to; every
+    process stopped and namespace deleted at the end."""
     reason = netns_unavailable()
     if reason:
         pytest.skip(reason)
     remove_stale_namespaces()
-    tmp = tmp_path_factory.mktemp("multihost")
-    lb = Lab(tmp)
+    tmp = factory.mktemp(name)
+    lb = Lab(tmp, hosts, router_names)
     try:
-        t0 = time.monotonic()
         lb.build()
         conf = write_configs(tmp)
-        lb.ovis("r-a", "router-a", "router", "--config", str(conf["router-a"]))
-        lb.ovis("r-b", "router-b", "router", "--config", str(conf["router-b"]))
+        for router, host in router_names.items():
+            role = router.removeprefix("ovis-")  # router-a, router-b
+            lb.ovis(host, role, "router", "--config", str(conf[role]))
+        yield lb, conf
+    finally:
+        lb.close()
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory: pytest.TempPathFactory):
+    t0 = time.monotonic()
+    with running_lab(tmp_path_factory, "multihost") as (lb, conf):
+        tmp = lb.tmp
         probe = [str(Path(__file__).resolve()), "probe", "--config", str(conf["subscriber"])]
         lb.spawn("sub1", "probe-sub1", [*probe, "--key", "ovis/a1", "--out", str(tmp / "s1")])
         lb.spawn("sub2", "probe-sub2", [*probe, "--key", "ovis/*", "--out", str(tmp / "s2")])
@@ -587,8 +605,6 @@ def lab(tmp_path_factory: pytest.TempPathFactory):
         print(f"\n[multihost] {len(HOSTS)} hosts up, 2 arenas calibrated in "
               f"{time.monotonic() - t0:.1f} s")  # fmt: skip
         yield {"lab": lb, "conf": conf, "sub1": sub1, "sub2": sub2, "t0": t0}
-    finally:
-        lb.close()
 
 
 def cli_json(lab: Lab, host: str, *args: str, timeout: float = 60) -> Any:
@@ -931,13 +947,17 @@ def test_arenas_keep_their_key_spaces_and_scale_out(lab) -> None:
     assert four["p50_ms"] < 250, four
 
 
-def test_no_process_died_or_crashed(lab) -> None:
-    lb: Lab = lab["lab"]
+def assert_none_died_or_crashed(lb: Lab, *probes: Records) -> None:
+    """No process of the lab exited or logged a Traceback; no probe got a bad message."""
     assert not lb.dead(), lb.tail_logs()
     for name, path in lb.logs.items():
         text = path.read_text(errors="replace")
         assert "Traceback" not in text, f"{name}:\n{text[-3000:]}"
-    assert not lab["sub1"].bad and not lab["sub2"].bad
+    assert not [rec.bad for rec in probes if rec.poll().bad]
+
+
+def test_no_process_died_or_crashed(lab) -> None:
+    assert_none_died_or_crashed(lab["lab"], lab["sub1"], lab["sub2"])
 
 
 if __name__ == "__main__" and sys.argv[1:2] == ["probe"]:

@@ -41,13 +41,12 @@ from test_multihost import (
     Lab,
     Records,
     Write,
+    assert_none_died_or_crashed,
     cli_json,
     decoded,
-    netns_unavailable,
-    remove_stale_namespaces,
     run_probe,
+    running_lab,
     wait_for,
-    write_configs,
 )
 
 HOSTS = {"host-a": 1, "host-b": 2}
@@ -161,14 +160,15 @@ def judge(rec: Records, ws: list[dict[str, Any]]) -> tuple[int, list[float], lis
 
 
 # --- the lab ---------------------------------------------------------------------------
-def fusion_configs(tmp: Path) -> dict[str, Path]:
-    """deploy/'s role files with the test settings (write_configs), and: a chain file per
-    camera (capture.toml's: router A, the simulated camera; its camera_name, seed, pose
-    and half of the floor), the fusion file (processing.toml's: router B; both cameras'
-    models and the matching of unsynchronised frames), a subscriber file per host."""
+def fusion_configs(conf: dict[str, Path]) -> None:
+    """Beside deploy/'s role files with the test settings (``conf``, from write_configs):
+    a chain file per camera (capture.toml's: router A, the simulated camera; its
+    camera_name, seed, pose and half of the floor), the fusion file (processing.toml's:
+    router B; both cameras' models and the matching of unsynchronised frames), a
+    subscriber file per host."""
+    folder = conf["capture"].parent
     from ovis.common.config import load_config
 
-    conf = write_configs(tmp)
     capture = tomllib.loads(conf["capture"].read_text())
     default = load_config(conf["capture"])
     models = {}
@@ -177,37 +177,28 @@ def fusion_configs(tmp: Path) -> dict[str, Path]:
         data["service"].update(camera_name=name, seed=seed)
         data["camera"] = {"X0_cm": default.camera.X0_cm + shift}
         data["simulator"] = {"arena_x_cm": [x + shift for x in default.simulator.arena_x_cm]}
-        conf[name] = tmp / "conf" / f"{name}.toml"
+        conf[name] = folder / f"{name}.toml"
         conf[name].write_text(tomli_w.dumps(data))
         models[name] = load_config(conf[name]).camera
     fusion = tomllib.loads(conf["processing"].read_text())
     fusion["cameras"] = [{"name": n, "camera": msgspec.to_builtins(m)} for n, m in models.items()]
     fusion["fusion"] = {"match_window_ms": MATCH_WINDOW_MS, "wait_ms": 40.0}
     fusion["service"]["frame_timeout_s"] = 1.0  # a camera silent this long is not waited for
-    conf["fusion"] = tmp / "conf" / "fusion.toml"
+    conf["fusion"] = folder / "fusion.toml"
     conf["fusion"].write_text(tomli_w.dumps(fusion))
     subscriber = tomllib.loads(conf["subscriber"].read_text())
     for host, router in (("host-a", "ovis-router-a"), ("host-b", "ovis-router-b")):
         subscriber["zenoh"]["connect"] = [f"tcp/{router}:7447"]
-        conf[f"subscriber-{host}"] = tmp / "conf" / f"subscriber-{host}.toml"
+        conf[f"subscriber-{host}"] = folder / f"subscriber-{host}.toml"
         conf[f"subscriber-{host}"].write_text(tomli_w.dumps(subscriber))
-    return conf
 
 
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory: pytest.TempPathFactory):
-    reason = netns_unavailable()
-    if reason:
-        pytest.skip(reason)
-    remove_stale_namespaces()
-    tmp = tmp_path_factory.mktemp("multihost-fusion")
-    lb = Lab(tmp, HOSTS, ROUTER_NAMES)
-    try:
-        t0 = time.monotonic()
-        lb.build()
-        conf = fusion_configs(tmp)
-        lb.ovis("host-a", "router-a", "router", "--config", str(conf["router-a"]))
-        lb.ovis("host-b", "router-b", "router", "--config", str(conf["router-b"]))
+    t0 = time.monotonic()
+    with running_lab(tmp_path_factory, "multihost-fusion", HOSTS, ROUTER_NAMES) as (lb, conf):
+        tmp = lb.tmp
+        fusion_configs(conf)
         recs = {}
         for host in HOSTS:
             out = tmp / f"probe-{host}.jsonl"
@@ -230,8 +221,6 @@ def lab(tmp_path_factory: pytest.TempPathFactory):
         print(f"\n[multihost-fusion] 2 hosts, 2 chains and fusion up in "
               f"{time.monotonic() - t0:.1f} s")  # fmt: skip
         yield {"lab": lb, "conf": conf, "a": recs["host-a"], "b": recs["host-b"]}
-    finally:
-        lb.close()
 
 
 def fusion_state(lb: Lab, conf: dict[str, Path]) -> str | None:
@@ -341,12 +330,7 @@ def test_link_cut_between_hosts_is_reported_and_healed(lab) -> None:
 
 
 def test_no_process_died_or_crashed(lab) -> None:
-    lb: Lab = lab["lab"]
-    assert not lb.dead(), lb.tail_logs()
-    for name, path in lb.logs.items():
-        text = path.read_text(errors="replace")
-        assert "Traceback" not in text, f"{name}:\n{text[-3000:]}"
-    assert not lab["a"].bad and not lab["b"].bad
+    assert_none_died_or_crashed(lab["lab"], lab["a"], lab["b"])
 
 
 if __name__ == "__main__" and sys.argv[1:2] == ["probe"]:
