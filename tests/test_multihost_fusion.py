@@ -261,8 +261,8 @@ def test_world_is_readable_on_the_camera_host(lab) -> None:
     b: Records = lab["b"]
     since = time.time_ns()
     wait_for(lambda: len(of_both(worlds(a, since))) >= 20, 20, "20 world frames on A", lb)
-    on_b = {w["seq"]: w for w in worlds(b)}
     on_a = worlds(a, since)
+    on_b = {w["seq"]: w for w in worlds(b)}  # read after A's: B's has them all
     # the same world frames as on host B: same objects, same cameras
     assert all(w["seq"] in on_b for w in on_a[:-3])
     same = [w for w in on_a if w["seq"] in on_b]
