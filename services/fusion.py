@@ -148,10 +148,13 @@ def main(service: Service) -> None:
             publish(out)
             service.sent()
             service.last_latency_ms = (out.published_ns - out.stamp_ns) / 1e6
-            silent = sorted(set(models) - set(fuser.matcher.live(time.time_ns())))
-            service.state = camera_state(r.missing, silent)
+            service.state = camera_state(r.missing, silent_cameras(time.time_ns()))
+
+    def silent_cameras(now_ns: int) -> list[str]:
+        return sorted(set(models) - set(fuser.matcher.live(now_ns)))
 
     def loop() -> None:
+        nonlocal received
         service.ready()
         service.state = "waiting for input"
         while not service.stop.is_set():
@@ -159,12 +162,15 @@ def main(service: Service) -> None:
             now = time.time_ns()
             if item is None:
                 emit(fuser.due(now))
+                # every camera silent (a cut link): no world frame says so, the status must
+                silent = silent_cameras(now) if received else []
+                if silent:
+                    service.state = camera_state([], silent)
                 continue
             name, payload = item
             msg = service.decode(payload, ObstacleFrame, "obstacles")
             if msg is None:
                 continue
-            nonlocal received
             service.saw_frame(received, msg.stamp_ns)  # cameras' seqs interleave: ours
             received += 1
             try:

@@ -315,3 +315,55 @@ def test_two_real_chains_fused_and_a_killed_chain_recovers(tmp_path: Path) -> No
     assert checked >= 10
     seqs = [w.seq for w in got]
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+
+
+def test_status_says_every_camera_is_silent_when_all_stop(tmp_path: Path) -> None:
+    """When every camera stops at once (a cut network link), no world frame is made any
+    more; the status must still say which areas are uncovered, not the last "ok"."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    data = _base(endpoint, tmp_path)
+    cam = data["camera"]
+    data["cameras"] = [{"name": "west", "camera": cam}, {"name": "east", "camera": cam}]
+    data["service"]["frame_timeout_s"] = 0.5
+    cfg = _write(tmp_path / "fusion.toml", data)
+    procs = [spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")]
+    procs.append(spawn(ovis_cmd("run", "fusion", "--config", str(cfg)), tmp_path / "fusion.log"))
+    topics = Topics("default")
+
+    def state(session) -> list[str]:
+        replies = session.get(topics.status("fusion"), timeout=2.0)
+        return [decode(r.ok.payload.to_bytes(), ServiceStatus).state for r in replies if r.ok]
+
+    try:
+        with client(endpoint) as session:
+            wait_for(lambda: "fusion" in alive(session), 60, "fusion alive")
+            world = Collector(session, topics.world, WorldFrame)
+            pubs = {
+                c: session.declare_publisher(topics.of_camera(c).obstacles, encoding=ENCODING)
+                for c in ("west", "east")
+            }
+            for seq in range(10):
+                stamp = time.time_ns()
+                for pub in pubs.values():
+                    pub.put(encode(detections_frame(seq, stamp, [])))
+                time.sleep(1 / 15)
+            wait_for(lambda: len(world.snapshot()) >= 5, 10, "world frames of both cameras")
+            last = world.snapshot()[-1]
+            assert (last.cameras, last.missing) == (["east", "west"], [])
+            # both silent: after frame_timeout_s neither is live any more
+            wait_for(
+                lambda: state(session) == ["no frames from east, west (area uncovered)"],
+                5,
+                "the status to say both cameras are silent",
+            )
+            frames = len(world.snapshot())
+            # one camera back: its world frames flow, the other's area is still uncovered
+            for seq in range(10, 20):
+                pubs["west"].put(encode(detections_frame(seq, time.time_ns(), [])))
+                time.sleep(1 / 15)
+            wait_for(lambda: len(world.snapshot()) > frames, 10, "world frames of west")
+            assert state(session) == ["no frames from east (area uncovered)"]
+    finally:
+        stop(procs[1:])
+        stop(procs[:1])
+    assert "Traceback" not in (tmp_path / "fusion.log").read_text()

@@ -45,7 +45,7 @@ import sys
 import threading
 import time
 import tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -80,9 +80,13 @@ NS_RE = re.compile(r"^ovis-(\d+)-[0-9a-f]{4}-")
 
 
 # --- the subscriber run on a host: `python test_multihost.py probe ...` -----------------
-def probe_main(argv: list[str]) -> None:
-    """Subscribe to obstacles, truth and liveliness under ``--key`` and write one JSON
-    line per sample to ``--out`` (the test reads the file as it grows)."""
+Write = Callable[[dict[str, Any]], None]
+
+
+def run_probe(argv: list[str], subscribe: Callable[[Any, str, Write], None]) -> None:
+    """Open a session from ``--config``, let ``subscribe(session, key, write)`` declare its
+    subscribers under ``--key``, and write one JSON line per record to ``--out`` (the
+    test reads the file as it grows) until SIGTERM."""
     ap = argparse.ArgumentParser(prog="probe")
     ap.add_argument("--config", required=True, help="ovis TOML ([zenoh] section used)")
     ap.add_argument("--key", required=True, help="ovis/<arena> or ovis/*")
@@ -90,7 +94,6 @@ def probe_main(argv: list[str]) -> None:
     args = ap.parse_args(argv)
 
     from ovis.common.config import load_config
-    from ovis.common.messages import ObstacleFrame, StreamHealth, TruthFrame, decode
     from ovis.services.bus import open_session
 
     stop = threading.Event()
@@ -103,12 +106,36 @@ def probe_main(argv: list[str]) -> None:
         with lock:
             out.write(json.dumps(rec) + "\n")
 
+    with open_session(load_config(args.config).zenoh) as session:
+        subscribe(session, args.key, write)
+        write({"k": "ready", "rx": time.time_ns()})
+        stop.wait()
+    out.close()
+
+
+def decoded(sample: Any, kind: Any, write: Write) -> Any | None:
+    """The sample's message, or None with a "bad" record written."""
+    from ovis.common.messages import decode
+
+    try:
+        return decode(sample.payload.to_bytes(), kind)
+    except ValueError as exc:
+        write({"k": "bad", "key": str(sample.key_expr), "error": str(exc)})
+        return None
+
+
+def probe_main(argv: list[str]) -> None:
+    """Subscribe to obstacles, truth and liveliness under ``--key`` (see run_probe)."""
+    run_probe(argv, subscribe_arena)
+
+
+def subscribe_arena(session: Any, key: str, write: Write) -> None:
+    from ovis.common.messages import ObstacleFrame, StreamHealth, TruthFrame
+
     def on_obstacles(sample: Any) -> None:
         rx = time.time_ns()
-        try:
-            m = decode(sample.payload.to_bytes(), ObstacleFrame)
-        except ValueError as exc:
-            write({"k": "bad", "key": str(sample.key_expr), "error": str(exc)})
+        m = decoded(sample, ObstacleFrame, write)
+        if m is None:
             return
         objs = ([m.robot] if m.robot else []) + m.obstacles
         write(
@@ -126,10 +153,8 @@ def probe_main(argv: list[str]) -> None:
         )
 
     def on_truth(sample: Any) -> None:
-        try:
-            t = decode(sample.payload.to_bytes(), TruthFrame)
-        except ValueError as exc:
-            write({"k": "bad", "key": str(sample.key_expr), "error": str(exc)})
+        t = decoded(sample, TruthFrame, write)
+        if t is None:
             return
         write(
             {
@@ -141,10 +166,8 @@ def probe_main(argv: list[str]) -> None:
         )
 
     def on_health(sample: Any) -> None:
-        try:
-            h = decode(sample.payload.to_bytes(), StreamHealth)
-        except ValueError as exc:
-            write({"k": "bad", "key": str(sample.key_expr), "error": str(exc)})
+        h = decoded(sample, StreamHealth, write)
+        if h is None:
             return
         write(
             {
@@ -161,14 +184,10 @@ def probe_main(argv: list[str]) -> None:
         kind = "put" if str(sample.kind).endswith("PUT") else "delete"
         write({"k": "alive", "key": str(sample.key_expr), "kind": kind, "rx": time.time_ns()})
 
-    with open_session(load_config(args.config).zenoh) as session:
-        session.declare_subscriber(f"{args.key}/obstacles", on_obstacles)
-        session.declare_subscriber(f"{args.key}/truth", on_truth)
-        session.declare_subscriber(f"{args.key}/health", on_health)
-        session.liveliness().declare_subscriber(f"{args.key}/alive/*", on_alive, history=True)
-        write({"k": "ready", "rx": time.time_ns()})
-        stop.wait()
-    out.close()
+    session.declare_subscriber(f"{key}/obstacles", on_obstacles)
+    session.declare_subscriber(f"{key}/truth", on_truth)
+    session.declare_subscriber(f"{key}/health", on_health)
+    session.liveliness().declare_subscriber(f"{key}/alive/*", on_alive, history=True)
 
 
 class Records:
@@ -182,6 +201,7 @@ class Records:
         self.alive: list[dict[str, Any]] = []
         self.health: list[dict[str, Any]] = []
         self.bad: list[dict[str, Any]] = []
+        self.other: dict[str, list[dict[str, Any]]] = {}  # kinds of other probes
         self.ready = False
 
     def poll(self) -> Records:
@@ -207,6 +227,8 @@ class Records:
                 self.bad.append(rec)
             elif kind == "ready":
                 self.ready = True
+            else:
+                self.other.setdefault(kind, []).append(rec)
         return self
 
     def of(self, arena: str, since: int = 0) -> list[dict[str, Any]]:
@@ -322,8 +344,15 @@ def netns_unavailable() -> str | None:
 class Lab:
     """Namespaces joined by a switch, and the processes running in them."""
 
-    def __init__(self, tmp: Path) -> None:
+    def __init__(
+        self,
+        tmp: Path,
+        hosts: dict[str, int] = HOSTS,
+        router_names: dict[str, str] = ROUTER_NAMES,
+    ) -> None:
         self.tmp = tmp
+        self.hosts = hosts  # host name: last byte of its address
+        self.router_names = router_names  # name in /etc/hosts: the host it resolves to
         self.tag = f"ovis-{os.getpid()}-{secrets.token_hex(2)}"
         self.switch = f"{self.tag}-sw"
         self.namespaces: list[str] = []
@@ -345,9 +374,9 @@ class Lab:
         _ip("-n", self.switch, "link", "add", "br0", "type", "bridge")
         _ip("-n", self.switch, "link", "set", "br0", "up")
         hosts = "127.0.0.1 localhost\n" + "".join(
-            f"{NET}.{HOSTS[h]} {name}\n" for name, h in ROUTER_NAMES.items()
+            f"{NET}.{self.hosts[h]} {name}\n" for name, h in self.router_names.items()
         )
-        for host, n in HOSTS.items():
+        for host, n in self.hosts.items():
             ns = self.ns(host)
             _ip("netns", "add", ns)
             self.namespaces.append(ns)
@@ -529,20 +558,38 @@ def calibrated(rec: Records, arena: str, n: int = 5) -> bool:
     return sum(1 for m in rec.of(arena) if m["v"] >= 1) >= n
 
 
-@pytest.fixture(scope="module")
-def lab(tmp_path_factory: pytest.TempPathFactory):
+@contextlib.contextmanager
+def running_lab(
+    factory: pytest.TempPathFactory,
+    name: str,
+    hosts: dict[str, int] = HOSTS,
+    router_names: dict[str, str] = ROUTER_NAMES,
+) -> Iterator[tuple[Lab, dict[str, Path]]]:
+    """A lab built (or the test skipped with the reason), deploy/'s files written with the
+    test settings, routers A and B running on the hosts their names resolve to; every
+    process stopped and namespace deleted at the end."""
     reason = netns_unavailable()
     if reason:
         pytest.skip(reason)
     remove_stale_namespaces()
-    tmp = tmp_path_factory.mktemp("multihost")
-    lb = Lab(tmp)
+    tmp = factory.mktemp(name)
+    lb = Lab(tmp, hosts, router_names)
     try:
-        t0 = time.monotonic()
         lb.build()
         conf = write_configs(tmp)
-        lb.ovis("r-a", "router-a", "router", "--config", str(conf["router-a"]))
-        lb.ovis("r-b", "router-b", "router", "--config", str(conf["router-b"]))
+        for router, host in router_names.items():
+            role = router.removeprefix("ovis-")  # router-a, router-b
+            lb.ovis(host, role, "router", "--config", str(conf[role]))
+        yield lb, conf
+    finally:
+        lb.close()
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory: pytest.TempPathFactory):
+    t0 = time.monotonic()
+    with running_lab(tmp_path_factory, "multihost") as (lb, conf):
+        tmp = lb.tmp
         probe = [str(Path(__file__).resolve()), "probe", "--config", str(conf["subscriber"])]
         lb.spawn("sub1", "probe-sub1", [*probe, "--key", "ovis/a1", "--out", str(tmp / "s1")])
         lb.spawn("sub2", "probe-sub2", [*probe, "--key", "ovis/*", "--out", str(tmp / "s2")])
@@ -558,8 +605,6 @@ def lab(tmp_path_factory: pytest.TempPathFactory):
         print(f"\n[multihost] {len(HOSTS)} hosts up, 2 arenas calibrated in "
               f"{time.monotonic() - t0:.1f} s")  # fmt: skip
         yield {"lab": lb, "conf": conf, "sub1": sub1, "sub2": sub2, "t0": t0}
-    finally:
-        lb.close()
 
 
 def cli_json(lab: Lab, host: str, *args: str, timeout: float = 60) -> Any:
@@ -902,13 +947,17 @@ def test_arenas_keep_their_key_spaces_and_scale_out(lab) -> None:
     assert four["p50_ms"] < 250, four
 
 
-def test_no_process_died_or_crashed(lab) -> None:
-    lb: Lab = lab["lab"]
+def assert_none_died_or_crashed(lb: Lab, *probes: Records) -> None:
+    """No process of the lab exited or logged a Traceback; no probe got a bad message."""
     assert not lb.dead(), lb.tail_logs()
     for name, path in lb.logs.items():
         text = path.read_text(errors="replace")
         assert "Traceback" not in text, f"{name}:\n{text[-3000:]}"
-    assert not lab["sub1"].bad and not lab["sub2"].bad
+    assert not [rec.bad for rec in probes if rec.poll().bad]
+
+
+def test_no_process_died_or_crashed(lab) -> None:
+    assert_none_died_or_crashed(lab["lab"], lab["sub1"], lab["sub2"])
 
 
 if __name__ == "__main__" and sys.argv[1:2] == ["probe"]:
