@@ -85,12 +85,15 @@ def find_markers(
     *,
     side_px: tuple[float, float] | None = None,
     boxes: NDArray[np.int64] | None = None,
+    median_done: bool = False,
 ) -> Markers:
     """Decode every marker of ``dictionary`` in a grey uint8 frame.
 
     ``side_px``: the range of marker sides to look for (pixels); ``boxes``: (k, 4)
     ``row0, row1, col0, col1`` regions to search instead of the whole frame (e.g. around
-    the blobs that may carry a marker: much faster).
+    the blobs that may carry a marker: much faster); ``median_done``: ``gray`` is already
+    the frame's 3×3 median (the paper's smoothing step makes it), so it is searched as
+    it is instead of being filtered again box by box.
     """
     if gray.dtype != np.uint8 or gray.ndim != 2:
         raise ValueError(f"expected a grey uint8 (H, W) image, got {gray.dtype} {gray.shape}")
@@ -105,26 +108,26 @@ def find_markers(
             continue
         # a 3×3 median first: a dark speck touching a marker's edge (sensor pepper, dust)
         # otherwise bends its outline out of a quadrilateral and the marker is missed
-        crop = cv2.medianBlur(np.ascontiguousarray(gray[r0:r1, c0:c1]), 3)
+        crop = gray[r0:r1, c0:c1]
+        if not median_done:
+            crop = cv2.medianBlur(np.ascontiguousarray(crop), 3)
         detector = marker_detector(dictionary, side_px, max(r1 - r0, c1 - c0))
         corners, ids, _ = detector.detectMarkers(crop)
         if ids is None or not len(ids):
             continue
         xy = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)  # OpenCV: x = col, y = row
-        found_rc.append(xy[:, :, ::-1] + np.array([r0, c0], dtype=np.float64))
-        found_ids.append(np.asarray(ids, dtype=np.int64).reshape(-1))
+        found_rc.append(xy[:, :, ::-1] + (r0, c0))
+        found_ids.append(ids.reshape(-1).astype(np.int64))
     if not found_ids:
         return Markers.none()
     ids, rc = np.concatenate(found_ids), np.concatenate(found_rc)
-    ids, rc = _unique(ids, rc)
+    if np.unique(ids).size < ids.size:
+        ids, rc = _unique(ids, rc)
     m = BORDER_MARGIN_PX
-    inside = (
-        (rc[:, :, 0] >= m)
-        & (rc[:, :, 0] <= rows - 1 - m)
-        & (rc[:, :, 1] >= m)
-        & (rc[:, :, 1] <= cols - 1 - m)
-    ).all(axis=1)
-    return Markers(ids[inside], rc[inside], int((~inside).sum()))
+    lo = rc.min(axis=1)
+    hi = rc.max(axis=1)
+    inside = (lo >= m).all(axis=1) & (hi[:, 0] <= rows - 1 - m) & (hi[:, 1] <= cols - 1 - m)
+    return Markers(ids[inside], rc[inside], int(ids.size - np.count_nonzero(inside)))
 
 
 def _unique(

@@ -57,14 +57,16 @@ def marker_boxes(
     side_px: tuple[float, float],
 ) -> NDArray[np.int64]:
     """Boxes ``(k, 4)`` = row0, row1, col0, col1 around the blobs that may carry a marker."""
-    det = np.maximum(mu_rr * mu_cc - mu_rc * mu_rc, 0.0)
-    fill = area_px / np.maximum(4.0 * np.pi * np.sqrt(det), 1e-9)
+    # fill < MAX_FILL  ⇔  area² < (MAX_FILL·4π)²·det Σ (no square root, no division)
+    det = mu_rr * mu_cc - mu_rc * mu_rc
     spread = _BOX_SIGMAS * np.sqrt(np.maximum(mu_rr, mu_cc))
-    pick = (fill < MAX_FILL) & (2.0 * spread >= side_px[0])
+    pick = (area_px * area_px < (MAX_FILL * 4.0 * np.pi) ** 2 * det) & (
+        spread >= 0.5 * side_px[0]
+    )
     # the marker is centred on its robot: a box round the largest marker (half its
     # diagonal, plus room for the refinement) is enough, whatever the robot's size
-    half = np.minimum(spread, _MARKER_HALF * side_px[1]) + _BOX_PAD_PX
-    r, c, h = row[pick], col[pick], half[pick]
+    r, c, s = row[pick], col[pick], spread[pick]
+    h = np.minimum(s, _MARKER_HALF * side_px[1]) + _BOX_PAD_PX
     return np.column_stack([r - h, r + h + 1, c - h, c + h + 1]).astype(np.int64)
 
 
@@ -73,12 +75,17 @@ def search_markers(
     pose: PoseConfig,
     side_px: tuple[float, float],
     boxes: NDArray[np.int64] | None = None,
+    *,
+    median_done: bool = False,
 ) -> Markers:
-    """The configured dictionary's markers in ``gray`` (in ``boxes``, else everywhere);
-    none when no robot is configured."""
+    """The configured dictionary's markers in ``gray`` (in ``boxes``, else everywhere;
+    ``median_done``: ``gray`` is the frame's 3×3 median already); none when no robot is
+    configured."""
     if not pose.robots:
         return Markers.none()
-    return find_markers(gray, pose.marker_dictionary, side_px=side_px, boxes=boxes)
+    return find_markers(
+        gray, pose.marker_dictionary, side_px=side_px, boxes=boxes, median_done=median_done
+    )
 
 
 class FrameMarkers:
