@@ -25,7 +25,7 @@ from ovis.common.vision.markers import Markers
 from ovis.common.vision.perimeter import perimeter
 from ovis.common.vision.preprocess import ImageError, as_gray, segment, smooth
 from ovis.common.vision.shape import compactness, orientation
-from ovis.common.world.marker_search import marker_boxes, marker_side_px, search_markers
+from ovis.common.world.marker_search import marker_side_px, markers_around
 from ovis.common.world.planner import planner_inputs
 from ovis.common.world.plans import RobotPlan, robot_plans
 from ovis.common.world.pose import ROBOT_ID, Tracker, pick_robot
@@ -341,7 +341,8 @@ class Detector:
         )
         markers = None
         if median3 is not None:
-            markers = self.find_markers(median3, blobs)
+            side_px = self.marker_side_px
+            markers = markers_around(median3, blobs, self.pose, side_px, top.area_cm2)
         return self.from_blobs(
             blobs,
             floor=floor,
@@ -351,12 +352,6 @@ class Detector:
             stamp_s=stamp_s,
             markers=markers,
         )
-
-    def find_markers(self, median3: NDArray[np.uint8], blobs: Blobs) -> Markers:
-        """The robots' markers in a frame's 3×3 median (:func:`median_and_binary`),
-        searched for only around the blobs with a hole (:func:`marker_boxes`)."""
-        boxes = marker_boxes(*(blobs[:3] + blobs[5:]), self.marker_side_px)
-        return search_markers(median3, self.pose, self.marker_side_px, boxes, median_done=True)
 
     def from_blobs(
         self,

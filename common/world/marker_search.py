@@ -7,10 +7,15 @@ its robot's bright top, so such a blob fills less of its own second-moment ellip
 than a solid shape does (:data:`MAX_FILL`), and is at least as large as the smallest
 marker. :func:`marker_side_px` gives the range of marker sides in pixels anywhere in the
 frame (through the camera, on each robot's marker plane), which also keeps the
-detector from examining outlines of other sizes.
+detector from examining outlines of other sizes. The search runs on the frame's 3×3
+median, which the paper's smoothing step computes anyway. The running pipeline does the
+same in the label service (:class:`BlobMarkers`), where the blobs are known: the
+preprocess service sends it the median with the binary frame.
 """
 
 from __future__ import annotations
+
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,7 +24,15 @@ from ovis.common.camera.projection import pixel_footprint_cm2
 from ovis.common.config import CameraModel, PoseConfig
 from ovis.common.vision.markers import Markers, find_markers
 
-__all__ = ["MAX_FILL", "FrameMarkers", "marker_boxes", "marker_side_px", "search_markers"]
+__all__ = [
+    "MAX_FILL",
+    "BlobMarkers",
+    "BlobShapes",
+    "marker_boxes",
+    "marker_side_px",
+    "markers_around",
+    "search_markers",
+]
 
 #: A blob filling more than this share of its second-moment ellipse (4π·√det Σ; a
 #: solid disk fills 1, a solid rectangle 0.95) has no hole, hence no marker.
@@ -29,6 +42,9 @@ _BOX_SIGMAS = 2.4
 _BOX_PAD_PX = 6.0
 #: Half the diagonal of a square, in sides (a marker seen at any angle fits this far).
 _MARKER_HALF = 0.75
+#: A marker's side seen at a blob, from the robot plane's pixel footprint there, times
+#: this: room for markers mounted above or below ``pose.robot_height_cm``.
+_PLANE_SLACK = 1.1
 
 
 def marker_side_px(pose: PoseConfig, camera: CameraModel) -> tuple[float, float]:
@@ -55,18 +71,20 @@ def marker_boxes(
     mu_cc: NDArray[np.float64],
     mu_rc: NDArray[np.float64],
     side_px: tuple[float, float],
+    largest_px: NDArray[np.float64] | None = None,
 ) -> NDArray[np.int64]:
-    """Boxes ``(k, 4)`` = row0, row1, col0, col1 around the blobs that may carry a marker."""
+    """Boxes ``(k, 4)`` = row0, row1, col0, col1 around the blobs that may carry a marker;
+    ``largest_px`` (n,): the largest marker's side at each blob, px (else the largest
+    anywhere in the frame, ``side_px[1]``)."""
     # fill < MAX_FILL  ⇔  area² < (MAX_FILL·4π)²·det Σ (no square root, no division)
     det = mu_rr * mu_cc - mu_rc * mu_rc
     spread = _BOX_SIGMAS * np.sqrt(np.maximum(mu_rr, mu_cc))
-    pick = (area_px * area_px < (MAX_FILL * 4.0 * np.pi) ** 2 * det) & (
-        spread >= 0.5 * side_px[0]
-    )
+    pick = (area_px * area_px < (MAX_FILL * 4.0 * np.pi) ** 2 * det) & (spread >= 0.5 * side_px[0])
     # the marker is centred on its robot: a box round the largest marker (half its
     # diagonal, plus room for the refinement) is enough, whatever the robot's size
     r, c, s = row[pick], col[pick], spread[pick]
-    h = np.minimum(s, _MARKER_HALF * side_px[1]) + _BOX_PAD_PX
+    largest = side_px[1] if largest_px is None else largest_px[pick]
+    h = np.minimum(s, _MARKER_HALF * largest) + _BOX_PAD_PX
     return np.column_stack([r - h, r + h + 1, c - h, c + h + 1]).astype(np.int64)
 
 
@@ -88,20 +106,60 @@ def search_markers(
     )
 
 
-class FrameMarkers:
-    """Whole-frame marker search for a stage that has the grey frame but no blobs yet
-    (the preprocess service): the marker sizes are worked out once per calibration."""
+class BlobShapes(Protocol):
+    """The blob measurements :func:`markers_around` needs (image pixels; e.g.
+    :class:`ovis.common.world.detection.Blobs`)."""
+
+    row: NDArray[np.float64]
+    col: NDArray[np.float64]
+    area_px: NDArray[np.float64]
+    mu_rr: NDArray[np.float64]
+    mu_cc: NDArray[np.float64]
+    mu_rc: NDArray[np.float64]
+
+
+def markers_around(
+    median3: NDArray[np.uint8],
+    blobs: BlobShapes,
+    pose: PoseConfig,
+    side_px: tuple[float, float],
+    top_area_cm2: NDArray[np.float64] | None = None,
+) -> Markers:
+    """The robots' markers in a frame's 3×3 median, searched for only in
+    :func:`marker_boxes` around ``blobs``. ``top_area_cm2`` (n,): each blob's pixel
+    footprint on the robot plane (``pose.robot_height_cm``), which sizes its box to the
+    largest marker as seen there (with :data:`_PLANE_SLACK` for markers on other planes)
+    instead of as seen where the frame magnifies most."""
+    b = blobs
+    largest = None
+    if top_area_cm2 is not None and pose.robots:
+        side_cm = _PLANE_SLACK * max(r.marker_side_cm for r in pose.robots)
+        seen = top_area_cm2 > 0
+        largest = np.where(seen, side_cm / np.sqrt(np.where(seen, top_area_cm2, 1.0)), side_px[1])
+    boxes = marker_boxes(b.row, b.col, b.area_px, b.mu_rr, b.mu_cc, b.mu_rc, side_px, largest)
+    return search_markers(median3, pose, side_px, boxes, median_done=True)
+
+
+class BlobMarkers:
+    """:func:`markers_around` for a stage that follows the calibration (the label
+    service): the marker sizes are worked out once per calibration version."""
 
     def __init__(self) -> None:
         self._version: int | None = None
         self._side_px = (1.0, 1.0)
 
     def __call__(
-        self, gray: NDArray[np.uint8], version: int, camera: CameraModel, pose: PoseConfig
-    ) -> Markers | None:
-        """The frame's markers, or None when no robot is configured."""
+        self,
+        median3: NDArray[np.uint8],
+        blobs: BlobShapes,
+        version: int,
+        camera: CameraModel,
+        pose: PoseConfig,
+        top_area_cm2: NDArray[np.float64] | None = None,
+    ) -> Markers:
+        """The frame's markers (none when no robot is configured)."""
         if not pose.robots:
-            return None
+            return Markers.none()
         if version != self._version:
             self._version, self._side_px = version, marker_side_px(pose, camera)
-        return search_markers(gray, pose, self._side_px)
+        return markers_around(median3, blobs, pose, self._side_px, top_area_cm2)

@@ -28,6 +28,7 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
+from ovis.common.camera.plane_table import PlaneTable
 from ovis.common.camera.projection import back_project
 from ovis.common.config import CameraModel, PoseConfig, RobotSpec
 from ovis.common.vision.markers import Markers
@@ -39,6 +40,7 @@ __all__ = [
     "RobotTracker",
     "UnknownMarker",
     "marker_poses",
+    "poses_of",
     "wrap_deg",
 ]
 
@@ -102,15 +104,21 @@ def marker_poses(
     z = ``heights_cm`` (n,)."""
     z = np.asarray(heights_cm, dtype=np.float64)[:, None]
     b = back_project(corners_rc[:, :, 0], corners_rc[:, :, 1], camera, z)
-    p = np.asarray(b.x_cm) + 1j * np.asarray(b.y_cm)  # (n, 4) floor points as x + iy
-    tl, tr, br, bl = p.T
+    points = np.asarray(b.x_cm) + 1j * np.asarray(b.y_cm)
+    return poses_of(points, np.asarray(b.valid).reshape(points.shape))
+
+
+def poses_of(points: NDArray[np.complex128], valid: NDArray[np.bool_]) -> MarkerPoses:
+    """:func:`marker_poses` from the markers' corners on their planes, (n, 4) x + iy (cm)
+    in OpenCV's corner order, and where each was valid."""
+    tl, tr, br, bl = points.T
     up, across = (tl + tr - bl - br) / 2.0, (tr + br - tl - bl) / 2.0
     # turn `across` by 90° towards `up` (which way depends on the world's handedness)
     turn = np.sign((across.conjugate() * up).imag)
     heading = np.angle(up + 1j * turn * across, deg=True)
-    valid = np.asarray(b.valid).reshape(p.shape).all(axis=1) & (turn != 0)
-    centre = p.mean(axis=1)
-    return MarkerPoses(centre.real, centre.imag, wrap_deg(heading), valid)
+    centre = points.mean(axis=1)
+    ok = valid.all(axis=1) & (turn != 0)
+    return MarkerPoses(centre.real, centre.imag, wrap_deg(heading), ok)
 
 
 def _wrap(angle: float) -> float:
@@ -199,6 +207,9 @@ class RobotTracker:
     #: the configured robots by marker id, and in id order (set from ``pose``)
     _by_marker: dict[int, RobotSpec] = field(init=False, repr=False)
     _in_order: list[RobotSpec] = field(init=False, repr=False)
+    #: each marker plane's table, for the camera they were made with
+    _tables: dict[float, PlaneTable] = field(default_factory=dict, repr=False)
+    _camera: CameraModel | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         self._index()
@@ -227,7 +238,7 @@ class RobotTracker:
         if ids:
             default_h = self.pose.robot_height_cm
             heights = [default_h if r is None else r.marker_height_cm for r in spec_of]
-            poses = marker_poses(markers.corners, np.array(heights), camera)
+            poses = poses_of(*self._on_planes(markers.corners, heights, camera))
             xs, ys, hs = poses.x_cm.tolist(), poses.y_cm.tolist(), poses.heading_deg.tolist()
             for k, (robot, ok) in enumerate(zip(spec_of, poses.valid.tolist(), strict=True)):
                 if not ok:
@@ -266,6 +277,24 @@ class RobotTracker:
                 continue
             states.append(_state(robot, f, age))
         return states, unknown
+
+    def _on_planes(
+        self, corners: NDArray[np.float64], heights: list[float], camera: CameraModel
+    ) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
+        """Corners (n, 4, 2) → their points on each marker's plane, x + iy (cm), and
+        validity, from the planes' tables (made once per camera and plane)."""
+        if camera is not self._camera:
+            self._camera, self._tables = camera, {}
+        points = np.empty(corners.shape[:2], dtype=np.complex128)
+        valid = np.empty(corners.shape[:2], dtype=bool)
+        planes = set(heights)
+        for h in planes:  # usually one plane for every marker
+            at = slice(None) if len(planes) == 1 else [k for k, z in enumerate(heights) if z == h]
+            table = self._tables.get(h)
+            if table is None:
+                table = self._tables[h] = PlaneTable(camera, h)
+            points[at], valid[at] = table(corners[at, :, 0], corners[at, :, 1])
+        return points, valid
 
     def _nearer(
         self, robot_id: int, a: tuple[float, float, float], b: tuple[float, float, float]
