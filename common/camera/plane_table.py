@@ -38,8 +38,8 @@ class PlaneTable:
         (inside the frame, all four neighbouring pixels seeing the plane)."""
         r, c = np.asarray(row, dtype=np.float64), np.asarray(col, dtype=np.float64)
         w = self.cols
-        r0 = np.clip(np.floor(r), 0, self.rows - 2)
-        c0 = np.clip(np.floor(c), 0, w - 2)
+        r0 = np.minimum(np.maximum(np.floor(r), 0.0), self.rows - 2)
+        c0 = np.minimum(np.maximum(np.floor(c), 0.0), w - 2)
         fr, fc = r - r0, c - c0
         i = (r0 * w + c0).astype(np.intp)
         t = self._xy

@@ -25,7 +25,7 @@ from ovis.common.vision.markers import Markers
 from ovis.common.vision.perimeter import perimeter
 from ovis.common.vision.preprocess import ImageError, as_gray, segment, smooth
 from ovis.common.vision.shape import compactness, orientation
-from ovis.common.world.marker_search import marker_side_px, markers_around
+from ovis.common.world.marker_search import marker_side_px, markers_around, top_side_cm
 from ovis.common.world.planner import planner_inputs
 from ovis.common.world.plans import RobotPlan, robot_plans
 from ovis.common.world.pose import ROBOT_ID, Tracker, pick_robot
@@ -307,6 +307,7 @@ class Detector:
         self._last_stamp: float | None = None
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
         self.marker_side_px = marker_side_px(pose, camera)
+        self.top_side_cm = top_side_cm(pose, camera)
 
     def recalibrate(self, camera: CameraModel, image: ImageParams, pose: PoseConfig) -> None:
         """Use a new calibration; obstacle and robot identities are kept."""
@@ -315,6 +316,7 @@ class Detector:
         self.robots.reconfigure(pose)
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
         self.marker_side_px = marker_side_px(pose, camera)
+        self.top_side_cm = top_side_cm(pose, camera)
 
     def detect(
         self,
@@ -341,8 +343,8 @@ class Detector:
         )
         markers = None
         if median3 is not None:
-            side_px = self.marker_side_px
-            markers = markers_around(median3, blobs, self.pose, side_px, top.area_cm2)
+            at_blobs = (self.top_side_cm, top.area_cm2)
+            markers = markers_around(median3, blobs, self.pose, self.marker_side_px, at_blobs)
         return self.from_blobs(
             blobs,
             floor=floor,

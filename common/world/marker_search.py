@@ -32,6 +32,7 @@ __all__ = [
     "marker_side_px",
     "markers_around",
     "search_markers",
+    "top_side_cm",
 ]
 
 #: A blob filling more than this share of its second-moment ellipse (4π·√det Σ; a
@@ -42,15 +43,17 @@ _BOX_SIGMAS = 2.4
 _BOX_PAD_PX = 6.0
 #: Half the diagonal of a square, in sides (a marker seen at any angle fits this far).
 _MARKER_HALF = 0.75
-#: A marker's side seen at a blob, from the robot plane's pixel footprint there, times
-#: this: room for markers mounted above or below ``pose.robot_height_cm``.
-_PLANE_SLACK = 1.1
+
+
+def _grid(camera: CameraModel) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A 9×9 grid of pixels over the frame, (row, col)."""
+    return np.meshgrid(np.linspace(0, camera.rows - 1, 9), np.linspace(0, camera.cols - 1, 9))
 
 
 def marker_side_px(pose: PoseConfig, camera: CameraModel) -> tuple[float, float]:
     """(smallest, largest) side of a configured marker in the frame, pixels (sampled on
     a 9×9 grid of the image, on each robot's marker plane)."""
-    r, c = np.meshgrid(np.linspace(0, camera.rows - 1, 9), np.linspace(0, camera.cols - 1, 9))
+    r, c = _grid(camera)
     lo, hi = np.inf, 0.0
     for robot in pose.robots:
         area = pixel_footprint_cm2(r, c, camera, robot.marker_height_cm)
@@ -61,6 +64,23 @@ def marker_side_px(pose: PoseConfig, camera: CameraModel) -> tuple[float, float]
     if not np.isfinite(lo):
         return 1.0, float(max(camera.rows, camera.cols))
     return lo, hi
+
+
+def top_side_cm(pose: PoseConfig, camera: CameraModel) -> float:
+    """The side, in cm on the robot plane (``pose.robot_height_cm``), of a square that
+    looks as large as the largest configured marker (a marker mounted above that plane
+    looks larger; the ratio sampled on a 9×9 grid of the image): the marker side seen
+    at a blob is this over the square root of the blob's pixel footprint on that plane."""
+    r, c = _grid(camera)
+    top = pixel_footprint_cm2(r, c, camera, pose.robot_height_cm)
+    side = 0.0
+    for robot in pose.robots:
+        area = pixel_footprint_cm2(r, c, camera, robot.marker_height_cm)
+        seen = (area > 0) & (top > 0)
+        if seen.any():
+            ratio = float(np.sqrt(top[seen] / area[seen]).max())
+            side = max(side, robot.marker_side_cm * ratio)
+    return side
 
 
 def marker_boxes(
@@ -123,19 +143,18 @@ def markers_around(
     blobs: BlobShapes,
     pose: PoseConfig,
     side_px: tuple[float, float],
-    top_area_cm2: NDArray[np.float64] | None = None,
+    top: tuple[float, NDArray[np.float64]] | None = None,
 ) -> Markers:
     """The robots' markers in a frame's 3×3 median, searched for only in
-    :func:`marker_boxes` around ``blobs``. ``top_area_cm2`` (n,): each blob's pixel
-    footprint on the robot plane (``pose.robot_height_cm``), which sizes its box to the
-    largest marker as seen there (with :data:`_PLANE_SLACK` for markers on other planes)
-    instead of as seen where the frame magnifies most."""
+    :func:`marker_boxes` around ``blobs``. ``top``: :func:`top_side_cm` and each blob's
+    pixel footprint on the robot plane (cm²), which size its box to the largest marker as
+    seen at that blob instead of where the frame magnifies most."""
     b = blobs
     largest = None
-    if top_area_cm2 is not None and pose.robots:
-        side_cm = _PLANE_SLACK * max(r.marker_side_cm for r in pose.robots)
-        seen = top_area_cm2 > 0
-        largest = np.where(seen, side_cm / np.sqrt(np.where(seen, top_area_cm2, 1.0)), side_px[1])
+    if top is not None:
+        side_cm, area = top
+        seen = area > 0
+        largest = np.where(seen, side_cm / np.sqrt(np.where(seen, area, 1.0)), side_px[1])
     boxes = marker_boxes(b.row, b.col, b.area_px, b.mu_rr, b.mu_cc, b.mu_rc, side_px, largest)
     return search_markers(median3, pose, side_px, boxes, median_done=True)
 
@@ -147,6 +166,7 @@ class BlobMarkers:
     def __init__(self) -> None:
         self._version: int | None = None
         self._side_px = (1.0, 1.0)
+        self._top_side_cm = 0.0
 
     def __call__(
         self,
@@ -162,4 +182,6 @@ class BlobMarkers:
             return Markers.none()
         if version != self._version:
             self._version, self._side_px = version, marker_side_px(pose, camera)
-        return markers_around(median3, blobs, pose, self._side_px, top_area_cm2)
+            self._top_side_cm = top_side_cm(pose, camera)
+        top = None if top_area_cm2 is None else (self._top_side_cm, top_area_cm2)
+        return markers_around(median3, blobs, pose, self._side_px, top)

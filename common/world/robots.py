@@ -116,7 +116,7 @@ def poses_of(points: NDArray[np.complex128], valid: NDArray[np.bool_]) -> Marker
     # turn `across` by 90° towards `up` (which way depends on the world's handedness)
     turn = np.sign((across.conjugate() * up).imag)
     heading = np.angle(up + 1j * turn * across, deg=True)
-    centre = points.mean(axis=1)
+    centre = (tl + tr + br + bl) / 4.0
     ok = valid.all(axis=1) & (turn != 0)
     return MarkerPoses(centre.real, centre.imag, wrap_deg(heading), ok)
 
