@@ -2,7 +2,9 @@
 
 **Pose** (:func:`marker_poses`). A marker lies flat on its robot's top at
 ``marker_height_cm``: its four corners are back-projected onto that plane, z = h (not the
-floor: the top is nearer the camera), with the camera model in use. The robot's centre is
+floor: the top is nearer the camera), with the camera model in use (:class:`RobotTracker`
+reads them from a :class:`~ovis.common.camera.plane_table.PlaneTable` of each marker
+plane, made once per calibration). The robot's centre is
 the mean of the four points (the marker is a square centred on the robot). Its heading is
 the direction from the marker's bottom edge to its top edge (the marker's top faces the
 robot's front), averaged with the left → right edge direction turned 90° towards it;
