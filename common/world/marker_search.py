@@ -15,8 +15,6 @@ preprocess service sends it the median with the binary frame.
 
 from __future__ import annotations
 
-from typing import Protocol
-
 import numpy as np
 from numpy.typing import NDArray
 
@@ -27,7 +25,6 @@ from ovis.common.vision.markers import Markers, find_markers
 __all__ = [
     "MAX_FILL",
     "BlobMarkers",
-    "BlobShapes",
     "marker_boxes",
     "marker_side_px",
     "markers_around",
@@ -126,36 +123,25 @@ def search_markers(
     )
 
 
-class BlobShapes(Protocol):
-    """The blob measurements :func:`markers_around` needs (image pixels; e.g.
-    :class:`ovis.common.world.detection.Blobs`)."""
-
-    row: NDArray[np.float64]
-    col: NDArray[np.float64]
-    area_px: NDArray[np.float64]
-    mu_rr: NDArray[np.float64]
-    mu_cc: NDArray[np.float64]
-    mu_rc: NDArray[np.float64]
-
-
 def markers_around(
     median3: NDArray[np.uint8],
-    blobs: BlobShapes,
+    blobs: tuple[NDArray[np.float64], ...],
     pose: PoseConfig,
     side_px: tuple[float, float],
     top: tuple[float, NDArray[np.float64]] | None = None,
 ) -> Markers:
     """The robots' markers in a frame's 3×3 median, searched for only in
-    :func:`marker_boxes` around ``blobs``. ``top``: :func:`top_side_cm` and each blob's
-    pixel footprint on the robot plane (cm²), which size its box to the largest marker as
-    seen at that blob instead of where the frame magnifies most."""
-    b = blobs
+    :func:`marker_boxes` around ``blobs`` (a :class:`ovis.common.world.detection.Blobs`:
+    row, col, area, perimeter, compactness, second moments). ``top``:
+    :func:`top_side_cm` and each blob's pixel footprint on the robot plane (cm²), which
+    size its box to the largest marker as seen at that blob instead of where the frame
+    magnifies most."""
     largest = None
     if top is not None:
         side_cm, area = top
         seen = area > 0
         largest = np.where(seen, side_cm / np.sqrt(np.where(seen, area, 1.0)), side_px[1])
-    boxes = marker_boxes(b.row, b.col, b.area_px, b.mu_rr, b.mu_cc, b.mu_rc, side_px, largest)
+    boxes = marker_boxes(*blobs[:3], *blobs[5:], side_px, largest)
     return search_markers(median3, pose, side_px, boxes, median_done=True)
 
 
@@ -171,7 +157,7 @@ class BlobMarkers:
     def __call__(
         self,
         median3: NDArray[np.uint8],
-        blobs: BlobShapes,
+        blobs: tuple[NDArray[np.float64], ...],
         version: int,
         camera: CameraModel,
         pose: PoseConfig,
