@@ -185,10 +185,14 @@ class BinaryFrame(_Msg, tag="binary", kw_only=True):
     bits: bytes
     threshold: Annotated[int, msgspec.Meta(ge=0, le=255)]
     calibration_version: Annotated[int, msgspec.Meta(ge=0)]
-    #: markers decoded in the grey frame (None: none looked for, no robot configured)
+    #: markers already decoded in the grey frame, passed on as they are (None: the label
+    #: stage searches ``median`` for them, if given)
     markers: MarkerList | None = None
     markers_at_border: Annotated[int, msgspec.Meta(ge=0)] = 0
     stream: str = ""  # the capture's stream identity (Frame.stream)
+    #: the grey frame's 3×3 median, one byte per pixel, row-major: sent only when marked
+    #: robots are configured, for the label stage's marker search around the blobs
+    median: bytes | None = None
 
     def __post_init__(self) -> None:
         expected = (self.rows * self.cols + 7) // 8
@@ -196,6 +200,17 @@ class BinaryFrame(_Msg, tag="binary", kw_only=True):
             raise ValueError(
                 f"bits holds {len(self.bits)} bytes, {self.rows} x {self.cols} needs {expected}"
             )
+        if self.median is not None and len(self.median) != self.rows * self.cols:
+            raise ValueError(
+                f"median holds {len(self.median)} bytes, {self.rows} x {self.cols} needs "
+                f"{self.rows * self.cols}"
+            )
+
+    def median_image(self) -> NDArray[np.uint8] | None:
+        """The 3×3 median as a read-only (rows, cols) array (no copy), or None."""
+        if self.median is None:
+            return None
+        return np.frombuffer(self.median, dtype=np.uint8).reshape(self.rows, self.cols)
 
     def mask(self) -> NDArray[np.uint8]:
         """The 0/1 image, (rows, cols) uint8."""

@@ -1,12 +1,14 @@
 """Labeling service: 8-connected labeling, size filter (A^f in cm² on the floor),
 Koplowitz–Bruckstein perimeter and compactness (paper §3) of each binary frame;
 publishes the blobs on ``ovis/<arena>/blobs``, with where its back-projection put them on
-the obstacles' and the robot's top planes (the pose service then needs none)."""
+the obstacles' and the robot's top planes (the pose service then needs none), and with
+marked robots their markers, searched for around the blobs in the frame's median."""
 
 from __future__ import annotations
 
 from ovis.common.messages import BinaryFrame
 from ovis.common.pipeline.stages import SizeFilter, blob_list
+from ovis.common.world.marker_search import BlobMarkers
 from ovis.services.service import Service
 
 
@@ -14,6 +16,7 @@ def main(service: Service) -> None:
     service.follow_calibration()
     publish = service.publisher(service.topics.blobs)
     size_filter = SizeFilter()
+    find_markers = BlobMarkers()
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
         frame = service.decode(payload, BinaryFrame, "binary")
@@ -23,6 +26,7 @@ def main(service: Service) -> None:
         if not service.fits_camera(frame, "binary"):
             return
         service.saw_frame(frame.seq, frame.stamp_ns, frame.stream)
-        service.publish_result(publish, blob_list(frame, calib, size_filter.min_area_px(calib)))
+        blobs = blob_list(frame, calib, size_filter.min_area_px(calib), find_markers)
+        service.publish_result(publish, blobs)
 
     service.serve(service.inbox(service.topics.binary), handle)

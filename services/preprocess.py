@@ -1,6 +1,7 @@
 """Preprocessing service: the paper's median step and binarization (§3) of each frame,
 with the current calibration's threshold and polarity; publishes packed binary frames
-on ``ovis/<arena>/binary``."""
+on ``ovis/<arena>/binary`` (with marked robots, also the frame's 3×3 median, in which
+the label service searches their markers around the blobs)."""
 
 from __future__ import annotations
 
@@ -9,14 +10,12 @@ import time
 from ovis.common.messages import Frame
 from ovis.common.pipeline.stages import binary_frame, clock_skew
 from ovis.common.vision.preprocess import ImageError, as_gray
-from ovis.common.world.marker_search import FrameMarkers
 from ovis.services.service import Service
 
 
 def main(service: Service) -> None:
     service.follow_calibration()
     publish = service.publisher(service.topics.binary)
-    find_markers = FrameMarkers()
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
         frame = service.decode(payload, Frame, "frame")
@@ -31,11 +30,6 @@ def main(service: Service) -> None:
             service.error("bad_frame", f"frame {frame.seq}: {exc}")
             return
         service.saw_frame(frame.seq, frame.stamp_ns, frame.stream)
-        service.publish_result(
-            publish,
-            binary_frame(
-                frame, gray, calib, find_markers(gray, calib.version, calib.camera, calib.pose)
-            ),
-        )
+        service.publish_result(publish, binary_frame(frame, gray, calib))
 
     service.serve(service.inbox(service.topics.frames), handle)

@@ -4,6 +4,7 @@ Kalman filter, the detector on simulated arenas against ground truth, bad input.
 from __future__ import annotations
 
 import math
+import time
 
 import cv2
 import msgspec
@@ -11,7 +12,9 @@ import numpy as np
 import pytest
 
 from ovis.common.analysis.robots import evaluate_marked
-from ovis.common.camera.projection import project
+from ovis.common.calibration.file import calibration_from_config
+from ovis.common.camera.plane_table import PlaneTable
+from ovis.common.camera.projection import back_project, project
 from ovis.common.config import (
     MARKER_DICTIONARIES,
     ConfigError,
@@ -20,10 +23,14 @@ from ovis.common.config import (
     config_from_dict,
     load_config,
 )
+from ovis.common.messages import BinaryFrame, BlobList, Frame, MessageError, decode, encode
+from ovis.common.pipeline.stages import binary_frame, blob_list, obstacle_frame
 from ovis.common.sim.arena import Arena
 from ovis.common.sim.scenes import marked_scene
 from ovis.common.vision.markers import Markers, find_markers, marker_cells
+from ovis.common.vision.preprocess import as_gray
 from ovis.common.world.detection import Detector
+from ovis.common.world.marker_search import BlobMarkers
 from ovis.common.world.plans import robot_plans
 from ovis.common.world.robots import (
     RobotFilter,
@@ -133,6 +140,42 @@ def test_marker_pose_recovers_centre_and_heading_at_its_height(preset: str) -> N
     assert abs(wrap_deg(pose.heading_deg[0] - h)) < 1e-6
     floor = marker_poses(rc, np.array([0.0]), cam)  # projected onto the floor instead
     assert math.hypot(floor.x_cm[0] - x, floor.y_cm[0] - y) > 0.3  # the height matters
+
+
+@pytest.mark.parametrize("preset", ["default", "pinhole"])
+def test_plane_table_reads_the_back_projection_between_pixels(preset: str) -> None:
+    cam = load_config(preset=preset).camera
+    z = 12.0
+    table = PlaneTable(cam, z)
+    rng = np.random.default_rng(16)
+    row = rng.uniform(0.0, cam.rows - 1.0, 4000)
+    col = rng.uniform(0.0, cam.cols - 1.0, 4000)
+    xy, valid = table(row, col)
+    exact = back_project(row, col, cam, z)
+    assert valid.all() and exact.valid.all()
+    # bilinear between pixel centres of a smooth map: far below the marker noise
+    assert np.abs(xy.real - exact.x_cm).max() < 1e-3
+    assert np.abs(xy.imag - exact.y_cm).max() < 1e-3
+    _, outside = table(np.array([-0.5, 3.0, cam.rows - 0.5]), np.array([3.0, cam.cols, 3.0]))
+    assert not outside.any()  # off the frame: not valid
+
+
+def test_tracker_poses_match_the_back_projected_ones(scene) -> None:
+    image, _ = Arena(scene, 8).render()
+    found = find_markers(image, scene.pose.marker_dictionary)
+    assert found.ids.size == 4
+    heights = np.array([5.0] * found.ids.size)
+    exact = marker_poses(found.corners, heights, scene.camera)
+    tracker = RobotTracker(scene.pose)
+    robots, _ = tracker.update(found, scene.camera, 0.0)  # a first sighting: no filtering
+    specs = {r.marker_id: r for r in scene.pose.robots}
+    for k, marker in enumerate(found.ids.tolist()):
+        h = specs[marker].marker_height_cm
+        one = marker_poses(found.corners[k : k + 1], np.array([h]), scene.camera)
+        r = next(r for r in robots if r.marker_id == marker)
+        assert abs(r.x_cm - one.x_cm[0]) < 1e-3 and abs(r.y_cm - one.y_cm[0]) < 1e-3
+        assert abs(wrap_deg(r.heading_deg - one.heading_deg[0])) < 1e-3
+    assert exact.valid.all()
 
 
 def test_filter_learns_a_constant_velocity_and_wraps_the_heading() -> None:
@@ -308,3 +351,30 @@ def test_marker_cut_by_the_image_border_gives_no_robot(scene) -> None:
     assert 1 not in [r.id for r in det.robots]
     found = find_markers(moved, scene.pose.marker_dictionary)
     assert 0 not in found.ids.tolist()
+
+
+def test_the_stages_search_the_markers_where_the_detector_does(scene) -> None:
+    """preprocess → label → pose over the wire, with 4 marked robots: the label stage
+    searches the median preprocess sends, around its blobs, and the robots published are
+    those of Detector.detect on the same frame; a median of the wrong size is refused."""
+    image, _ = Arena(scene, 9).render()
+    calib = msgspec.structs.replace(calibration_from_config(scene), camera=scene.camera, version=1)
+    frame = Frame.from_image(image, seq=5, stamp_ns=time.time_ns())
+    binary = decode(encode(binary_frame(frame, as_gray(frame.image()), calib)), BinaryFrame)
+    assert binary.markers is None and binary.median is not None
+    assert np.array_equal(binary.median_image(), cv2.medianBlur(as_gray(image), 3))
+    blobs = decode(encode(blob_list(binary, calib, 0.0, BlobMarkers())), BlobList)
+    assert sorted(m.id for m in blobs.markers) == [0, 1, 2, 3]
+    stamp_s = frame.stamp_ns / 1e9
+    staged = obstacle_frame(blobs, Detector(calib.camera, calib.image, calib.pose), 1, "a", 0)
+    alone = Detector(calib.camera, calib.image, calib.pose).detect(image, stamp_s=stamp_s)
+    assert [r.id for r in staged.robots] == [r.id for r in alone.robots] == [1, 2, 3, 4]
+    for a, b in zip(staged.robots, alone.robots, strict=True):
+        assert (a.x_cm, a.y_cm, a.heading_deg) == pytest.approx(
+            (b.x_cm, b.y_cm, b.heading_deg), abs=1e-9
+        )
+    plain = msgspec.structs.replace(calib, pose=msgspec.structs.replace(calib.pose, robots=[]))
+    assert binary_frame(frame, as_gray(frame.image()), plain).median is None  # no robots
+    fields = msgspec.msgpack.decode(encode(binary))
+    with pytest.raises(MessageError, match="median holds 3 bytes"):
+        decode(msgspec.msgpack.encode({**fields, "median": b"abc"}), BinaryFrame)

@@ -6,8 +6,9 @@ frame before it is processed."""
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import Protocol
 
+import cv2
 import numpy as np
 
 from ovis.common.calibration.file import Calibration
@@ -23,6 +24,7 @@ from ovis.common.messages import (
 )
 from ovis.common.vision.preprocess import GrayImage, binarize, smooth
 from ovis.common.world.detection import Detector, measure_blobs_and_maps, size_filter_px
+from ovis.common.world.marker_search import BlobMarkers
 
 __all__ = [
     "MAX_CLOCK_SKEW_S",
@@ -66,15 +68,15 @@ def wrong_size(frame: _Sized, camera: CameraModel, kind: str) -> str | None:
     )
 
 
-def binary_frame(
-    frame: Frame, gray: GrayImage, calib: Calibration, markers: Any = None
-) -> BinaryFrame:
+def binary_frame(frame: Frame, gray: GrayImage, calib: Calibration) -> BinaryFrame:
     """The preprocessing stage: the median step and binarization (§3) of ``gray`` (the
-    frame's grey image) with the calibration's threshold and polarity, packed; with the
-    robots' marker corners found on the grey image (``markers``, from
-    :class:`~ovis.common.world.marker_search.FrameMarkers`; None without robots)."""
+    frame's grey image) with the calibration's threshold and polarity, packed; with marked
+    robots configured, also the frame's 3×3 median, in which the label stage searches
+    their markers around the blobs (the smoothing step computes it anyway)."""
     params = calib.image
-    binary = binarize(smooth(gray, params.median), params.threshold, params.polarity)
+    median3 = cv2.medianBlur(gray, 3) if calib.pose.robots else None
+    smoothed = smooth(gray, params.median, median3=median3)
+    binary = binarize(smoothed, params.threshold, params.polarity)
     return BinaryFrame(
         seq=frame.seq,
         stamp_ns=frame.stamp_ns,
@@ -83,9 +85,8 @@ def binary_frame(
         bits=np.packbits(binary).tobytes(),
         threshold=params.threshold,
         calibration_version=calib.version,
-        markers=None if markers is None else MarkerCorners.of(markers),
-        markers_at_border=0 if markers is None else markers.partial,
         stream=frame.stream,
+        median=None if median3 is None else median3.tobytes(),
     )
 
 
@@ -105,14 +106,26 @@ class SizeFilter:
         return self._px
 
 
-def blob_list(frame: BinaryFrame, calib: Calibration, min_area_px: float) -> BlobList:
+def blob_list(
+    frame: BinaryFrame,
+    calib: Calibration,
+    min_area_px: float,
+    find_markers: BlobMarkers | None = None,
+) -> BlobList:
     """The labeling stage: the blobs of a binary frame (labeling, size filter,
     perimeter, compactness) and where back-projection puts them on the obstacles' and
-    the robot's top planes (so that the pose stage needs none)."""
+    the robot's top planes (so that the pose stage needs none); with marked robots, the
+    markers ``find_markers`` finds in the frame's median around the blobs (as
+    :meth:`Detector.detect` does), unless the binary frame brings them decoded."""
     planes = (calib.pose.obstacle_height_cm, calib.pose.robot_height_cm)
     blobs, (floor, top) = measure_blobs_and_maps(
         frame.mask(), calib.image, calib.camera, planes, min_area_px=min_area_px
     )
+    markers, at_border = frame.markers, frame.markers_at_border
+    median3 = frame.median_image()
+    if markers is None and median3 is not None and find_markers and calib.pose.robots:
+        found = find_markers(median3, blobs, calib.version, calib.camera, calib.pose, top.area_cm2)
+        markers, at_border = MarkerCorners.of(found), found.partial
     return BlobList(
         seq=frame.seq,
         stamp_ns=frame.stamp_ns,
@@ -121,8 +134,8 @@ def blob_list(frame: BinaryFrame, calib: Calibration, min_area_px: float) -> Blo
         calibration_version=calib.version,
         blobs=BlobList.measures(blobs),
         maps=FloorMaps(obstacle=PlaneMap.of(floor), robot=PlaneMap.of(top)),
-        markers=frame.markers,
-        markers_at_border=frame.markers_at_border,
+        markers=markers,
+        markers_at_border=at_border,
         stream=frame.stream,
     )
 

@@ -12,7 +12,7 @@ nearly): its corners are not trusted, and it is counted in ``partial`` instead.
 from __future__ import annotations
 
 from functools import cache
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -85,46 +85,48 @@ def find_markers(
     *,
     side_px: tuple[float, float] | None = None,
     boxes: NDArray[np.int64] | None = None,
+    median_done: bool = False,
 ) -> Markers:
     """Decode every marker of ``dictionary`` in a grey uint8 frame.
 
     ``side_px``: the range of marker sides to look for (pixels); ``boxes``: (k, 4)
     ``row0, row1, col0, col1`` regions to search instead of the whole frame (e.g. around
-    the blobs that may carry a marker: much faster).
+    the blobs that may carry a marker: much faster); ``median_done``: ``gray`` is already
+    the frame's 3×3 median (the paper's smoothing step makes it), so it is searched as
+    it is instead of being filtered again box by box.
     """
     if gray.dtype != np.uint8 or gray.ndim != 2:
         raise ValueError(f"expected a grey uint8 (H, W) image, got {gray.dtype} {gray.shape}")
     rows, cols = gray.shape
     if boxes is None:
         boxes = np.array([[0, rows, 0, cols]], dtype=np.int64)
-    found_ids: list[NDArray[np.int64]] = []
-    found_rc: list[NDArray[np.float64]] = []
+    found: list[tuple[Any, ...]] = []  # OpenCV's (corners, ids) and the crop's origin
     for r0, r1, c0, c1 in np.asarray(boxes, dtype=np.int64).reshape(-1, 4).tolist():
         r0, c0, r1, c1 = max(r0, 0), max(c0, 0), min(r1, rows), min(c1, cols)
         if r1 - r0 < 8 or c1 - c0 < 8:
             continue
         # a 3×3 median first: a dark speck touching a marker's edge (sensor pepper, dust)
         # otherwise bends its outline out of a quadrilateral and the marker is missed
-        crop = cv2.medianBlur(np.ascontiguousarray(gray[r0:r1, c0:c1]), 3)
+        crop = gray[r0:r1, c0:c1]
+        if not median_done:
+            crop = cv2.medianBlur(np.ascontiguousarray(crop), 3)
         detector = marker_detector(dictionary, side_px, max(r1 - r0, c1 - c0))
         corners, ids, _ = detector.detectMarkers(crop)
-        if ids is None or not len(ids):
-            continue
-        xy = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)  # OpenCV: x = col, y = row
-        found_rc.append(xy[:, :, ::-1] + np.array([r0, c0], dtype=np.float64))
-        found_ids.append(np.asarray(ids, dtype=np.int64).reshape(-1))
-    if not found_ids:
+        if ids is not None and len(ids):
+            found.append((corners, ids, r0, c0))
+    if not found:
         return Markers.none()
-    ids, rc = np.concatenate(found_ids), np.concatenate(found_rc)
-    ids, rc = _unique(ids, rc)
+    id_list = [i for _, ids, _, _ in found for i in ids.reshape(-1).tolist()]
+    origin = [(r0, c0) for corners, _, r0, c0 in found for _ in corners]
+    xy = np.concatenate([c for corners, _, _, _ in found for c in corners], dtype=np.float64)
+    # OpenCV's corners are x = col, y = row
+    rc = xy.reshape(-1, 4, 2)[:, :, ::-1] + np.array(origin, dtype=np.float64)[:, None, :]
+    ids = np.array(id_list, dtype=np.int64)
+    if len(set(id_list)) < len(id_list):
+        ids, rc = _unique(ids, rc)
     m = BORDER_MARGIN_PX
-    inside = (
-        (rc[:, :, 0] >= m)
-        & (rc[:, :, 0] <= rows - 1 - m)
-        & (rc[:, :, 1] >= m)
-        & (rc[:, :, 1] <= cols - 1 - m)
-    ).all(axis=1)
-    return Markers(ids[inside], rc[inside], int((~inside).sum()))
+    inside = ((rc >= m) & (rc <= (rows - 1 - m, cols - 1 - m))).all(axis=(1, 2))
+    return Markers(ids[inside], rc[inside], int(ids.size - np.count_nonzero(inside)))
 
 
 def _unique(

@@ -134,7 +134,7 @@ def paper_median(gray: GrayImage) -> GrayImage:
     return np.maximum(gray, cv2.medianBlur(gray, 3))
 
 
-def smooth(gray: GrayImage, mode: MedianMode) -> GrayImage:
+def smooth(gray: GrayImage, mode: MedianMode, *, median3: GrayImage | None = None) -> GrayImage:
     """Apply the smoothing step selected by ``ImageParams.median``.
 
     Parameters
@@ -144,6 +144,9 @@ def smooth(gray: GrayImage, mode: MedianMode) -> GrayImage:
         ``"paper"``: :func:`paper_median`; ``"ordinary"``: the symmetric 3×3 median
         ``cv2.medianBlur(gray, 3)``; ``"none"``: ``gray`` is returned unchanged (same
         object, no copy).
+    median3 : (H, W) uint8 array, optional
+        ``cv2.medianBlur(gray, 3)`` when the caller already has it (the marker search
+        wants it too): it is used instead of filtering ``gray`` again.
 
     Returns
     -------
@@ -151,9 +154,9 @@ def smooth(gray: GrayImage, mode: MedianMode) -> GrayImage:
     """
     gray = _require_gray(gray)
     if mode == "paper":
-        return paper_median(gray)
+        return paper_median(gray) if median3 is None else np.maximum(gray, median3)
     if mode == "ordinary":
-        return cv2.medianBlur(gray, 3)
+        return cv2.medianBlur(gray, 3) if median3 is None else median3
     if mode == "none":
         return gray
     raise ValueError(f"mode: expected 'paper', 'ordinary' or 'none', got {mode!r}")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal, NamedTuple
 
+import cv2
 import msgspec
 import numpy as np
 from numpy.typing import NDArray
@@ -24,7 +25,7 @@ from ovis.common.vision.markers import Markers
 from ovis.common.vision.perimeter import perimeter
 from ovis.common.vision.preprocess import ImageError, as_gray, segment, smooth
 from ovis.common.vision.shape import compactness, orientation
-from ovis.common.world.marker_search import marker_boxes, marker_side_px, search_markers
+from ovis.common.world.marker_search import marker_side_px, markers_around, top_side_cm
 from ovis.common.world.planner import planner_inputs
 from ovis.common.world.plans import RobotPlan, robot_plans
 from ovis.common.world.pose import ROBOT_ID, Tracker, pick_robot
@@ -40,6 +41,7 @@ __all__ = [
     "find_blobs",
     "measure_blobs",
     "measure_blobs_and_maps",
+    "median_and_binary",
     "plane_maps",
     "size_filter_px",
     "world_shape",
@@ -133,13 +135,28 @@ def binarize_frame(
     image: NDArray[np.uint8], params: ImageParams, camera: CameraModel
 ) -> NDArray[np.uint8]:
     """The paper's median step and binarization of a frame of the calibration's size."""
+    return segment(smooth(_frame_gray(image, camera), params.median), params)
+
+
+def median_and_binary(
+    image: NDArray[np.uint8], params: ImageParams, camera: CameraModel
+) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+    """The frame's 3×3 median (grey) and :func:`binarize_frame`'s binary image, from one
+    median filter: the paper's smoothing step and the marker search both start from it."""
+    gray = _frame_gray(image, camera)
+    median3 = cv2.medianBlur(gray, 3)
+    return median3, segment(smooth(gray, params.median, median3=median3), params)
+
+
+def _frame_gray(image: NDArray[np.uint8], camera: CameraModel) -> NDArray[np.uint8]:
+    """The frame as grey, refused unless it has the calibration's size."""
     gray = as_gray(image)
     if gray.shape != (camera.rows, camera.cols):
         raise ImageError(
             f"frame is {gray.shape[1]}x{gray.shape[0]} (cols x rows) but the calibration "
             f"is for {camera.cols}x{camera.rows}; calibrate on a frame of this camera"
         )
-    return segment(smooth(gray, params.median), params)
+    return gray
 
 
 def size_filter_px(params: ImageParams, camera: CameraModel, plane_cm: float) -> float:
@@ -290,6 +307,7 @@ class Detector:
         self._last_stamp: float | None = None
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
         self.marker_side_px = marker_side_px(pose, camera)
+        self.top_side_cm = top_side_cm(pose, camera)
 
     def recalibrate(self, camera: CameraModel, image: ImageParams, pose: PoseConfig) -> None:
         """Use a new calibration; obstacle and robot identities are kept."""
@@ -298,6 +316,7 @@ class Detector:
         self.robots.reconfigure(pose)
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
         self.marker_side_px = marker_side_px(pose, camera)
+        self.top_side_cm = top_side_cm(pose, camera)
 
     def detect(
         self,
@@ -313,15 +332,19 @@ class Detector:
         ``stamp_s`` is the frame's capture time (s); without it frames are taken to be
         the paper's Δt = 1 s apart. Obstacle velocities are in cm/s.
         """
-        binary = binarize_frame(frame, self.image, self.camera)
+        median3 = None
+        if self.pose.robots:
+            median3, binary = median_and_binary(frame, self.image, self.camera)
+        else:
+            binary = binarize_frame(frame, self.image, self.camera)
         planes = (self.pose.obstacle_height_cm, self.pose.robot_height_cm)
         blobs, (floor, top) = measure_blobs_and_maps(
             binary, self.image, self.camera, planes, min_area_px=self.min_area_px
         )
         markers = None
-        if self.pose.robots:  # markers are searched for around blobs with a hole only
-            boxes = marker_boxes(*(blobs[:3] + blobs[5:]), self.marker_side_px)
-            markers = search_markers(as_gray(frame), self.pose, self.marker_side_px, boxes)
+        if median3 is not None:
+            at_blobs = (self.top_side_cm, top.area_cm2)
+            markers = markers_around(median3, blobs, self.pose, self.marker_side_px, at_blobs)
         return self.from_blobs(
             blobs,
             floor=floor,
@@ -446,10 +469,9 @@ class Detector:
             d[~(d <= rx[:, 2])] = np.inf  # (NaN for pixels that miss the plane, too)
             nearest = d.argmin(axis=1)
             owner = np.where(np.isfinite(d[np.arange(n), nearest]), nearest, -1)
-            for k in range(len(robots)):
-                mine = np.flatnonzero(owner == k)
-                if mine.size:
-                    rep[k] = mine[d[mine, k].argmin()]
+            mine = np.where(owner[:, None] == np.arange(len(robots)), d, np.inf)
+            best = mine.argmin(axis=0)  # per robot, its nearest own blob
+            rep = np.where(np.isfinite(mine[best, np.arange(len(robots))]), best, -1)
         keep = owner < 0
         keep[rep[rep >= 0]] = True
         return _MarkedFrame(robots, unknown, owner, rep, keep, markers.partial)

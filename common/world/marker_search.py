@@ -7,7 +7,10 @@ its robot's bright top, so such a blob fills less of its own second-moment ellip
 than a solid shape does (:data:`MAX_FILL`), and is at least as large as the smallest
 marker. :func:`marker_side_px` gives the range of marker sides in pixels anywhere in the
 frame (through the camera, on each robot's marker plane), which also keeps the
-detector from examining outlines of other sizes.
+detector from examining outlines of other sizes. The search runs on the frame's 3×3
+median, which the paper's smoothing step computes anyway. The running pipeline does the
+same in the label service (:class:`BlobMarkers`), where the blobs are known: the
+preprocess service sends it the median with the binary frame.
 """
 
 from __future__ import annotations
@@ -19,7 +22,15 @@ from ovis.common.camera.projection import pixel_footprint_cm2
 from ovis.common.config import CameraModel, PoseConfig
 from ovis.common.vision.markers import Markers, find_markers
 
-__all__ = ["MAX_FILL", "FrameMarkers", "marker_boxes", "marker_side_px", "search_markers"]
+__all__ = [
+    "MAX_FILL",
+    "BlobMarkers",
+    "marker_boxes",
+    "marker_side_px",
+    "markers_around",
+    "search_markers",
+    "top_side_cm",
+]
 
 #: A blob filling more than this share of its second-moment ellipse (4π·√det Σ; a
 #: solid disk fills 1, a solid rectangle 0.95) has no hole, hence no marker.
@@ -31,10 +42,15 @@ _BOX_PAD_PX = 6.0
 _MARKER_HALF = 0.75
 
 
+def _grid(camera: CameraModel) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A 9×9 grid of pixels over the frame, (row, col)."""
+    return np.meshgrid(np.linspace(0, camera.rows - 1, 9), np.linspace(0, camera.cols - 1, 9))
+
+
 def marker_side_px(pose: PoseConfig, camera: CameraModel) -> tuple[float, float]:
     """(smallest, largest) side of a configured marker in the frame, pixels (sampled on
     a 9×9 grid of the image, on each robot's marker plane)."""
-    r, c = np.meshgrid(np.linspace(0, camera.rows - 1, 9), np.linspace(0, camera.cols - 1, 9))
+    r, c = _grid(camera)
     lo, hi = np.inf, 0.0
     for robot in pose.robots:
         area = pixel_footprint_cm2(r, c, camera, robot.marker_height_cm)
@@ -47,6 +63,23 @@ def marker_side_px(pose: PoseConfig, camera: CameraModel) -> tuple[float, float]
     return lo, hi
 
 
+def top_side_cm(pose: PoseConfig, camera: CameraModel) -> float:
+    """The side, in cm on the robot plane (``pose.robot_height_cm``), of a square that
+    looks as large as the largest configured marker (a marker mounted above that plane
+    looks larger; the ratio sampled on a 9×9 grid of the image): the marker side seen
+    at a blob is this over the square root of the blob's pixel footprint on that plane."""
+    r, c = _grid(camera)
+    top = pixel_footprint_cm2(r, c, camera, pose.robot_height_cm)
+    side = 0.0
+    for robot in pose.robots:
+        area = pixel_footprint_cm2(r, c, camera, robot.marker_height_cm)
+        seen = (area > 0) & (top > 0)
+        if seen.any():
+            ratio = float(np.sqrt(top[seen] / area[seen]).max())
+            side = max(side, robot.marker_side_cm * ratio)
+    return side
+
+
 def marker_boxes(
     row: NDArray[np.float64],
     col: NDArray[np.float64],
@@ -55,16 +88,20 @@ def marker_boxes(
     mu_cc: NDArray[np.float64],
     mu_rc: NDArray[np.float64],
     side_px: tuple[float, float],
+    largest_px: NDArray[np.float64] | None = None,
 ) -> NDArray[np.int64]:
-    """Boxes ``(k, 4)`` = row0, row1, col0, col1 around the blobs that may carry a marker."""
-    det = np.maximum(mu_rr * mu_cc - mu_rc * mu_rc, 0.0)
-    fill = area_px / np.maximum(4.0 * np.pi * np.sqrt(det), 1e-9)
+    """Boxes ``(k, 4)`` = row0, row1, col0, col1 around the blobs that may carry a marker;
+    ``largest_px`` (n,): the largest marker's side at each blob, px (else the largest
+    anywhere in the frame, ``side_px[1]``)."""
+    # fill < MAX_FILL  ⇔  area² < (MAX_FILL·4π)²·det Σ (no square root, no division)
+    det = mu_rr * mu_cc - mu_rc * mu_rc
     spread = _BOX_SIGMAS * np.sqrt(np.maximum(mu_rr, mu_cc))
-    pick = (fill < MAX_FILL) & (2.0 * spread >= side_px[0])
+    pick = (area_px * area_px < (MAX_FILL * 4.0 * np.pi) ** 2 * det) & (spread >= 0.5 * side_px[0])
     # the marker is centred on its robot: a box round the largest marker (half its
     # diagonal, plus room for the refinement) is enough, whatever the robot's size
-    half = np.minimum(spread, _MARKER_HALF * side_px[1]) + _BOX_PAD_PX
-    r, c, h = row[pick], col[pick], half[pick]
+    r, c, s = row[pick], col[pick], spread[pick]
+    largest = side_px[1] if largest_px is None else largest_px[pick]
+    h = np.minimum(s, _MARKER_HALF * largest) + _BOX_PAD_PX
     return np.column_stack([r - h, r + h + 1, c - h, c + h + 1]).astype(np.int64)
 
 
@@ -73,28 +110,64 @@ def search_markers(
     pose: PoseConfig,
     side_px: tuple[float, float],
     boxes: NDArray[np.int64] | None = None,
+    *,
+    median_done: bool = False,
 ) -> Markers:
-    """The configured dictionary's markers in ``gray`` (in ``boxes``, else everywhere);
-    none when no robot is configured."""
+    """The configured dictionary's markers in ``gray`` (in ``boxes``, else everywhere;
+    ``median_done``: ``gray`` is the frame's 3×3 median already); none when no robot is
+    configured."""
     if not pose.robots:
         return Markers.none()
-    return find_markers(gray, pose.marker_dictionary, side_px=side_px, boxes=boxes)
+    return find_markers(
+        gray, pose.marker_dictionary, side_px=side_px, boxes=boxes, median_done=median_done
+    )
 
 
-class FrameMarkers:
-    """Whole-frame marker search for a stage that has the grey frame but no blobs yet
-    (the preprocess service): the marker sizes are worked out once per calibration."""
+def markers_around(
+    median3: NDArray[np.uint8],
+    blobs: tuple[NDArray[np.float64], ...],
+    pose: PoseConfig,
+    side_px: tuple[float, float],
+    top: tuple[float, NDArray[np.float64]] | None = None,
+) -> Markers:
+    """The robots' markers in a frame's 3×3 median, searched for only in
+    :func:`marker_boxes` around ``blobs`` (a :class:`ovis.common.world.detection.Blobs`:
+    row, col, area, perimeter, compactness, second moments). ``top``:
+    :func:`top_side_cm` and each blob's pixel footprint on the robot plane (cm²), which
+    size its box to the largest marker as seen at that blob instead of where the frame
+    magnifies most."""
+    largest = None
+    if top is not None:
+        side_cm, area = top
+        seen = area > 0
+        largest = np.where(seen, side_cm / np.sqrt(np.where(seen, area, 1.0)), side_px[1])
+    boxes = marker_boxes(*blobs[:3], *blobs[5:], side_px, largest)
+    return search_markers(median3, pose, side_px, boxes, median_done=True)
+
+
+class BlobMarkers:
+    """:func:`markers_around` for a stage that follows the calibration (the label
+    service): the marker sizes are worked out once per calibration version."""
 
     def __init__(self) -> None:
         self._version: int | None = None
         self._side_px = (1.0, 1.0)
+        self._top_side_cm = 0.0
 
     def __call__(
-        self, gray: NDArray[np.uint8], version: int, camera: CameraModel, pose: PoseConfig
-    ) -> Markers | None:
-        """The frame's markers, or None when no robot is configured."""
+        self,
+        median3: NDArray[np.uint8],
+        blobs: tuple[NDArray[np.float64], ...],
+        version: int,
+        camera: CameraModel,
+        pose: PoseConfig,
+        top_area_cm2: NDArray[np.float64] | None = None,
+    ) -> Markers:
+        """The frame's markers (none when no robot is configured)."""
         if not pose.robots:
-            return None
+            return Markers.none()
         if version != self._version:
             self._version, self._side_px = version, marker_side_px(pose, camera)
-        return search_markers(gray, pose, self._side_px)
+            self._top_side_cm = top_side_cm(pose, camera)
+        top = None if top_area_cm2 is None else (self._top_side_cm, top_area_cm2)
+        return markers_around(median3, blobs, pose, self._side_px, top)

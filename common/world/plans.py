@@ -85,30 +85,25 @@ def robot_plans(
     kinds = ["obstacle"] * m + ["robot"] * len(robots)
     dx = targets[None, :, 0] - me[:, 0, None]
     dy = targets[None, :, 1] - me[:, 1, None]
-    distance = np.hypot(dx, dy) - targets[None, :, 2]
-    bearing = np.degrees(np.arctan2(dy, dx))
-    relative = signed_angle_deg(np.radians(me[:, 3, None]), np.radians(bearing))
+    distance = (np.hypot(dx, dy) - targets[None, :, 2]).tolist()
+    bearing = np.arctan2(dy, dx)
+    relative = signed_angle_deg(np.radians(me[:, 3, None]), bearing).tolist()
     goal = _goal_directions(robots, pose)
-    to_goal = signed_angle_deg(np.radians(goal[:, None]), np.radians(bearing))
+    to_goal = signed_angle_deg(np.radians(goal[:, None]), bearing).tolist()
     plans = []
     for k, robot in enumerate(robots):
-        cols = [c for c in range(len(ids)) if c != m + k]  # not itself
         has_goal = not math.isnan(goal[k])
+        d, g, h = distance[k], to_goal[k], relative[k]
         entries = [
             TargetEntry(
                 target_id=ids[c],
                 target_kind=kinds[c],  # type: ignore[arg-type]
-                distance_cm=d,
-                angle_deg=g if has_goal else None,
-                heading_angle_deg=h,
+                distance_cm=d[c],
+                angle_deg=g[c] if has_goal else None,
+                heading_angle_deg=h[c],
             )
-            for c, d, g, h in zip(
-                cols,
-                distance[k, cols].tolist(),
-                to_goal[k, cols].tolist(),
-                relative[k, cols].tolist(),
-                strict=True,
-            )
+            for c in range(len(ids))
+            if c != m + k  # not itself
         ]
         direction = float(goal[k]) if has_goal else None
         plans.append(RobotPlan(robot_id=robot.id, goal_direction_deg=direction, entries=entries))

@@ -2,7 +2,9 @@
 
 **Pose** (:func:`marker_poses`). A marker lies flat on its robot's top at
 ``marker_height_cm``: its four corners are back-projected onto that plane, z = h (not the
-floor: the top is nearer the camera), with the camera model in use. The robot's centre is
+floor: the top is nearer the camera), with the camera model in use (:class:`RobotTracker`
+reads them from a :class:`~ovis.common.camera.plane_table.PlaneTable` of each marker
+plane, made once per calibration). The robot's centre is
 the mean of the four points (the marker is a square centred on the robot). Its heading is
 the direction from the marker's bottom edge to its top edge (the marker's top faces the
 robot's front), averaged with the left → right edge direction turned 90° towards it;
@@ -28,6 +30,7 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
+from ovis.common.camera.plane_table import PlaneTable
 from ovis.common.camera.projection import back_project
 from ovis.common.config import CameraModel, PoseConfig, RobotSpec
 from ovis.common.vision.markers import Markers
@@ -39,6 +42,7 @@ __all__ = [
     "RobotTracker",
     "UnknownMarker",
     "marker_poses",
+    "poses_of",
     "wrap_deg",
 ]
 
@@ -102,18 +106,21 @@ def marker_poses(
     z = ``heights_cm`` (n,)."""
     z = np.asarray(heights_cm, dtype=np.float64)[:, None]
     b = back_project(corners_rc[:, :, 0], corners_rc[:, :, 1], camera, z)
-    x, y = np.asarray(b.x_cm), np.asarray(b.y_cm)
-    top = np.stack([x[:, 0] + x[:, 1], y[:, 0] + y[:, 1]])
-    bottom = np.stack([x[:, 3] + x[:, 2], y[:, 3] + y[:, 2]])
-    left = np.stack([x[:, 0] + x[:, 3], y[:, 0] + y[:, 3]])
-    right = np.stack([x[:, 1] + x[:, 2], y[:, 1] + y[:, 2]])
-    up, across = (top - bottom) / 2.0, (right - left) / 2.0
+    points = np.asarray(b.x_cm) + 1j * np.asarray(b.y_cm)
+    return poses_of(points, np.asarray(b.valid).reshape(points.shape))
+
+
+def poses_of(points: NDArray[np.complex128], valid: NDArray[np.bool_]) -> MarkerPoses:
+    """:func:`marker_poses` from the markers' corners on their planes, (n, 4) x + iy (cm)
+    in OpenCV's corner order, and where each was valid."""
+    tl, tr, br, bl = points.T
+    up, across = (tl + tr - bl - br) / 2.0, (tr + br - tl - bl) / 2.0
     # turn `across` by 90° towards `up` (which way depends on the world's handedness)
-    turn = np.sign(across[0] * up[1] - across[1] * up[0])
-    up2 = np.stack([-across[1] * turn, across[0] * turn])
-    heading = np.degrees(np.arctan2(up[1] + up2[1], up[0] + up2[0]))
-    valid = np.asarray(b.valid).reshape(x.shape).all(axis=1) & (turn != 0)
-    return MarkerPoses(x.mean(axis=1), y.mean(axis=1), wrap_deg(heading), valid)
+    turn = np.sign((across.conjugate() * up).imag)
+    heading = np.angle(up + 1j * turn * across, deg=True)
+    centre = (tl + tr + br + bl) / 4.0
+    ok = valid.all(axis=1) & (turn != 0)
+    return MarkerPoses(centre.real, centre.imag, wrap_deg(heading), ok)
 
 
 def _wrap(angle: float) -> float:
@@ -199,6 +206,19 @@ class RobotTracker:
 
     pose: PoseConfig
     filters: dict[int, RobotFilter] = field(default_factory=dict)  # by robot id
+    #: the configured robots by marker id, and in id order (set from ``pose``)
+    _by_marker: dict[int, RobotSpec] = field(init=False, repr=False)
+    _in_order: list[RobotSpec] = field(init=False, repr=False)
+    #: each marker plane's table, for the camera they were made with
+    _tables: dict[float, PlaneTable] = field(default_factory=dict, repr=False)
+    _camera: CameraModel | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        self._index()
+
+    def _index(self) -> None:
+        self._by_marker = {r.marker_id: r for r in self.pose.robots}
+        self._in_order = sorted(self.pose.robots, key=lambda r: r.id)
 
     def reconfigure(self, pose: PoseConfig) -> None:
         """New settings; filters of robots still configured with the same marker are kept."""
@@ -206,27 +226,43 @@ class RobotTracker:
         old = {r.id: r.marker_id for r in self.pose.robots}
         self.filters = {k: f for k, f in self.filters.items() if (k, old.get(k)) in keep}
         self.pose = pose
+        self._index()
 
     def update(
         self, markers: Markers, camera: CameraModel, stamp_s: float
     ) -> tuple[list[RobotState], list[UnknownMarker]]:
         """Fold in this frame's markers; the robots still tracked and the unknown markers."""
-        specs = {r.marker_id: r for r in self.pose.robots}
-        known = np.array([int(i) in specs for i in markers.ids], dtype=bool)
-        heights = np.array(
-            [specs[int(i)].marker_height_cm if k else self.pose.robot_height_cm
-             for i, k in zip(markers.ids, known, strict=True)]
-        )  # fmt: skip
-        poses = marker_poses(markers.corners, heights, camera)
+        specs = self._by_marker
+        ids = markers.ids.tolist()
+        spec_of = [specs.get(i) for i in ids]
         measured: dict[int, tuple[float, float, float]] = {}
-        for k in np.flatnonzero(known & poses.valid):
-            robot = specs[int(markers.ids[k])]
-            z = (float(poses.x_cm[k]), float(poses.y_cm[k]), float(poses.heading_deg[k]))
-            if robot.id in measured:  # the same marker twice: keep the one nearer the filter
-                z = self._nearer(robot.id, measured[robot.id], z)
-            measured[robot.id] = z
+        unknown: list[UnknownMarker] = []
+        if ids:
+            default_h = self.pose.robot_height_cm
+            heights = [default_h if r is None else r.marker_height_cm for r in spec_of]
+            poses = poses_of(*self._on_planes(markers.corners, heights, camera))
+            xs, ys, hs = poses.x_cm.tolist(), poses.y_cm.tolist(), poses.heading_deg.tolist()
+            for k, (robot, ok) in enumerate(zip(spec_of, poses.valid.tolist(), strict=True)):
+                if not ok:
+                    continue
+                if robot is None:
+                    centre = markers.corners[k].mean(axis=0)
+                    unknown.append(
+                        UnknownMarker(
+                            marker_id=ids[k],
+                            row=float(centre[0]),
+                            col=float(centre[1]),
+                            x_cm=xs[k],
+                            y_cm=ys[k],
+                        )
+                    )
+                    continue
+                z = (xs[k], ys[k], hs[k])
+                if robot.id in measured:  # the same marker twice: keep the one nearer the filter
+                    z = self._nearer(robot.id, measured[robot.id], z)
+                measured[robot.id] = z
         states: list[RobotState] = []
-        for robot in sorted(self.pose.robots, key=lambda r: r.id):
+        for robot in self._in_order:
             f = self.filters.get(robot.id)
             z = measured.get(robot.id)
             if f is None and z is None:
@@ -242,17 +278,25 @@ class RobotTracker:
                 del self.filters[robot.id]
                 continue
             states.append(_state(robot, f, age))
-        unknown = [
-            UnknownMarker(
-                marker_id=int(markers.ids[k]),
-                row=float(markers.corners[k, :, 0].mean()),
-                col=float(markers.corners[k, :, 1].mean()),
-                x_cm=float(poses.x_cm[k]),
-                y_cm=float(poses.y_cm[k]),
-            )
-            for k in np.flatnonzero(~known & poses.valid)
-        ]
         return states, unknown
+
+    def _on_planes(
+        self, corners: NDArray[np.float64], heights: list[float], camera: CameraModel
+    ) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
+        """Corners (n, 4, 2) → their points on each marker's plane, x + iy (cm), and
+        validity, from the planes' tables (made once per camera and plane)."""
+        if camera is not self._camera:
+            self._camera, self._tables = camera, {}
+        points = np.empty(corners.shape[:2], dtype=np.complex128)
+        valid = np.empty(corners.shape[:2], dtype=bool)
+        planes = set(heights)
+        for h in planes:  # usually one plane for every marker
+            at = slice(None) if len(planes) == 1 else [k for k, z in enumerate(heights) if z == h]
+            table = self._tables.get(h)
+            if table is None:
+                table = self._tables[h] = PlaneTable(camera, h)
+            points[at], valid[at] = table(corners[at, :, 0], corners[at, :, 1])
+        return points, valid
 
     def _nearer(
         self, robot_id: int, a: tuple[float, float, float], b: tuple[float, float, float]
