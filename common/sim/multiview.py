@@ -19,13 +19,16 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
-from ovis.common.camera.projection import back_project, project
+from ovis.common.camera.projection import back_project, disks_in_image, project
 from ovis.common.config import CameraSpec, PinholeParams
 from ovis.common.sim.arena import SimObject
 
 __all__ = ["GridScene", "camera_grid", "grid_arena", "measure"]
 
 FloatArray = NDArray[np.float64]
+
+#: an object is measured when its footprint is this far (pixels) inside the image
+WHOLE_MARGIN_PX = 1.0
 
 
 def grid_arena(
@@ -228,20 +231,7 @@ def measure(
     y = np.array([o.y_cm for o in objects])
     z = np.array([o.z_cm for o in objects])
     r = np.array([max(o.radius_cm, o.length_cm / 2) for o in objects])
-    ang = np.linspace(0, 2 * math.pi, 8, endpoint=False)
-    rim = project(
-        x[:, None] + r[:, None] * np.cos(ang),
-        y[:, None] + r[:, None] * np.sin(ang),
-        np.broadcast_to(z[:, None], (len(x), 8)),
-        cam,
-    )
-    inside = (
-        rim.valid
-        & (rim.row >= 0)
-        & (rim.row <= cam.rows - 1)
-        & (rim.col >= 0)
-        & (rim.col <= cam.cols - 1)
-    ).all(axis=1)
+    inside = disks_in_image(x, y, z, r, cam, margin_px=WHOLE_MARGIN_PX)
     p = project(x, y, z, cam)
     row = p.row + rng.normal(0, pixel_sigma_px, len(x))
     col = p.col + rng.normal(0, pixel_sigma_px, len(x))
