@@ -135,7 +135,9 @@ def _obstacle_groups(obs: list[Sighting], cfg: FusionConfig) -> list[list[int]]:
 
 def fuse(sightings: list[Sighting], cfg: FusionConfig) -> list[Fused]:
     """Every object once: robots by marker id, obstacles by gated position and size;
-    robots first (by marker id), then obstacles."""
+    robots first (by marker id), then obstacles. A blob whose centre lies inside a
+    robot's footprint (its radius) is part of that robot as another camera saw it
+    (partly, its marker not found there) and is no obstacle."""
     robots: dict[int, list[Sighting]] = {}
     obstacles: list[Sighting] = []
     for s in sightings:
@@ -144,5 +146,8 @@ def fuse(sightings: list[Sighting], cfg: FusionConfig) -> list[Fused]:
         else:
             obstacles.append(s)
     out = [_merge(robots[m]) for m in sorted(robots)]
+    obstacles = [o for o in obstacles if not any(
+        math.hypot(o.x_cm - r.x_cm, o.y_cm - r.y_cm) < r.radius_cm for r in out
+    )]  # fmt: skip
     out += [_merge([obstacles[i] for i in g]) for g in _obstacle_groups(obstacles, cfg)]
     return out

@@ -83,6 +83,7 @@ from ovis.common.config import (
 )
 from ovis.common.sim.painting import (
     finish_frame,
+    marker_hand,
     outline,
     paint_marker,
     paint_shape,
@@ -430,15 +431,9 @@ class Arena:
         self._follow_paths()
 
     def _marker_hand(self, z: float) -> float:
-        """+1 when the camera sees the floor as a real camera does from above (the image's
-        (col, row) turn the other way from the world's (x, y)), else −1."""
+        """:func:`marker_hand` of this camera at the arena's centre."""
         (x0, x1), (y0, y1) = self._sim.arena_x_cm, self._sim.arena_y_cm
-        x, y = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
-        p = project(np.array([x, x + 1.0, x]), np.array([y, y, y + 1.0]), z, self._cam)
-        det = (p.col[1] - p.col[0]) * (p.row[2] - p.row[0]) - (p.col[2] - p.col[0]) * (
-            p.row[1] - p.row[0]
-        )
-        return 1.0 if float(det) < 0.0 else -1.0
+        return marker_hand(self._cam, 0.5 * (x0 + x1), 0.5 * (y0 + y1), z)
 
     def _follow_paths(self) -> None:
         """Marked robots to where their paths are at the current frame."""

@@ -121,7 +121,11 @@ def camera_grid(
 class GridScene:
     """Ground truth of the grid arena: ``robots`` marked robots (ids 1…N, markers
     0…N−1) on ellipses round the arena's centre at ``speed_cm_s``, and ``obstacles``
-    still disks at least ``gap_cm`` apart, off the robots' paths."""
+    still disks at least ``gap_cm`` apart, off the robots' paths.
+
+    With ``period_frames`` = P, each robot's speed is rounded to a whole number of laps
+    per P frames (at least one), so frame ``f + P`` equals frame ``f`` exactly: a
+    prerendered period loops without a jump in the truth or the identities."""
 
     def __init__(
         self,
@@ -137,8 +141,12 @@ class GridScene:
         obstacle_height_cm: float = 7.0,
         obstacle_radius_cm: tuple[float, float] = (4.0, 6.0),
         gap_cm: float = 15.0,
+        period_frames: int | None = None,
     ) -> None:
+        if period_frames is not None and period_frames < 1:
+            raise ValueError(f"period_frames must be at least 1, got {period_frames}")
         rng = np.random.default_rng([seed, 1919])
+        self.period = period_frames
         self.fps, self.robot_z, self.obstacle_z = fps, robot_height_cm, obstacle_height_cm
         cx, cy = np.mean(arena_x_cm), np.mean(arena_y_cm)
         half_w, half_h = (arena_x_cm[1] - arena_x_cm[0]) / 2, (arena_y_cm[1] - arena_y_cm[0]) / 2
@@ -149,6 +157,11 @@ class GridScene:
         self._phase0 = rng.uniform(0, 2 * math.pi, robots)
         mean_radius = (self._ax + self._ay) / 2
         self._omega = speed_cm_s / mean_radius * np.where(k % 2 == 0, 1.0, -1.0)
+        if period_frames is not None:  # whole laps per period: the scene repeats exactly
+            turn = 2 * math.pi * fps / period_frames  # one lap per period, rad/s
+            self._omega = (
+                np.sign(self._omega) * turn * np.maximum(np.round(np.abs(self._omega) / turn), 1.0)
+            )
         placed: list[tuple[float, float, float]] = []
         path_t = np.linspace(0, 2 * math.pi, 200)
         path = (

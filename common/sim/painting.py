@@ -16,13 +16,22 @@ from numpy.typing import NDArray
 from ovis.common.camera.projection import back_project, project
 from ovis.common.config import CameraModel, SimulatorConfig
 
-__all__ = ["finish_frame", "outline", "paint_marker", "paint_shape", "paint_top_face"]
+__all__ = [
+    "PlaneSamples",
+    "finish_frame",
+    "marker_hand",
+    "outline",
+    "paint_marker",
+    "paint_shape",
+    "paint_top_face",
+]
 
 FloatArray = NDArray[np.float64]
 Inside = Callable[[FloatArray, FloatArray], NDArray[np.bool_]]
 
 OUTLINE_POINTS = 32  # points on a disk's outline (rectangles: 4 per edge)
 PEPPER_MAX = 30  # pepper noise: grey levels 0…PEPPER_MAX
+_BAND_ROWS = 16  # image rows back-projected at once by PlaneSamples
 
 
 def outline(
@@ -44,6 +53,37 @@ def outline(
     return x + u * ch - v * sh, y + u * sh + v * ch
 
 
+class PlaneSamples:
+    """The back-projection of every sub-pixel sample (``supersample²`` per pixel) of
+    ``cam``'s image onto the plane Z = ``z``, computed once (float32), so that painting
+    many frames of shapes on that plane costs a look-up instead of back-projecting
+    (iteratively undistorting) their samples each frame."""
+
+    def __init__(self, cam: CameraModel, z: float, supersample: int) -> None:
+        self.z, self.s = float(z), int(supersample)
+        off = (np.arange(self.s) + 0.5) / self.s - 0.5
+        cc = (np.arange(int(cam.cols))[:, None] + off).reshape(1, -1)
+        shape = (int(cam.rows) * self.s, cc.size)
+        self.x = np.empty(shape, np.float32)
+        self.y = np.empty(shape, np.float32)
+        self.valid = np.empty(shape, bool)
+        for r0 in range(0, int(cam.rows), _BAND_ROWS):  # bands that stay in cache
+            rows = np.arange(r0, min(r0 + _BAND_ROWS, int(cam.rows)))
+            rr = (rows[:, None] + off).reshape(-1, 1)
+            bp = back_project(rr, cc, cam, self.z)
+            band = slice(r0 * self.s, r0 * self.s + rr.size)
+            self.x[band], self.y[band] = bp.x_cm, bp.y_cm
+            self.valid[band] = bp.valid
+
+    def window(
+        self, r0: int, r1: int, c0: int, c1: int
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+        """Plane points and validity of the samples of pixel rows r0…r1−1, cols c0…c1−1."""
+        s = self.s
+        win = (slice(r0 * s, r1 * s), slice(c0 * s, c1 * s))
+        return self.x[win], self.y[win], self.valid[win]
+
+
 def paint_shape(
     level: NDArray[np.float32],
     cam: CameraModel,
@@ -53,12 +93,14 @@ def paint_shape(
     z: float,
     inside: Inside,
     value: float,
+    samples: PlaneSamples | None = None,
 ) -> None:
     """Composite one flat shape of intensity ``value`` into ``level`` (in place).
 
     ``px, py``: its outline (world cm) on the plane Z = ``z``, for the bounding box;
     ``inside(X, Y)``: membership of plane points. Coverage is the fraction of the
-    ``supersample²`` sub-pixel samples whose back-projection lies inside.
+    ``supersample²`` sub-pixel samples whose back-projection lies inside (looked up in
+    ``samples`` when given: they must be of this camera, plane and supersampling).
     """
     rows, cols = level.shape
     p = project(px, py, z, cam)
@@ -71,11 +113,15 @@ def paint_shape(
     if r0 >= r1 or c0 >= c1:
         return
     s = supersample
-    off = (np.arange(s) + 0.5) / s - 0.5
-    rr = (np.arange(r0, r1)[:, None] + off).reshape(-1, 1)
-    cc = (np.arange(c0, c1)[:, None] + off).reshape(1, -1)
-    bp = back_project(rr, cc, cam, z)
-    hit = inside(bp.x_cm, bp.y_cm) & bp.valid
+    if samples is not None:
+        X, Y, valid = samples.window(r0, r1, c0, c1)
+    else:
+        off = (np.arange(s) + 0.5) / s - 0.5
+        rr = (np.arange(r0, r1)[:, None] + off).reshape(-1, 1)
+        cc = (np.arange(c0, c1)[:, None] + off).reshape(1, -1)
+        bp = back_project(rr, cc, cam, z)
+        X, Y, valid = bp.x_cm, bp.y_cm, bp.valid
+    hit = inside(X, Y) & valid
     cov = hit.reshape(r1 - r0, s, c1 - c0, s).mean(axis=(1, 3), dtype=np.float32)
     sub = level[r0:r1, c0:c1]
     sub += cov * (np.float32(value) - sub)
@@ -93,6 +139,7 @@ def paint_top_face(
     half_len: float,
     half_wid: float,
     is_rect: bool,
+    samples: PlaneSamples | None = None,
 ) -> None:
     """Paint an object's top face (``sim.object_level``): a rectangle turned by
     ``heading`` (radians) or a disk of radius ``half_len``, centred on (x, y) at Z = z."""
@@ -105,7 +152,18 @@ def paint_top_face(
             return (np.abs(dx * ch + dy * sh) <= half_len) & (np.abs(dy * ch - dx * sh) <= half_wid)
         return dx * dx + dy * dy <= half_len * half_len
 
-    paint_shape(level, cam, sim.supersample, px, py, z, inside, sim.object_level)
+    paint_shape(level, cam, sim.supersample, px, py, z, inside, sim.object_level, samples)
+
+
+def marker_hand(cam: CameraModel, x: float, y: float, z: float) -> float:
+    """+1 when ``cam`` sees the floor round (x, y, z) as a real camera does from above
+    (the image's (col, row) turn the other way from the world's (x, y)), else −1: the
+    ``hand`` that makes a painted marker look unmirrored in the image."""
+    p = project(np.array([x, x + 1.0, x]), np.array([y, y, y + 1.0]), z, cam)
+    det = (p.col[1] - p.col[0]) * (p.row[2] - p.row[0]) - (p.col[2] - p.col[0]) * (
+        p.row[1] - p.row[0]
+    )
+    return 1.0 if float(det) < 0.0 else -1.0
 
 
 def paint_marker(
@@ -120,6 +178,7 @@ def paint_marker(
     y: float,
     z: float,
     heading: float,
+    samples: PlaneSamples | None = None,
 ) -> None:
     """Paint the black cells (``sim.marker_level``) of a marker (``cells``: True where
     white) of side ``side_cm`` centred on (x, y) at Z = z, its top edge towards
@@ -141,7 +200,7 @@ def paint_marker(
         white = cells[np.clip(row, 0, k - 1), np.clip(col, 0, k - 1)]
         return ok & ~white
 
-    paint_shape(level, cam, sim.supersample, px, py, z, inside, sim.marker_level)
+    paint_shape(level, cam, sim.supersample, px, py, z, inside, sim.marker_level, samples)
 
 
 def finish_frame(
