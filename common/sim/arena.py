@@ -156,10 +156,13 @@ class SimObject(msgspec.Struct, kw_only=True, frozen=True, omit_defaults=True):
 
 
 class FrameTruth(msgspec.Struct, kw_only=True, frozen=True):
-    """Ground truth of one frame: its index and every object (robot first, by id)."""
+    """Ground truth of one frame: its index and every object (robot first, by id);
+    ``stamp_ns``, the instant it shows when its source keeps a clock shared by several
+    cameras (the camera grid: cameras on one trigger), else None."""
 
     index: int
     objects: list[SimObject]
+    stamp_ns: int | None = None
 
 
 class DatasetInfo(msgspec.Struct, kw_only=True, frozen=True):

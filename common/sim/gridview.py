@@ -12,15 +12,23 @@ periodic (:data:`PERIOD_FRAMES`), so one period rendered once loops seamlessly.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import io
 import math
 import re
+import sys
 from collections.abc import Callable
+from pathlib import Path
 
+import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
+from ovis.common.atomic import write_atomic
 from ovis.common.camera.projection import camera_centre_cm
 from ovis.common.config import OvisConfig, PinholeParams
+from ovis.common.sim import painting
 from ovis.common.sim.arena import FrameTruth, SimObject, lighting_field
 from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena
 from ovis.common.sim.painting import (
@@ -112,6 +120,7 @@ class GridCamera:
         self.scene = grid_scene(nx, ny, config, seed)
         self.period = PERIOD_FRAMES
         self._sim = config.simulator
+        self._config_key = [config.simulator, config.pose, cam]
         by_marker = {r.marker_id: r for r in config.pose.robots}
         robots = [o for o in self.scene.objects(0) if o.kind == "robot"]
         missing = [o.marker_id for o in robots if o.marker_id not in by_marker]
@@ -141,7 +150,7 @@ class GridCamera:
         for o in self.scene.objects(0):
             if o.kind == "obstacle":
                 self._paint(self._background, o)
-        self._robot_plane = PlaneSamples(cam, self.scene.robot_z, self._sim.supersample)
+        self._robot_plane: PlaneSamples | None = None  # sampled at the first render
 
     def _paint(
         self, level: NDArray[np.float32], o: SimObject, samples: PlaneSamples | None = None
@@ -149,7 +158,8 @@ class GridCamera:
         heading = math.radians(o.heading_deg)
         paint_top_face(
             level, self.cam, self._sim, x=o.x_cm, y=o.y_cm, z=o.z_cm, heading=heading,
-            half_len=o.length_cm / 2, half_wid=o.width_cm / 2, is_rect=o.shape == "rect", samples=samples,
+            half_len=o.length_cm / 2, half_wid=o.width_cm / 2, is_rect=o.shape == "rect",
+            samples=samples,
         )  # fmt: skip
         if o.marker_id is not None:
             cells, side = self._markers[o.marker_id]
@@ -162,25 +172,55 @@ class GridCamera:
         """Frame ``frame`` (taken modulo the period) as this camera sees it, and the
         truth of the whole floor then (every object, seen by this camera or not)."""
         frame %= self.period
-        objects = self.scene.objects(frame)
+        if self._robot_plane is None:
+            self._robot_plane = PlaneSamples(self.cam, self.scene.robot_z, self._sim.supersample)
         level = self._background.copy()
-        for o in objects:
+        for o in self.scene.objects(frame):
             if o.kind == "robot":
                 self._paint(level, o, self._robot_plane)
         rng = np.random.default_rng([self.seed, 19, self.index, frame])
-        return finish_frame(level, self._light, self._sim, rng), FrameTruth(
-            index=frame, objects=objects
-        )
+        return finish_frame(level, self._light, self._sim, rng), self._truth(frame)
 
     def render_period(
-        self, progress: Callable[[int, int], None] | None = None
+        self,
+        progress: Callable[[int, int], None] | None = None,
+        cache_dir: Path | None = None,
     ) -> list[tuple[NDArray[np.uint8], FrameTruth]]:
-        """Every frame of one period, read-only; ``progress(done, total)`` after each."""
-        out = []
+        """Every frame of one period, read-only; ``progress(done, total)`` after each.
+
+        With ``cache_dir``, the frames are kept there (one ``.npy`` per camera, named by
+        a hash of everything they depend on: the configuration, seed, camera and the
+        rendering code) and read back, memory-mapped, by the next run."""
+        cached = None if cache_dir is None else cache_dir / f"{self._cache_key()}.npy"
+        if cached is not None and cached.is_file():
+            try:
+                frames = np.load(cached, mmap_mode="r")
+                if frames.shape == (self.period, int(self.cam.rows), int(self.cam.cols)):
+                    if progress is not None:
+                        progress(self.period, self.period)
+                    return [(frames[f], self._truth(f)) for f in range(self.period)]
+            except (OSError, ValueError):
+                pass  # unreadable: render again and replace it
+        images = np.empty((self.period, int(self.cam.rows), int(self.cam.cols)), np.uint8)
         for f in range(self.period):
-            image, truth = self.render(f)
-            image.setflags(write=False)
-            out.append((image, truth))
+            images[f] = self.render(f)[0]
             if progress is not None:
                 progress(f + 1, self.period)
-        return out
+        images.setflags(write=False)
+        if cached is not None:
+            with contextlib.suppress(OSError):  # a cache that cannot be written: no cache
+                cached.parent.mkdir(parents=True, exist_ok=True)
+                buf = io.BytesIO()
+                np.save(buf, images)
+                write_atomic(cached, buf.getbuffer())
+        return [(images[f], self._truth(f)) for f in range(self.period)]
+
+    def _truth(self, frame: int) -> FrameTruth:
+        return FrameTruth(index=frame, objects=self.scene.objects(frame))
+
+    def _cache_key(self) -> str:
+        h = hashlib.sha256()
+        h.update(msgspec.json.encode([self._config_key, self.name, self.seed, self.period]))
+        for module in (painting, sys.modules[__name__]):
+            h.update(Path(module.__file__ or "").read_bytes())
+        return f"grid-{self.name}-{h.hexdigest()[:20]}"
