@@ -20,10 +20,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.camera.projection import back_project, disks_in_image, project
-from ovis.common.config import CameraSpec, PinholeParams
+from ovis.common.config import CameraModel, CameraSpec, PinholeParams
 from ovis.common.sim.arena import SimObject
 
-__all__ = ["GridScene", "camera_grid", "grid_arena", "measure"]
+__all__ = ["GridScene", "camera_grid", "grid_arena", "measure", "whole_in_view"]
 
 FloatArray = NDArray[np.float64]
 
@@ -232,6 +232,18 @@ class GridScene:
         return robots + self._obstacles
 
 
+def whole_in_view(cam: CameraModel, objects: list[SimObject]) -> NDArray[np.bool_]:
+    """Per object: its whole footprint (the disk round its longest half-extent) projects
+    inside ``cam``'s image, :data:`WHOLE_MARGIN_PX` from the border."""
+    if not objects:
+        return np.zeros(0, bool)
+    x = np.array([o.x_cm for o in objects])
+    y = np.array([o.y_cm for o in objects])
+    z = np.array([o.z_cm for o in objects])
+    r = np.array([max(o.radius_cm, o.length_cm / 2) for o in objects])
+    return disks_in_image(x, y, z, r, cam, margin_px=WHOLE_MARGIN_PX)
+
+
 def measure(
     cam: PinholeParams, objects: list[SimObject], pixel_sigma_px: float, rng: np.random.Generator
 ) -> list[SimObject]:
@@ -243,8 +255,7 @@ def measure(
     x = np.array([o.x_cm for o in objects])
     y = np.array([o.y_cm for o in objects])
     z = np.array([o.z_cm for o in objects])
-    r = np.array([max(o.radius_cm, o.length_cm / 2) for o in objects])
-    inside = disks_in_image(x, y, z, r, cam, margin_px=WHOLE_MARGIN_PX)
+    inside = whole_in_view(cam, objects)
     p = project(x, y, z, cam)
     row = p.row + rng.normal(0, pixel_sigma_px, len(x))
     col = p.col + rng.normal(0, pixel_sigma_px, len(x))
