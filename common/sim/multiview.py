@@ -123,9 +123,10 @@ class GridScene:
     0…N−1) on ellipses round the arena's centre at ``speed_cm_s``, and ``obstacles``
     still disks at least ``gap_cm`` apart, off the robots' paths.
 
-    With ``period_frames`` = P, each robot's speed is rounded to a whole number of laps
-    per P frames (at least one), so frame ``f + P`` equals frame ``f`` exactly: a
-    prerendered period loops without a jump in the truth or the identities."""
+    With ``period_frames`` = P, the robots all drive one way round, the same whole
+    number of laps per P frames (at least one), evenly spaced in phase: frame ``f + P``
+    equals frame ``f`` exactly (a prerendered period loops without a jump in the truth
+    or the identities) and no two robots ever touch (as drawn, they would merge)."""
 
     def __init__(
         self,
@@ -157,11 +158,14 @@ class GridScene:
         self._phase0 = rng.uniform(0, 2 * math.pi, robots)
         mean_radius = (self._ax + self._ay) / 2
         self._omega = speed_cm_s / mean_radius * np.where(k % 2 == 0, 1.0, -1.0)
-        if period_frames is not None:  # whole laps per period: the scene repeats exactly
+        if period_frames is not None and robots:
+            # whole laps per period, so the scene repeats exactly; one way round at one
+            # angular speed, evenly spaced in phase, so that robots never meet (rendered,
+            # touching robots would merge into one blob)
             turn = 2 * math.pi * fps / period_frames  # one lap per period, rad/s
-            self._omega = (
-                np.sign(self._omega) * turn * np.maximum(np.round(np.abs(self._omega) / turn), 1.0)
-            )
+            laps = max(round(float(np.abs(self._omega).mean()) / turn), 1)
+            self._omega = np.full(robots, laps * turn)
+            self._phase0 = self._phase0[0] + 2 * math.pi * k / robots
         placed: list[tuple[float, float, float]] = []
         path_t = np.linspace(0, 2 * math.pi, 200)
         path = (
