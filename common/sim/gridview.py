@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from ovis.common.atomic import write_atomic
 from ovis.common.camera.projection import camera_centre_cm
 from ovis.common.config import OvisConfig, PinholeParams
-from ovis.common.sim import painting
+from ovis.common.sim import arena, multiview, painting
 from ovis.common.sim.arena import FrameTruth, SimObject, lighting_field
 from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena
 from ovis.common.sim.painting import (
@@ -190,7 +190,7 @@ class GridCamera:
 
         With ``cache_dir``, the frames are kept there (one ``.npy`` per camera, named by
         a hash of everything they depend on: the configuration, seed, camera and the
-        rendering code) and read back, memory-mapped, by the next run."""
+        scene and rendering code) and read back, memory-mapped, by the next run."""
         cached = None if cache_dir is None else cache_dir / f"{self._cache_key()}.npy"
         if cached is not None and cached.is_file():
             try:
@@ -221,6 +221,6 @@ class GridCamera:
     def _cache_key(self) -> str:
         h = hashlib.sha256()
         h.update(msgspec.json.encode([self._config_key, self.name, self.seed, self.period]))
-        for module in (painting, sys.modules[__name__]):
+        for module in (painting, multiview, arena, sys.modules[__name__]):
             h.update(Path(module.__file__ or "").read_bytes())
         return f"grid-{self.name}-{h.hexdigest()[:20]}"
