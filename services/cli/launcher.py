@@ -241,9 +241,7 @@ def up(
         given = [f"--{n}" for n, v in (("source", source), ("calibration", calibration),
                  ("record", record), ("view", view or None), ("arena", arena)) if v]  # fmt: skip
         if given:
-            raise UserError(
-                f"--cameras runs the simulated grid: {', '.join(given)} cannot go with it"
-            )
+            raise UserError(f"--cameras runs the simulated grid: not with {', '.join(given)}")
         from ovis.services.cli.multicam_up import up_cameras
 
         return up_cameras(cameras, config=config, listen=listen, duration=duration, json=json,

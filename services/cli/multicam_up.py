@@ -26,6 +26,8 @@ CHAIN = ("pose", "label", "preprocess", "capture")
 ROBOTS, OBSTACLES = 4, 10  # the issue's scene
 #: seconds the cameras may take to prerender their period before the run goes on anyway
 PRERENDER_S = 180.0
+#: seconds the processes (four per camera) get to stop cleanly, on a loaded host too
+STOP_S = 15.0
 
 
 def chain_cores(allowed: list[int], cameras: int, pin: str) -> list[list[int]]:
@@ -154,7 +156,6 @@ def up_cameras(
             while not stop.is_set():
                 for news in fleet.supervise():
                     print(f"ovis up: {news}", file=sys.stderr)
-                run.poll(session)
                 if duration is not None and time.monotonic() - began >= duration:
                     break
                 stop.wait(0.5)
@@ -164,9 +165,8 @@ def up_cameras(
                 if proc is not None and proc.poll() is None:
                     proc.send_signal(signal.SIGTERM)
             time.sleep(1.0)
-            run.poll(session)
     finally:
-        codes = fleet.stop()
+        codes = fleet.stop(timeout=STOP_S)
     summary = run.summary(fleet, time.monotonic() - started)
     if json:
         sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
@@ -174,19 +174,21 @@ def up_cameras(
         _print_summary(summary)
     if summary["world"]["frames"] == 0:
         raise UserError(f"no world frame came out; see the logs in {log_dir}", 1)
-    bad = [n for n, c in codes.items() if c not in (0, -signal.SIGTERM)]
+    from ovis.common.pipeline.restarts import describe_exit
+
+    bad = [f"{n} ({describe_exit(c)})" for n, c in codes.items() if c not in (0, -signal.SIGTERM)]
     if bad or fleet.gave_up():
         reasons = "; ".join(fleet.gave_up()) or f"process(es) {', '.join(bad)} exited abnormally"
         raise UserError(f"{reasons}; see the logs in {log_dir}", 1)
 
 
 class _Run:
-    """What the summary needs: the world frames and the truth (subscribed), each
-    camera's chain counters (polled, summed over restarts)."""
+    """What the summary needs, subscribed: the world frames, the truth, and each
+    camera's frames captured (its truth messages, one per frame its capture published)
+    and processed (its pose's obstacle frames), whatever restarts meanwhile."""
 
     def __init__(self, names: list[str], grid: tuple[int, int], base: Any, topics: Any) -> None:
         from ovis.common.analysis.multicam import WorldWatch
-        from ovis.common.pipeline.totals import CounterTotals
         from ovis.common.sim.gridview import grid_specs
 
         self.names, self.topics, self.base = names, topics, base
@@ -194,7 +196,8 @@ class _Run:
         specs = grid_specs(nx, ny, base, base.service.seed)
         self.grid = f"{nx}x{ny}"
         self.watch = WorldWatch({s.name: s.camera for s in specs})
-        self.totals = {n: CounterTotals() for n in names}
+        self.captured = dict.fromkeys(names, 0)
+        self.processed = dict.fromkeys(names, 0)
         self.clock_from = 0  # world frames stamped before the cameras all ran are not scored
 
     def attach(self, session: Any) -> None:
@@ -205,21 +208,19 @@ class _Run:
             with contextlib.suppress(MessageError):
                 self.watch.add_world(decode(sample.payload.to_bytes(), WorldFrame), now)
 
-        def on_truth(sample: Any) -> None:
+        def on_truth(sample: Any, name: str) -> None:
+            self.captured[name] += 1  # Zenoh calls one subscriber's callback at a time
             with contextlib.suppress(MessageError):
                 self.watch.add_truth(decode(sample.payload.to_bytes(), TruthFrame))
 
+        def on_obstacles(_sample: Any, name: str) -> None:
+            self.processed[name] += 1
+
         session.declare_subscriber(self.topics.world, on_world)
         for name in self.names:
-            session.declare_subscriber(self.topics.of_camera(name).truth, on_truth)
-
-    def poll(self, session: Any) -> None:
-        """Record each camera's chain statuses (their counters survive restarts)."""
-        from ovis.services.cli.watching import query_statuses
-
-        for name in self.names:
-            for status in query_statuses(session, self.topics.of_camera(name), 1.0).values():
-                self.totals[name].record(status)
+            cam = self.topics.of_camera(name)
+            session.declare_subscriber(cam.truth, lambda s, n=name: on_truth(s, n))
+            session.declare_subscriber(cam.obstacles, lambda s, n=name: on_obstacles(s, n))
 
     def summary(self, fleet: Any, elapsed_s: float) -> dict[str, Any]:
         from ovis.common.analysis.multicam import CameraRun
@@ -229,9 +230,7 @@ class _Run:
         restarts = fleet.restarts()
         cameras = {}
         for name in self.names:
-            t = self.totals[name].totals()
-            captured = t["capture"].frames_out if "capture" in t else 0
-            processed = t["pose"].frames_out if "pose" in t else 0
+            captured, processed = self.captured[name], self.processed[name]
             cameras[name] = CameraRun(
                 captured=captured,
                 processed=processed,
