@@ -34,6 +34,7 @@ __all__ = [
     "GridRun",
     "WorldWatch",
     "detections_frame",
+    "percentiles",
     "simulate_grid",
 ]
 
@@ -203,6 +204,13 @@ class WorldWatch:
         with self._lock:
             return len(self._world)
 
+    def published_ms(self, since_ns: int = 0) -> dict[str, float]:
+        """Percentiles (``p50``, ``p99`` ms) of capture stamp → world frame published."""
+        with self._lock:
+            a = np.array([(w.published_ns - w.stamp_ns) / 1e6 for w, _ in self._world
+                          if w.stamp_ns >= since_ns])  # fmt: skip
+        return percentiles(a)
+
     def late(self) -> dict[str, int]:
         """Each camera's frames that came after their world frame left (the newest count)."""
         with self._lock:
@@ -219,7 +227,7 @@ class WorldWatch:
             )
             truth = dict(self._truth)
         scorer = WorldScorer()
-        latency = np.array([(r - w.stamp_ns) / 1e6 for w, r in world]) if world else np.zeros(0)
+        latency = np.array([(r - w.stamp_ns) / 1e6 for w, r in world])
         scored = 0
         for w, _ in world:
             objects = truth.get(w.stamp_ns)
@@ -234,8 +242,11 @@ class WorldWatch:
                 {o.id for o, s in zip(objects, seen, strict=True) if s},
             )
             scored += 1
-        pct = {
-            "p50": float(np.percentile(latency, 50)) if latency.size else 0.0,
-            "p99": float(np.percentile(latency, 99)) if latency.size else 0.0,
-        }
-        return scorer.score(), pct, scored
+        return scorer.score(), percentiles(latency), scored
+
+
+def percentiles(a: np.ndarray) -> dict[str, float]:
+    """``p50`` and ``p99`` of ``a`` (0 when empty)."""
+    if not a.size:
+        return {"p50": 0.0, "p99": 0.0}
+    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99))}

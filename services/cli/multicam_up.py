@@ -198,10 +198,17 @@ class _Run:
         self.watch = WorldWatch({s.name: s.camera for s in specs})
         self.captured = dict.fromkeys(names, 0)
         self.processed = dict.fromkeys(names, 0)
+        self.chain_ms: list[float] = []  # capture stamp → a camera's pose published
         self.clock_from = 0  # world frames stamped before the cameras all ran are not scored
 
     def attach(self, session: Any) -> None:
-        from ovis.common.messages import MessageError, TruthFrame, WorldFrame, decode
+        from ovis.common.messages import (
+            MessageError,
+            ObstacleFrame,
+            TruthFrame,
+            WorldFrame,
+            decode,
+        )
 
         def on_world(sample: Any) -> None:
             now = time.time_ns()
@@ -213,8 +220,12 @@ class _Run:
             with contextlib.suppress(MessageError):
                 self.watch.add_truth(decode(sample.payload.to_bytes(), TruthFrame))
 
-        def on_obstacles(_sample: Any, name: str) -> None:
+        def on_obstacles(sample: Any, name: str) -> None:
             self.processed[name] += 1
+            with contextlib.suppress(MessageError):
+                frame = decode(sample.payload.to_bytes(), ObstacleFrame)
+                if frame.stamp_ns >= self.clock_from:
+                    self.chain_ms.append((frame.published_ns - frame.stamp_ns) / 1e6)
 
         session.declare_subscriber(self.topics.world, on_world)
         for name in self.names:
@@ -223,7 +234,9 @@ class _Run:
             session.declare_subscriber(cam.obstacles, lambda s, n=name: on_obstacles(s, n))
 
     def summary(self, fleet: Any, elapsed_s: float) -> dict[str, Any]:
-        from ovis.common.analysis.multicam import CameraRun
+        import numpy as np
+
+        from ovis.common.analysis.multicam import CameraRun, percentiles
 
         score, latency, scored = self.watch.score(self.clock_from)
         fused, late = self.watch.fused(), self.watch.late()
@@ -258,6 +271,12 @@ class _Run:
                     "max": score.world_error_cm_max,
                 },
                 "latency_ms": latency,
+            },
+            # where the time goes: capture → each camera's pose published (its chain),
+            # → the world published by fusion (chains, the wait for the slowest, merging)
+            "stages_ms": {
+                "capture_to_pose": percentiles(np.asarray(self.chain_ms, float)),
+                "capture_to_world_published": self.watch.published_ms(self.clock_from),
             },
             "restarts": {"fusion": restarts.get("fusion", 0)},
             "gave_up": fleet.gave_up(),
