@@ -37,6 +37,8 @@ class WorldFuser:
             stale_ns=stale_ns,
         )
         self.tracker = WorldTracker(cfg)
+        #: robots of the last frames: marker → (x, y, radius, world frames since seen)
+        self._robots: dict[int, tuple[float, float, float, int]] = {}
 
     def add(
         self, camera: str, stamp_ns: int, sightings: list[Sighting], now_ns: int
@@ -53,12 +55,25 @@ class WorldFuser:
         out = []
         for g in groups:
             sightings = [s for items in g.items.values() for s in items]
+            footprints = [(x, y, r) for x, y, r, _ in self._robots.values()]
+            objects = self.tracker.update(fuse(sightings, self.cfg, footprints))
+            self._remember_robots(objects)
             out.append(
                 WorldFrameResult(
                     stamp_ns=g.stamp_ns,
-                    objects=self.tracker.update(fuse(sightings, self.cfg)),
+                    objects=objects,
                     cameras=sorted(g.items),
                     missing=sorted(live - g.items.keys()),
                 )
             )
         return out
+
+    def _remember_robots(self, objects: list[Tracked]) -> None:
+        """Keep each robot's last footprint for ``lost_frames`` world frames: a part of it
+        that a camera sees while the camera that finds its marker is late is not taken
+        for an obstacle (see :func:`~ovis.common.fusion.merge.fuse`)."""
+        aged = {m: (x, y, r, n + 1) for m, (x, y, r, n) in self._robots.items()}
+        for t in objects:
+            if t.obj.marker_id is not None:
+                aged[t.obj.marker_id] = (t.obj.x_cm, t.obj.y_cm, t.obj.radius_cm, 0)
+        self._robots = {m: v for m, v in aged.items() if v[3] < self.cfg.lost_frames}
