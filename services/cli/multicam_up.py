@@ -139,17 +139,17 @@ def up_cameras(
     from ovis.common.config import ZenohConfig
     from ovis.services.bus import open_session
 
-    run = _Run(names, grid, base, topics)
-    started = time.monotonic()
+    run, started = _Run(names, grid, base, topics), time.monotonic()
     try:
         with open_session(ZenohConfig(connect=[listen])) as session:
             run.attach(session)
-            waiting = _wait_alive(fleet, session, topics, names, stop)
-            if waiting and not stop.is_set():
-                print(f"ovis up: {', '.join(sorted(waiting))} not listening; starting the "
-                      f"cameras anyway (see {log_dir})", file=sys.stderr)  # fmt: skip
+            # the cameras once every chain and fusion listen: no frame is lost at start
+            late = _wait_alive(fleet, session, topics, names, stop)
             for name, where in zip(names, cores, strict=True):
                 start(name, "capture", where)
+            if late and not stop.is_set():
+                print(f"ovis up: started the cameras though {', '.join(sorted(late))} did "
+                      f"not listen yet (see {log_dir})", file=sys.stderr)  # fmt: skip
             _wait_prerendered(fleet, session, topics, names, stop, out)
             run.clock_from = time.time_ns()
             began = time.monotonic()
