@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import tempfile
+import time
 from pathlib import Path
 
 from zenoh_helpers import free_port, ovis_cmd
@@ -56,3 +58,55 @@ def test_up_cameras_refuses_what_cannot_go_with_the_grid() -> None:
     assert "--cameras runs the simulated grid: not with --source" in bad.stderr
     bad = subprocess.run(ovis_cmd("up", "--cameras", "9x9"), capture_output=True, text=True)
     assert bad.returncode == 2 and "give columns x rows, e.g. 2x2" in bad.stderr
+
+
+def _child(parent: int, *words: str) -> int | None:
+    """The pid of a child of ``parent`` whose command line holds every word."""
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        if int(stat[1]) == parent and all(w in cmd for w in words):
+            return int(entry.name)
+    return None
+
+
+def test_up_cameras_restarts_a_killed_chain_stage_and_the_others_go_on(tmp_path: Path) -> None:
+    cfg = tmp_path / "wait.toml"
+    cfg.write_text("[fusion]\nwait_ms = 250.0\n")
+    env = dict(os.environ, OVIS_CACHE=str(Path(tempfile.gettempdir()) / "ovis-test-cache"))
+    args = ["up", "--cameras", "2x2", "--duration", "25", "--json", "--seed", "7", "--fps", "15"]
+    args += ["--listen", f"tcp/127.0.0.1:{free_port()}", "--config", str(cfg)]
+    err = tmp_path / "up.err"
+    with err.open("w") as log:
+        up = subprocess.Popen(ovis_cmd(*args), stdout=subprocess.PIPE, stderr=log, env=env)
+    try:
+        deadline = time.monotonic() + 150
+        victim = None
+        while victim is None and time.monotonic() < deadline:
+            capture = _child(up.pid, "run capture", "cam11.toml")
+            victim = _child(up.pid, "run pose", "cam01.toml") if capture else None
+            time.sleep(0.5)
+        assert victim is not None, err.read_text()[-2000:]
+        time.sleep(6)  # the cameras read their period (cached by the test above) and run
+        os.kill(victim, signal.SIGKILL)
+        out, _ = up.communicate(timeout=200)
+    finally:
+        if up.poll() is None:
+            up.kill()
+    assert up.returncode == 0, err.read_text()[-3000:]
+    summary = json.loads(out)
+    cams, world = summary["cameras"], summary["world"]
+    assert cams["cam01"]["restarts"] >= 1
+    assert "cam01-pose died (killed by SIGKILL)" in err.read_text()
+    for name in ("cam00", "cam10", "cam11"):  # undisturbed
+        c = cams[name]
+        assert c["restarts"] == 0 and c["dropped"] <= 0.1 * c["captured"], (name, c)
+    # cam01 is back in the world: killed about a quarter of the way in and never back, it
+    # would have fused about a quarter of what cam00 did
+    assert cams["cam01"]["fused"] > 0.7 * cams["cam00"]["fused"], cams
+    assert world["duplicates"] == 0 and world["phantoms"] == 0
