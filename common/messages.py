@@ -399,10 +399,12 @@ class WorldFrame(_Msg, tag="world", kw_only=True):
 
 
 class TruthFrame(_Msg, tag="truth", kw_only=True):
-    """Ground truth of a simulated frame (published by the simulated capture only)."""
+    """Ground truth of a simulated frame (published by the simulated capture only);
+    ``stamp_ns``, its frame's capture stamp (so a world frame finds its truth)."""
 
     seq: Seq
     objects: list[SimObject]
+    stamp_ns: Stamp | None = None
 
 
 class CalibrateRequest(_Msg, tag="calibrate", kw_only=True):

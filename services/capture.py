@@ -29,12 +29,18 @@ def main(service: Service) -> None:
     seq = 0
     stream = secrets.token_hex(8)  # sequence numbers start again with a new stream
     service.log.info("stream %s", stream)
+
+    def prerendering(done: int, total: int) -> None:
+        service.state = f"prerendering {done}/{total}"
+        if done == total or done % max(1, total // 4) == 0:
+            service.log.info("prerendered %d/%d frames", done, total)
+
     service.ready()
     try:
         while not service.stop.is_set():
             try:
                 if source is None:
-                    source = open_source(cfg.source, service.config)
+                    source = open_source(cfg.source, service.config, progress=prerendering)
                     service.log.info("capturing from %s", source.description)
                     service.state = "ok"
                 image, truth = source.read()
@@ -47,7 +53,8 @@ def main(service: Service) -> None:
                     source = None
                 service.stop.wait(RETRY_S)
                 continue
-            stamp = time.time_ns()
+            # a simulated camera on a shared trigger says when it exposed its frame
+            stamp = truth.stamp_ns if truth is not None and truth.stamp_ns else time.time_ns()
             frame = Frame.from_image(
                 image,
                 seq=seq,
@@ -58,7 +65,7 @@ def main(service: Service) -> None:
             )
             publish_frame(frame)  # first: the truth is for checking, not on the frame's path
             if truth is not None:
-                publish_truth(TruthFrame(seq=seq, objects=truth.objects))
+                publish_truth(TruthFrame(seq=seq, objects=truth.objects, stamp_ns=stamp))
             service.saw_frame(seq, stamp, stream)
             service.sent()
             seq += 1

@@ -287,3 +287,31 @@ def test_per_camera_topics_and_the_world_topic() -> None:
     assert cam.world == one.world  # one world, whatever camera
     with pytest.raises(ValueError, match="camera name 'a/b'"):
         one.of_camera("a/b")
+
+
+def test_a_part_of_a_robot_is_no_obstacle_even_while_its_marker_camera_is_late() -> None:
+    """A camera that sees a robot cut by its border reports a blob, not the robot: in the
+    frame where another camera finds its marker, and in the next frames too, when that
+    camera's frame is late, the blob is not taken for an obstacle."""
+    from ovis.common.fusion.merge import Sighting
+    from ovis.common.fusion.world import WorldFuser
+
+    def seen(camera: str, kind: str, x: float, marker: int | None = None) -> Sighting:
+        return Sighting(camera=camera, kind=kind, x_cm=x, y_cm=50.0, z_cm=5.0, radius_cm=9.0
+                        if marker is not None else 4.0, cov_cm2=(0.01, 0.0, 0.01),
+                        marker_id=marker)  # fmt: skip
+
+    fuser = WorldFuser(["a", "b"], FusionConfig(), stale_ns=10**10)
+    ms = 1_000_000
+    both = fuser.add("a", 0, [seen("a", "robot", 100.0, marker=2)], 0)
+    both += fuser.add("b", 0, [seen("b", "obstacle", 103.0), seen("b", "obstacle", 150.0)], ms)
+    late = fuser.add("b", 33 * ms, [seen("b", "obstacle", 104.0), seen("b", "obstacle", 150.0)],
+                     34 * ms)  # fmt: skip
+    late += fuser.due(34 * ms + 10**9)  # camera a's frame never came
+    assert [len(w.objects) for w in both] == [2] and [len(w.objects) for w in late] == [1]
+    assert [(t.obj.kind, t.obj.x_cm) for t in both[0].objects] == [
+        ("robot", 100.0),
+        ("obstacle", 150.0),
+    ]
+    assert [(t.obj.kind, t.obj.x_cm) for t in late[0].objects] == [("obstacle", 150.0)]
+    assert late[0].missing == ["a"] or late[0].cameras == ["b"]

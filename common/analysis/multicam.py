@@ -5,23 +5,38 @@ truth (``ovis cameras simulate``, tests)."""
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 
 import msgspec
 import numpy as np
 
-from ovis.common.config import FusionConfig
+from ovis.common.config import CameraModel, FusionConfig
 from ovis.common.fusion.accuracy import AccuracyMap, sightings_of
 from ovis.common.fusion.scoring import WorldScore, WorldScorer
 from ovis.common.fusion.world import WorldFuser
-from ovis.common.messages import ObstacleFrame
+from ovis.common.messages import ObstacleFrame, TruthFrame, WorldFrame
 from ovis.common.sim.arena import SimObject
-from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena, measure
+from ovis.common.sim.multiview import (
+    GridScene,
+    camera_grid,
+    grid_arena,
+    measure,
+    whole_in_view,
+)
 from ovis.common.world.detection import DetectedObject
 from ovis.common.world.robots import RobotState
 
-__all__ = ["CameraCounts", "GridRun", "detections_frame", "simulate_grid"]
+__all__ = [
+    "CameraCounts",
+    "CameraRun",
+    "GridRun",
+    "WorldWatch",
+    "detections_frame",
+    "percentiles",
+    "simulate_grid",
+]
 
 MS = 1_000_000
 FRAME_NS = 33_333_333  # 30 frames/s
@@ -139,3 +154,99 @@ def detections_frame(seq: int, stamp_ns: int, seen: list[SimObject]) -> Obstacle
     return ObstacleFrame(seq=seq, stamp_ns=stamp_ns, published_ns=time.time_ns(),
                          frame_age_ms=0.0, calibration_version=0, robot=None,
                          obstacles=obstacles, planner=[], robots=robots)  # fmt: skip
+
+
+class CameraRun(msgspec.Struct, kw_only=True):
+    """One camera's frames in a live run (``ovis up --cameras``): captured (its capture
+    published), processed (its pose published), fused (in a world frame), late (came
+    after its world frame left) and dropped (captured, never in the world)."""
+
+    captured: int
+    processed: int
+    fused: int
+    late: int
+    dropped: int
+    restarts: int = 0
+
+
+class WorldWatch:
+    """Scores a live fused world against the simulated truth (``ovis up --cameras``): the
+    cameras' truth messages (each frame's stamp and the whole floor's objects) and the
+    world frames with their receipt times are kept as they arrive (any thread), and
+    :meth:`score` matches them by stamp, in order, with :class:`WorldScorer`. An object
+    counts as seen when its whole footprint is in some camera's view."""
+
+    def __init__(self, cameras: dict[str, CameraModel]) -> None:
+        self.cameras = cameras
+        self._truth: dict[int, list[SimObject]] = {}
+        self._world: list[tuple[WorldFrame, int]] = []
+        self._lock = threading.Lock()
+
+    def add_truth(self, msg: TruthFrame) -> None:
+        if msg.stamp_ns is not None:
+            with self._lock:
+                self._truth.setdefault(msg.stamp_ns, msg.objects)
+
+    def add_world(self, msg: WorldFrame, receipt_ns: int) -> None:
+        with self._lock:
+            self._world.append((msg, receipt_ns))
+
+    def fused(self) -> dict[str, int]:
+        """World frames each camera has a frame in, so far."""
+        with self._lock:
+            out = dict.fromkeys(self.cameras, 0)
+            for w, _ in self._world:
+                for name in w.cameras:
+                    out[name] = out.get(name, 0) + 1
+            return out
+
+    def frames(self) -> int:
+        with self._lock:
+            return len(self._world)
+
+    def published_ms(self, since_ns: int = 0) -> dict[str, float]:
+        """Percentiles (``p50``, ``p99`` ms) of capture stamp → world frame published."""
+        with self._lock:
+            a = np.array([(w.published_ns - w.stamp_ns) / 1e6 for w, _ in self._world
+                          if w.stamp_ns >= since_ns])  # fmt: skip
+        return percentiles(a)
+
+    def late(self) -> dict[str, int]:
+        """Each camera's frames that came after their world frame left (the newest count)."""
+        with self._lock:
+            return dict(self._world[-1][0].late_frames) if self._world else {}
+
+    def score(self, since_ns: int = 0) -> tuple[WorldScore, dict[str, float], int]:
+        """The score of the world frames stamped from ``since_ns`` on, their latency
+        percentiles (``p50``, ``p99`` ms: capture stamp to receipt here) and how many
+        had their truth (were scored)."""
+        with self._lock:
+            world = sorted(
+                (item for item in self._world if item[0].stamp_ns >= since_ns),
+                key=lambda item: item[0].seq,
+            )
+            truth = dict(self._truth)
+        scorer = WorldScorer()
+        latency = np.array([(r - w.stamp_ns) / 1e6 for w, r in world])
+        scored = 0
+        for w, _ in world:
+            objects = truth.get(w.stamp_ns)
+            if objects is None:
+                continue
+            seen = np.zeros(len(objects), bool)
+            for cam in self.cameras.values():
+                seen |= whole_in_view(cam, objects)
+            scorer.add(
+                [(o.id, o.x_cm, o.y_cm, tuple(o.cameras)) for o in w.objects],
+                [(o.id, o.x_cm, o.y_cm) for o in objects],
+                {o.id for o, s in zip(objects, seen, strict=True) if s},
+            )
+            scored += 1
+        return scorer.score(), percentiles(latency), scored
+
+
+def percentiles(a: np.ndarray) -> dict[str, float]:
+    """``p50`` and ``p99`` of ``a`` (0 when empty)."""
+    if not a.size:
+        return {"p50": 0.0, "p99": 0.0}
+    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99))}

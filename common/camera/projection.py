@@ -32,6 +32,7 @@ __all__ = [
     "camera_centre_cm",
     "camera_for_image_size",
     "camera_parameters",
+    "disks_in_image",
     "pixel_footprint_cm2",
     "pixel_jacobian",
     "principal_point_rowcol",
@@ -78,6 +79,38 @@ def pixel_jacobian(
     rows, cols = paper.five_points(row, col)
     b = pinhole.back_project(rows, cols, cam, z_cm)
     return paper.jacobian_of(b.x_cm, b.y_cm, b.valid)
+
+
+def disks_in_image(
+    x_cm: ArrayLike,
+    y_cm: ArrayLike,
+    z_cm: ArrayLike,
+    radius_cm: ArrayLike,
+    cam: CameraModel,
+    margin_px: float = 0.0,
+) -> NDArray[np.bool_]:
+    """Whether each horizontal disk (centre, height, radius; cm) projects wholly inside the
+    image, at least ``margin_px`` from its border: an object whose blob the border cuts
+    has a biased centre, and one wholly inside has not."""
+    x, y, z, r = np.broadcast_arrays(
+        *(np.asarray(v, dtype=np.float64) for v in (x_cm, y_cm, z_cm, radius_cm))
+    )
+    ang = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
+    p = project(
+        x[..., None] + r[..., None] * np.cos(ang),
+        y[..., None] + r[..., None] * np.sin(ang),
+        np.broadcast_to(z[..., None], (*z.shape, ang.size)),
+        cam,
+    )
+    m = float(margin_px)
+    ok = (
+        p.valid
+        & (p.row >= m)
+        & (p.row <= cam.rows - 1 - m)
+        & (p.col >= m)
+        & (p.col <= cam.cols - 1 - m)
+    )
+    return ok.all(axis=-1)
 
 
 def pixel_footprint_cm2(

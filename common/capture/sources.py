@@ -10,10 +10,14 @@ device is back.
 
 from __future__ import annotations
 
+import os
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
 
 import cv2
+import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
@@ -26,6 +30,7 @@ __all__ = [
     "CameraSource",
     "FolderSource",
     "FrameSource",
+    "GridSource",
     "SimSource",
     "SourceError",
     "StreamSource",
@@ -83,6 +88,63 @@ class SimSource:
         image, truth = self.arena.render()
         self.arena.step()
         return image, truth
+
+    def close(self) -> None:
+        pass
+
+
+def grid_cache_dir() -> Path:
+    """Where the simulated grid's prerendered frames are kept between runs:
+    ``$OVIS_CACHE`` or ``$XDG_CACHE_HOME/ovis`` (default ``~/.cache/ovis``), ``grid/``."""
+    root = (
+        os.environ.get("OVIS_CACHE")
+        or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "ovis"
+    )
+    return Path(root) / "grid"
+
+
+class GridSource:
+    """Camera ``name`` of the simulated camera grid (``grid:2x2:cam01``,
+    :mod:`ovis.common.sim.gridview`): one period of the shared periodic scene rendered
+    once (``progress(done, total)`` meanwhile), then replayed on a trigger shared by
+    every camera of the grid, even in other processes: at ``fps`` a read waits for the
+    next multiple of 1/fps of the wall clock and shows the scene frame of that instant
+    (its index modulo the period), stamped with it. So all the grid's cameras expose
+    the same instant with the same stamp, as cameras on one hardware trigger do (on
+    several hosts: as well as their clocks agree)."""
+
+    def __init__(
+        self,
+        config: OvisConfig,
+        spec: str,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> None:
+        from ovis.common.sim.gridview import GridCamera, parse_grid_source
+
+        try:
+            nx, ny, name = parse_grid_source(spec)
+            camera = GridCamera(config, nx, ny, name, config.service.seed)
+        except ValueError as exc:
+            raise SourceError(str(exc)) from None
+        self._frames = camera.render_period(progress, grid_cache_dir())
+        fps = config.service.fps
+        self._period_ns = round(1e9 / fps) if fps > 0 else 0
+        self._next = 0  # frame index when running free (fps 0)
+        self.description = (
+            f"simulated camera {name} of a {nx}x{ny} grid (seed {config.service.seed}, "
+            f"{len(self._frames)} frames looped)"
+        )
+
+    def read(self) -> tuple[NDArray[np.uint8], FrameTruth | None]:
+        if not self._period_ns:
+            image, truth = self._frames[self._next % len(self._frames)]
+            self._next += 1
+            return image, truth
+        tick = -(-time.time_ns() // self._period_ns)  # the next trigger
+        stamp = tick * self._period_ns
+        time.sleep(max(0.0, (stamp - time.time_ns()) / 1e9))
+        image, truth = self._frames[tick % len(self._frames)]
+        return image, msgspec.structs.replace(truth, stamp_ns=stamp)
 
     def close(self) -> None:
         pass
@@ -219,13 +281,23 @@ def capture_settings(config: OvisConfig) -> dict[int, float]:
     return out
 
 
-def open_source(spec: str, config: OvisConfig, *, loop: bool | None = None) -> FrameSource:
-    """Open ``spec``: "sim", "camera:N", a device path, a folder, or a video file.
+def open_source(
+    spec: str,
+    config: OvisConfig,
+    *,
+    loop: bool | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> FrameSource:
+    """Open ``spec``: "sim", "grid:NxM:camIJ", "camera:N", a device path, a folder, or a
+    video file.
 
-    ``loop`` (default ``config.service.loop``): replay a folder or video when it ends."""
+    ``loop`` (default ``config.service.loop``): replay a folder or video when it ends;
+    ``progress(done, total)``: called while a simulated grid camera prerenders."""
     loop = config.service.loop if loop is None else loop
     if spec == "sim":
         return SimSource(config, config.service.seed)
+    if spec.startswith("grid:"):
+        return GridSource(config, spec, progress)
     if spec.startswith("camera:"):
         index = spec.split(":", 1)[1]
         if not index.isdigit():
@@ -241,6 +313,6 @@ def open_source(spec: str, config: OvisConfig, *, loop: bool | None = None) -> F
     if path.is_file():
         return VideoSource(path, loop)
     raise SourceError(
-        f"source {spec!r} is not 'sim', 'camera:N', a device, a stream URL, a folder or an "
-        "existing video file"
+        f"source {spec!r} is not 'sim', 'grid:2x2:cam00', 'camera:N', a device, a stream "
+        "URL, a folder or an existing video file"
     )

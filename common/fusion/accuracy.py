@@ -10,13 +10,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ovis.common.camera.projection import back_project, pixel_jacobian, project
+from ovis.common.camera.projection import back_project, disks_in_image, pixel_jacobian, project
 from ovis.common.config import CameraModel
 from ovis.common.fusion.merge import Sighting
 
 __all__ = ["AccuracyMap", "position_covariance", "sightings_of"]
 
 FloatArray = NDArray[np.float64]
+
+#: a blob (no marker) whose disk comes closer than this (pixels) to the image border is
+#: taken as cut by it: its centre is biased towards the inside, so it is left out (the
+#: overlapping camera sees it whole)
+CUT_MARGIN_PX = 0.5
 
 
 def position_covariance(
@@ -111,7 +116,11 @@ def sightings_of(
     """One camera's detections (mappings with ``kind, x_cm, y_cm, z_cm, radius_cm`` and
     optionally ``marker_id``, ``heading_deg``) as sightings with that camera's position
     covariance at each (see :func:`position_covariance`; from the camera's
-    :class:`AccuracyMap` when given one, then ``pixel_sigma_px`` is the map's)."""
+    :class:`AccuracyMap` when given one, then ``pixel_sigma_px`` is the map's). A blob
+    that the image border cuts (no marker, its disk not wholly inside the image, see
+    :data:`CUT_MARGIN_PX`) is left out."""
+    model = cam.cam if isinstance(cam, AccuracyMap) else cam
+    objects = [o for o, whole in zip(objects, _whole(objects, model), strict=True) if whole]
     if not objects:
         return []
     xyz = ([o[k] for o in objects] for k in ("x_cm", "y_cm", "z_cm"))
@@ -134,3 +143,14 @@ def sightings_of(
         for o, c in zip(objects, cov, strict=True)
         if np.isfinite(c).all()
     ]
+
+
+def _whole(objects: list[dict[str, Any]], cam: CameraModel) -> NDArray[np.bool_]:
+    """Per detection: found by its marker, or its disk wholly inside ``cam``'s image."""
+    if not objects:
+        return np.zeros(0, bool)
+    x, y, z, r = (
+        np.array([float(o[k]) for o in objects]) for k in ("x_cm", "y_cm", "z_cm", "radius_cm")
+    )
+    marked = np.array([o.get("marker_id") is not None for o in objects])
+    return marked | disks_in_image(x, y, z, r, cam, margin_px=CUT_MARGIN_PX)

@@ -11,6 +11,7 @@ more sharply counts more; its covariance is the inverse of the summed informatio
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import msgspec
 import numpy as np
@@ -133,9 +134,17 @@ def _obstacle_groups(obs: list[Sighting], cfg: FusionConfig) -> list[list[int]]:
     return list(members.values())
 
 
-def fuse(sightings: list[Sighting], cfg: FusionConfig) -> list[Fused]:
+def fuse(
+    sightings: list[Sighting],
+    cfg: FusionConfig,
+    footprints: Sequence[tuple[float, float, float]] = (),
+) -> list[Fused]:
     """Every object once: robots by marker id, obstacles by gated position and size;
-    robots first (by marker id), then obstacles."""
+    robots first (by marker id), then obstacles. A blob whose centre lies inside a
+    robot's footprint (its radius round a robot of this frame, or one of
+    ``footprints``: (x, y, radius) of robots seen just before, whose camera's frame is
+    late) is part of that robot as another camera saw it (partly, its marker not found
+    there) and is no obstacle."""
     robots: dict[int, list[Sighting]] = {}
     obstacles: list[Sighting] = []
     for s in sightings:
@@ -144,5 +153,9 @@ def fuse(sightings: list[Sighting], cfg: FusionConfig) -> list[Fused]:
         else:
             obstacles.append(s)
     out = [_merge(robots[m]) for m in sorted(robots)]
+    disks = [(r.x_cm, r.y_cm, r.radius_cm) for r in out] + list(footprints)
+    obstacles = [o for o in obstacles if not any(
+        math.hypot(o.x_cm - x, o.y_cm - y) < r for x, y, r in disks
+    )]  # fmt: skip
     out += [_merge([obstacles[i] for i in g]) for g in _obstacle_groups(obstacles, cfg)]
     return out

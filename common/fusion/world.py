@@ -37,6 +37,8 @@ class WorldFuser:
             stale_ns=stale_ns,
         )
         self.tracker = WorldTracker(cfg)
+        #: robots of the last frames: marker → where and when last seen, its velocity
+        self._robots: dict[int, _Footprint] = {}
 
     def add(
         self, camera: str, stamp_ns: int, sightings: list[Sighting], now_ns: int
@@ -53,12 +55,46 @@ class WorldFuser:
         out = []
         for g in groups:
             sightings = [s for items in g.items.values() for s in items]
+            footprints = [f.at(g.stamp_ns) for f in self._robots.values()]
+            objects = self.tracker.update(fuse(sightings, self.cfg, footprints))
+            self._remember_robots(objects, g.stamp_ns)
             out.append(
                 WorldFrameResult(
                     stamp_ns=g.stamp_ns,
-                    objects=self.tracker.update(fuse(sightings, self.cfg)),
+                    objects=objects,
                     cameras=sorted(g.items),
                     missing=sorted(live - g.items.keys()),
                 )
             )
         return out
+
+    def _remember_robots(self, objects: list[Tracked], stamp_ns: int) -> None:
+        """Keep each robot's last footprint for ``lost_frames`` world frames, moving on
+        at its last velocity: a part of it that a camera sees while the camera that finds
+        its marker is late is not taken for an obstacle (see
+        :func:`~ovis.common.fusion.merge.fuse`)."""
+        for f in self._robots.values():
+            f.unseen += 1
+        for t in objects:
+            m = t.obj.marker_id
+            if m is None:
+                continue
+            before = self._robots.get(m)
+            v = (0.0, 0.0)
+            if before is not None and stamp_ns > before.stamp_ns:
+                dt = stamp_ns - before.stamp_ns
+                v = ((t.obj.x_cm - before.x) / dt, (t.obj.y_cm - before.y) / dt)
+            self._robots[m] = _Footprint(t.obj.x_cm, t.obj.y_cm, t.obj.radius_cm, stamp_ns, v)
+        self._robots = {m: f for m, f in self._robots.items() if f.unseen < self.cfg.lost_frames}
+
+
+class _Footprint:
+    """A robot's last sighting: position, radius, stamp, velocity (cm/ns), frames since."""
+
+    def __init__(self, x: float, y: float, r: float, stamp_ns: int, v: tuple[float, float]) -> None:
+        self.x, self.y, self.r, self.stamp_ns, self.v, self.unseen = x, y, r, stamp_ns, v, 0
+
+    def at(self, stamp_ns: int) -> tuple[float, float, float]:
+        """(x, y, radius) where it has gone by ``stamp_ns`` at its last velocity."""
+        dt = stamp_ns - self.stamp_ns
+        return self.x + self.v[0] * dt, self.y + self.v[1] * dt, self.r

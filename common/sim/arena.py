@@ -56,7 +56,7 @@ frame depends only on the seed and its index, however often it is rendered.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Literal, NamedTuple
 
@@ -80,6 +80,14 @@ from ovis.common.config import (
     OvisConfig,
     PoseConfig,
     dump_toml,
+)
+from ovis.common.sim.painting import (
+    finish_frame,
+    marker_hand,
+    outline,
+    paint_marker,
+    paint_shape,
+    paint_top_face,
 )
 from ovis.common.sim.paths import place_still_obstacles, plan_paths
 from ovis.common.vision.markers import marker_cells
@@ -106,14 +114,12 @@ CLUTTER_SPACING_CM = 2.0
 #: Margin (pixels) between an object's projected outline and the image border.
 IMAGE_MARGIN_PX = 3.0
 
-_OUTLINE_POINTS = 32  # points on a disk's outline (rectangles: 4 per edge)
 _TURN_SIGMA_RAD = {"robot": math.radians(6.0), "obstacle": math.radians(3.0)}
 _SPEED_SPREAD = 0.2  # per-object speed = speed · U(1 − s, 1 + s)
 _PLACE_TRIES = 400  # random positions tried per object at start-up
 _PLACE_RESTARTS = 50
 _RANDOM_DIRECTIONS = 24  # directions tried when bouncing fails
 _CLUTTER_TRIES = 40
-_PEPPER_MAX = 30
 
 # Generator streams per frame: seeded with (seed, frame index, stream).
 _STREAM_LIGHT = 1
@@ -150,10 +156,13 @@ class SimObject(msgspec.Struct, kw_only=True, frozen=True, omit_defaults=True):
 
 
 class FrameTruth(msgspec.Struct, kw_only=True, frozen=True):
-    """Ground truth of one frame: its index and every object (robot first, by id)."""
+    """Ground truth of one frame: its index and every object (robot first, by id);
+    ``stamp_ns``, the instant it shows when its source keeps a clock shared by several
+    cameras (the camera grid: cameras on one trigger), else None."""
 
     index: int
     objects: list[SimObject]
+    stamp_ns: int | None = None
 
 
 class DatasetInfo(msgspec.Struct, kw_only=True, frozen=True):
@@ -425,15 +434,9 @@ class Arena:
         self._follow_paths()
 
     def _marker_hand(self, z: float) -> float:
-        """+1 when the camera sees the floor as a real camera does from above (the image's
-        (col, row) turn the other way from the world's (x, y)), else −1."""
+        """:func:`marker_hand` of this camera at the arena's centre."""
         (x0, x1), (y0, y1) = self._sim.arena_x_cm, self._sim.arena_y_cm
-        x, y = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
-        p = project(np.array([x, x + 1.0, x]), np.array([y, y, y + 1.0]), z, self._cam)
-        det = (p.col[1] - p.col[0]) * (p.row[2] - p.row[0]) - (p.col[2] - p.col[0]) * (
-            p.row[1] - p.row[0]
-        )
-        return 1.0 if float(det) < 0.0 else -1.0
+        return marker_hand(self._cam, 0.5 * (x0 + x1), 0.5 * (y0 + y1), z)
 
     def _follow_paths(self) -> None:
         """Marked robots to where their paths are at the current frame."""
@@ -472,19 +475,7 @@ class Arena:
     # ------------------------------------------------------------------ geometry
     def _outline(self, i: int, x: float, y: float, heading: float) -> tuple[FloatArray, FloatArray]:
         """World points (cm) on the outline of object ``i``'s top face."""
-        if self._is_rect[i]:
-            hl, hw = self._half_len[i], self._half_wid[i]
-            t = np.linspace(-1.0, 1.0, 5)[:-1]
-            one = np.ones_like(t)
-            u = np.concatenate([t * hl, one * hl, -t * hl, -one * hl])
-            v = np.concatenate([-one * hw, t * hw, one * hw, -t * hw])
-        else:
-            a = np.linspace(0.0, 2.0 * math.pi, _OUTLINE_POINTS, endpoint=False)
-            # Vertices on a circumscribed polygon, so the outline encloses the disk.
-            r = self._half_len[i] / math.cos(math.pi / _OUTLINE_POINTS)
-            u, v = r * np.cos(a), r * np.sin(a)
-        ch, sh = math.cos(heading), math.sin(heading)
-        return x + u * ch - v * sh, y + u * sh + v * ch
+        return outline(bool(self._is_rect[i]), self._half_len[i], self._half_wid[i], x, y, heading)
 
     def _in_image(self, px: FloatArray, py: FloatArray, z: float) -> tuple[bool, int]:
         """Whether all points project inside the image margin; index of the worst one."""
@@ -683,81 +674,20 @@ class Arena:
         return FrameTruth(index=self._index, objects=objects)
 
     # ------------------------------------------------------------------ rendering
-    def _paint(
-        self,
-        level: NDArray[np.float32],
-        px: FloatArray,
-        py: FloatArray,
-        z: float,
-        inside: Callable[[FloatArray, FloatArray], NDArray[np.bool_]],
-        value: float,
-    ) -> None:
-        """Composite one flat shape of intensity ``value`` into ``level`` (in place).
-
-        ``px, py``: its outline (world cm) on the plane Z = ``z``, for the bounding box;
-        ``inside(X, Y)``: membership of plane points. Coverage is the fraction of the
-        ``supersample²`` sub-pixel samples whose back-projection lies inside.
-        """
-        rows, cols = level.shape
-        p = project(px, py, z, self._cam)
-        if not p.valid.all():
-            return
-        r0 = max(math.floor(p.row.min()) - 1, 0)
-        r1 = min(math.ceil(p.row.max()) + 2, rows)
-        c0 = max(math.floor(p.col.min()) - 1, 0)
-        c1 = min(math.ceil(p.col.max()) + 2, cols)
-        if r0 >= r1 or c0 >= c1:
-            return
-        s = self._sim.supersample
-        off = (np.arange(s) + 0.5) / s - 0.5
-        rr = (np.arange(r0, r1)[:, None] + off).reshape(-1, 1)
-        cc = (np.arange(c0, c1)[:, None] + off).reshape(1, -1)
-        bp = back_project(rr, cc, self._cam, z)
-        hit = inside(bp.x_cm, bp.y_cm) & bp.valid
-        cov = hit.reshape(r1 - r0, s, c1 - c0, s).mean(axis=(1, 3), dtype=np.float32)
-        sub = level[r0:r1, c0:c1]
-        sub += cov * (np.float32(value) - sub)
-
     def _paint_object(self, level: NDArray[np.float32], i: int) -> None:
-        x, y, h = float(self._x[i]), float(self._y[i]), float(self._heading[i])
-        hl, hw = float(self._half_len[i]), float(self._half_wid[i])
-        px, py = self._outline(i, x, y, h)
-        ch, sh = math.cos(h), math.sin(h)
-
-        def inside(X: FloatArray, Y: FloatArray) -> NDArray[np.bool_]:
-            dx, dy = X - x, Y - y
-            if self._is_rect[i]:
-                return (np.abs(dx * ch + dy * sh) <= hl) & (np.abs(dy * ch - dx * sh) <= hw)
-            return dx * dx + dy * dy <= hl * hl
-
-        self._paint(level, px, py, float(self._z[i]), inside, self._sim.object_level)
+        x, y = float(self._x[i]), float(self._y[i])
+        h, z = float(self._heading[i]), float(self._z[i])
+        paint_top_face(
+            level, self._cam, self._sim, x=x, y=y, z=z, heading=h,
+            half_len=float(self._half_len[i]), half_wid=float(self._half_wid[i]),
+            is_rect=bool(self._is_rect[i]),
+        )  # fmt: skip
         if self._marked is not None and i < len(self._marked.marker_ids):
-            self._paint_marker(level, i, x, y, h)
-
-    def _paint_marker(
-        self, level: NDArray[np.float32], i: int, x: float, y: float, h: float
-    ) -> None:
-        """Paint the black cells of robot ``i``'s marker on its top face: centred, its top
-        edge towards the heading, turned so the camera sees it unmirrored."""
-        cells, side = self._marked.cells[i], self._marked.side_cm[i]
-        k = cells.shape[0]
-        up = np.array([math.cos(h), math.sin(h)])
-        right = self._marked.hand * np.array([up[1], -up[0]])
-        half = side / 2.0
-        u = np.array([-half, half, half, -half])
-        v = np.array([half, half, -half, -half])
-        px, py = x + u * right[0] + v * up[0], y + u * right[1] + v * up[1]
-
-        def inside(X: FloatArray, Y: FloatArray) -> NDArray[np.bool_]:
-            dx, dy = X - x, Y - y
-            uu, vv = dx * right[0] + dy * right[1], dx * up[0] + dy * up[1]
-            col = np.floor((uu + half) / side * k).astype(np.int64)
-            row = np.floor((half - vv) / side * k).astype(np.int64)
-            ok = (col >= 0) & (col < k) & (row >= 0) & (row < k)
-            white = cells[np.clip(row, 0, k - 1), np.clip(col, 0, k - 1)]
-            return ok & ~white
-
-        self._paint(level, px, py, float(self._z[i]), inside, self._sim.marker_level)
+            paint_marker(
+                level, self._cam, self._sim, cells=self._marked.cells[i],
+                side_cm=self._marked.side_cm[i], hand=self._marked.hand,
+                x=x, y=y, z=z, heading=h,
+            )  # fmt: skip
 
     def _paint_clutter(self, level: NDArray[np.float32]) -> None:
         """Draw this frame's clutter specks on the floor (Z = 0) into ``level``."""
@@ -822,7 +752,7 @@ class Arena:
                     )
                     return dx * dx + dy * dy <= r * r
 
-                self._paint(level, px, py, 0.0, inside, sim.clutter_level)
+                paint_shape(level, cam, sim.supersample, px, py, 0.0, inside, sim.clutter_level)
                 break
 
     def render(
@@ -851,23 +781,8 @@ class Arena:
             self._paint_object(level, i)
         if clutter if clutter is not None else not clean:
             self._paint_clutter(level)
-        img = level * self._light
-        if not clean:
-            rng = np.random.default_rng([self._seed, self._index, _STREAM_NOISE])
-            if sim.blur_sigma_px > 0.0:
-                img = cv2.GaussianBlur(
-                    img, (0, 0), sigmaX=sim.blur_sigma_px, borderType=cv2.BORDER_REFLECT
-                )
-            if sim.noise_sigma > 0.0:
-                img += rng.standard_normal(img.shape, dtype=np.float32) * np.float32(
-                    sim.noise_sigma
-                )
-            n_pepper = round(sim.pepper_fraction * img.size)
-            if n_pepper > 0:
-                where = rng.choice(img.size, size=n_pepper, replace=False)
-                img.reshape(-1)[where] = rng.integers(0, _PEPPER_MAX + 1, size=n_pepper)
-        np.clip(img, 0.0, 255.0, out=img)
-        return np.rint(img).astype(np.uint8), self.truth()
+        rng = None if clean else np.random.default_rng([self._seed, self._index, _STREAM_NOISE])
+        return finish_frame(level, self._light, sim, rng), self.truth()
 
     def frames(self, n: int) -> Iterator[tuple[NDArray[np.uint8], FrameTruth]]:
         """Yield ``(image, truth)`` for ``n`` consecutive frames from the current one.

@@ -19,13 +19,16 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
-from ovis.common.camera.projection import back_project, project
-from ovis.common.config import CameraSpec, PinholeParams
+from ovis.common.camera.projection import back_project, disks_in_image, project
+from ovis.common.config import CameraModel, CameraSpec, PinholeParams
 from ovis.common.sim.arena import SimObject
 
-__all__ = ["GridScene", "camera_grid", "grid_arena", "measure"]
+__all__ = ["GridScene", "camera_grid", "grid_arena", "measure", "whole_in_view"]
 
 FloatArray = NDArray[np.float64]
+
+#: an object is measured when its footprint is this far (pixels) inside the image
+WHOLE_MARGIN_PX = 1.0
 
 
 def grid_arena(
@@ -118,7 +121,12 @@ def camera_grid(
 class GridScene:
     """Ground truth of the grid arena: ``robots`` marked robots (ids 1…N, markers
     0…N−1) on ellipses round the arena's centre at ``speed_cm_s``, and ``obstacles``
-    still disks at least ``gap_cm`` apart, off the robots' paths."""
+    still disks at least ``gap_cm`` apart, off the robots' paths.
+
+    With ``period_frames`` = P, the robots all drive one way round, the same whole
+    number of laps per P frames (at least one), evenly spaced in phase: frame ``f + P``
+    equals frame ``f`` exactly (a prerendered period loops without a jump in the truth
+    or the identities) and no two robots ever touch (as drawn, they would merge)."""
 
     def __init__(
         self,
@@ -134,8 +142,12 @@ class GridScene:
         obstacle_height_cm: float = 7.0,
         obstacle_radius_cm: tuple[float, float] = (4.0, 6.0),
         gap_cm: float = 15.0,
+        period_frames: int | None = None,
     ) -> None:
+        if period_frames is not None and period_frames < 1:
+            raise ValueError(f"period_frames must be at least 1, got {period_frames}")
         rng = np.random.default_rng([seed, 1919])
+        self.period = period_frames
         self.fps, self.robot_z, self.obstacle_z = fps, robot_height_cm, obstacle_height_cm
         cx, cy = np.mean(arena_x_cm), np.mean(arena_y_cm)
         half_w, half_h = (arena_x_cm[1] - arena_x_cm[0]) / 2, (arena_y_cm[1] - arena_y_cm[0]) / 2
@@ -146,6 +158,14 @@ class GridScene:
         self._phase0 = rng.uniform(0, 2 * math.pi, robots)
         mean_radius = (self._ax + self._ay) / 2
         self._omega = speed_cm_s / mean_radius * np.where(k % 2 == 0, 1.0, -1.0)
+        if period_frames is not None and robots:
+            # whole laps per period, so the scene repeats exactly; one way round at one
+            # angular speed, evenly spaced in phase, so that robots never meet (rendered,
+            # touching robots would merge into one blob)
+            turn = 2 * math.pi * fps / period_frames  # one lap per period, rad/s
+            laps = max(round(float(np.abs(self._omega).mean()) / turn), 1)
+            self._omega = np.full(robots, laps * turn)
+            self._phase0 = self._phase0[0] + 2 * math.pi * k / robots
         placed: list[tuple[float, float, float]] = []
         path_t = np.linspace(0, 2 * math.pi, 200)
         path = (
@@ -216,6 +236,18 @@ class GridScene:
         return robots + self._obstacles
 
 
+def whole_in_view(cam: CameraModel, objects: list[SimObject]) -> NDArray[np.bool_]:
+    """Per object: its whole footprint (the disk round its longest half-extent) projects
+    inside ``cam``'s image, :data:`WHOLE_MARGIN_PX` from the border."""
+    if not objects:
+        return np.zeros(0, bool)
+    x = np.array([o.x_cm for o in objects])
+    y = np.array([o.y_cm for o in objects])
+    z = np.array([o.z_cm for o in objects])
+    r = np.array([max(o.radius_cm, o.length_cm / 2) for o in objects])
+    return disks_in_image(x, y, z, r, cam, margin_px=WHOLE_MARGIN_PX)
+
+
 def measure(
     cam: PinholeParams, objects: list[SimObject], pixel_sigma_px: float, rng: np.random.Generator
 ) -> list[SimObject]:
@@ -227,21 +259,7 @@ def measure(
     x = np.array([o.x_cm for o in objects])
     y = np.array([o.y_cm for o in objects])
     z = np.array([o.z_cm for o in objects])
-    r = np.array([max(o.radius_cm, o.length_cm / 2) for o in objects])
-    ang = np.linspace(0, 2 * math.pi, 8, endpoint=False)
-    rim = project(
-        x[:, None] + r[:, None] * np.cos(ang),
-        y[:, None] + r[:, None] * np.sin(ang),
-        np.broadcast_to(z[:, None], (len(x), 8)),
-        cam,
-    )
-    inside = (
-        rim.valid
-        & (rim.row >= 0)
-        & (rim.row <= cam.rows - 1)
-        & (rim.col >= 0)
-        & (rim.col <= cam.cols - 1)
-    ).all(axis=1)
+    inside = whole_in_view(cam, objects)
     p = project(x, y, z, cam)
     row = p.row + rng.normal(0, pixel_sigma_px, len(x))
     col = p.col + rng.normal(0, pixel_sigma_px, len(x))

@@ -218,6 +218,16 @@ def up(
             dir_okay=False,
         ),
     ] = None,
+    cameras: Annotated[
+        str | None,
+        typer.Option(
+            help="Run the simulated camera grid instead, e.g. 2x2: one chain per camera "
+            "and the fusion service, scored against the truth (docs/cameras.md).",
+        ),
+    ] = None,
+    seed: Annotated[
+        int | None, typer.Option(min=0, help="Simulated scene seed ([service] seed).")
+    ] = None,
 ) -> None:
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
@@ -227,10 +237,25 @@ def up(
     stops everything cleanly; logs of each process are in a temporary folder named at the
     start.
     """
+    if cameras is not None:
+        given = [f"--{n}" for n, v in (("source", source), ("calibration", calibration),
+                 ("record", record), ("view", view or None), ("arena", arena)) if v]  # fmt: skip
+        if given:
+            raise UserError(f"--cameras runs the simulated grid: not with {', '.join(given)}")
+        from ovis.services.cli.multicam_up import up_cameras
+
+        return up_cameras(cameras, config=config, listen=listen, duration=duration, json=json,
+                          seed=seed, fps=fps, max_restarts=max_restarts, pin=pin)  # fmt: skip
     from ovis.services.cli.watching import LiveView, summary_table
 
     cfg = _config(
-        config, connect=[listen], arena=arena, source=source, fps=fps, state_dir=state_dir
+        config,
+        connect=[listen],
+        arena=arena,
+        source=source,
+        fps=fps,
+        state_dir=state_dir,
+        seed=seed,
     )
     topics = _topics(cfg)
     cpus = _cpus(pin) or []

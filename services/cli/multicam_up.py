@@ -1,0 +1,349 @@
+"""``ovis up --cameras 2x2``: the simulated camera grid end to end (issue 19,
+docs/cameras.md). A router, one capture → preprocess → label → pose chain per camera
+(separate processes, each on its camera's topics ``ovis/<arena>/cam/<name>/…`` and with
+its own camera model), and the fusion service; the supervisor restarts what dies. The
+summary scores the world against the simulated truth."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+from ovis.services.cli.errors import UserError
+
+__all__ = ["CHAIN", "chain_cores", "up_cameras"]
+
+#: the stages of one camera's chain, started downstream first
+CHAIN = ("pose", "label", "preprocess", "capture")
+ROBOTS, OBSTACLES = 4, 10  # the issue's scene
+#: seconds the cameras may take to prerender their period before the run goes on anyway
+PRERENDER_S = 180.0
+#: seconds the processes (four per camera) get to stop cleanly, on a loaded host too
+STOP_S = 15.0
+
+
+def chain_cores(allowed: list[int], cameras: int, pin: str) -> list[list[int]]:
+    """Cores of each camera's chain: ``auto`` puts each chain whole on one core, the
+    chains dealt round the cores this process may use (a chain's stages hand frames to
+    each other: on one core each wakes where the previous one ran; separate chains do
+    not wait on each other, so they share out the cores); ``none``: any core; core
+    numbers: every chain on those."""
+    from ovis.services.placement import pick_cpus
+
+    spec = pin.strip().lower()
+    if spec == "none":
+        return [[] for _ in range(cameras)]
+    if spec == "auto":
+        if len(allowed) < 2:
+            return [[] for _ in range(cameras)]
+        return [[allowed[k % len(allowed)]] for k in range(cameras)]
+    try:
+        cores = pick_cpus(spec)
+    except ValueError as exc:
+        raise UserError(str(exc), 2) from None
+    return [cores for _ in range(cameras)]
+
+
+def _configs(grid: tuple[int, int], base: Any, log_dir: Path) -> tuple[dict[str, Path], Path]:
+    """Write each camera's chain configuration and the fusion's; their paths."""
+    from ovis.common.config import CameraSpec, dump_toml
+    from ovis.common.sim.gridview import grid_specs
+    from ovis.services.bus import local_peers
+
+    nx, ny = grid
+    specs = grid_specs(nx, ny, base, base.service.seed)
+    shared = msgspec.structs.replace(base, zenoh=local_peers(base.zenoh))
+    chains = {}
+    for spec in specs:
+        service = msgspec.structs.replace(
+            shared.service, camera_name=spec.name, source=f"grid:{nx}x{ny}:{spec.name}"
+        )
+        # the chain is calibrated with its camera's known simulated model
+        cfg = msgspec.structs.replace(shared, camera=spec.camera, service=service)
+        chains[spec.name] = log_dir / f"{spec.name}.toml"
+        chains[spec.name].write_text(dump_toml(msgspec.to_builtins(cfg)))
+    cameras = [CameraSpec(name=s.name, source=f"grid:{nx}x{ny}:{s.name}", camera=s.camera)
+               for s in specs]  # fmt: skip
+    fusion = msgspec.structs.replace(shared, cameras=cameras)
+    fusion_path = log_dir / "fusion.toml"
+    fusion_path.write_text(dump_toml(msgspec.to_builtins(fusion)))
+    return chains, fusion_path
+
+
+def up_cameras(
+    grid_text: str,
+    *,
+    config: Path | None,
+    listen: str,
+    duration: float | None,
+    json: bool,
+    seed: int,
+    fps: float | None,
+    max_restarts: int,
+    pin: str,
+) -> None:
+    """Run the simulated ``grid_text`` (e.g. "2x2") camera grid end to end (module
+    docstring) until ``duration`` s of frames or Ctrl-C, and print the summary."""
+    import os
+
+    from ovis.common.config import ConfigError, with_options
+    from ovis.common.messages import Topics
+    from ovis.common.sim.scenes import marked_scene
+    from ovis.services.cli.cameras import parse_grid
+    from ovis.services.supervisor import Supervisor
+
+    grid = parse_grid(grid_text)
+    try:
+        base = with_options(config, connect=[listen], seed=seed, fps=fps)
+        base = marked_scene(base, ROBOTS, OBSTACLES)
+        topics = Topics(base.service.arena)
+        log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-cameras-"))
+        chains, fusion_cfg = _configs(grid, base, log_dir)
+    except (ValueError, ConfigError) as exc:
+        raise UserError(str(exc)) from None
+    names = list(chains)
+    cores = chain_cores(sorted(os.sched_getaffinity(0)), len(names), pin)
+    out = sys.stderr if json else sys.stdout
+    placed = ", ".join(
+        f"{n} on {','.join(map(str, c)) or 'any'}" for n, c in zip(names, cores, strict=True)
+    )
+    print(
+        f"ovis up: {grid_text} cameras over arena {topics.arena} (seed {base.service.seed}), "
+        f"router {listen}; chains: {placed}; logs in {log_dir}",
+        file=out,
+        flush=True,
+    )
+    fleet = Supervisor(log_dir, max_restarts=max_restarts)
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    fleet.start("router", ["router", "--listen", listen])
+    time.sleep(0.5)
+    fleet.start("fusion", ["run", "fusion", "--config", str(fusion_cfg)])
+
+    def start(name: str, stage: str, where: list[int]) -> None:
+        cpus = ["--cpus", ",".join(map(str, where)) or "none"]
+        fleet.start(f"{name}-{stage}", ["run", stage, "--config", str(chains[name]), *cpus])
+
+    for name, where in zip(names, cores, strict=True):
+        for stage in CHAIN[:-1]:
+            start(name, stage, where)
+    from ovis.common.config import ZenohConfig
+    from ovis.services.bus import open_session
+
+    run, started = _Run(names, grid, base, topics), time.monotonic()
+    try:
+        with open_session(ZenohConfig(connect=[listen])) as session:
+            run.attach(session)
+            # the cameras once every chain and fusion listen: no frame is lost at start
+            late = _wait_alive(fleet, session, topics, names, stop)
+            for name, where in zip(names, cores, strict=True):
+                start(name, "capture", where)
+            if late and not stop.is_set():
+                print(f"ovis up: started the cameras though {', '.join(sorted(late))} did "
+                      f"not listen yet (see {log_dir})", file=sys.stderr)  # fmt: skip
+            _wait_prerendered(fleet, session, topics, names, stop, out)
+            run.clock_from = time.time_ns()
+            began = time.monotonic()
+            while not stop.is_set():
+                for news in fleet.supervise():
+                    print(f"ovis up: {news}", file=sys.stderr)
+                if duration is not None and time.monotonic() - began >= duration:
+                    break
+                stop.wait(0.5)
+            # the captures stop first; what is in flight reaches the world before the count
+            for name in names:
+                proc = fleet.children[f"{name}-capture"].proc
+                if proc is not None and proc.poll() is None:
+                    proc.send_signal(signal.SIGTERM)
+            time.sleep(1.0)
+    finally:
+        codes = fleet.stop(timeout=STOP_S)
+    summary = run.summary(fleet, time.monotonic() - started)
+    if json:
+        sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
+    else:
+        _print_summary(summary)
+    if summary["world"]["frames"] == 0:
+        raise UserError(f"no world frame came out; see the logs in {log_dir}", 1)
+    from ovis.common.pipeline.restarts import describe_exit
+
+    bad = [f"{n} ({describe_exit(c)})" for n, c in codes.items() if c not in (0, -signal.SIGTERM)]
+    if bad or fleet.gave_up():
+        reasons = "; ".join(fleet.gave_up()) or f"process(es) {', '.join(bad)} exited abnormally"
+        raise UserError(f"{reasons}; see the logs in {log_dir}", 1)
+
+
+class _Run:
+    """What the summary needs, subscribed: the world frames, the truth, and each
+    camera's frames captured (its truth messages, one per frame its capture published)
+    and processed (its pose's obstacle frames), whatever restarts meanwhile."""
+
+    def __init__(self, names: list[str], grid: tuple[int, int], base: Any, topics: Any) -> None:
+        from ovis.common.analysis.multicam import WorldWatch
+        from ovis.common.sim.gridview import grid_specs
+
+        self.names, self.topics, self.base = names, topics, base
+        nx, ny = grid
+        specs = grid_specs(nx, ny, base, base.service.seed)
+        self.grid = f"{nx}x{ny}"
+        self.watch = WorldWatch({s.name: s.camera for s in specs})
+        self.captured = dict.fromkeys(names, 0)
+        self.processed = dict.fromkeys(names, 0)
+        self.chain_ms: list[float] = []  # capture stamp → a camera's pose published
+        self.clock_from = 0  # world frames stamped before the cameras all ran are not scored
+
+    def attach(self, session: Any) -> None:
+        from ovis.common.messages import (
+            MessageError,
+            ObstacleFrame,
+            TruthFrame,
+            WorldFrame,
+            decode,
+        )
+
+        def on_world(sample: Any) -> None:
+            now = time.time_ns()
+            with contextlib.suppress(MessageError):
+                self.watch.add_world(decode(sample.payload.to_bytes(), WorldFrame), now)
+
+        def on_truth(sample: Any, name: str) -> None:
+            self.captured[name] += 1  # Zenoh calls one subscriber's callback at a time
+            with contextlib.suppress(MessageError):
+                self.watch.add_truth(decode(sample.payload.to_bytes(), TruthFrame))
+
+        def on_obstacles(sample: Any, name: str) -> None:
+            self.processed[name] += 1
+            with contextlib.suppress(MessageError):
+                frame = decode(sample.payload.to_bytes(), ObstacleFrame)
+                if frame.stamp_ns >= self.clock_from:
+                    self.chain_ms.append((frame.published_ns - frame.stamp_ns) / 1e6)
+
+        session.declare_subscriber(self.topics.world, on_world)
+        for name in self.names:
+            cam = self.topics.of_camera(name)
+            session.declare_subscriber(cam.truth, lambda s, n=name: on_truth(s, n))
+            session.declare_subscriber(cam.obstacles, lambda s, n=name: on_obstacles(s, n))
+
+    def summary(self, fleet: Any, elapsed_s: float) -> dict[str, Any]:
+        import numpy as np
+
+        from ovis.common.analysis.multicam import CameraRun, percentiles
+
+        score, latency, scored = self.watch.score(self.clock_from)
+        fused, late = self.watch.fused(), self.watch.late()
+        restarts = fleet.restarts()
+        cameras = {}
+        for name in self.names:
+            captured, processed = self.captured[name], self.processed[name]
+            cameras[name] = CameraRun(
+                captured=captured,
+                processed=processed,
+                fused=fused.get(name, 0),
+                late=late.get(name, 0),
+                dropped=max(0, captured - fused.get(name, 0)),
+                restarts=sum(v for k, v in restarts.items() if k.startswith(f"{name}-")),
+            )
+        return {
+            "grid": self.grid,
+            "seed": self.base.service.seed,
+            "elapsed_s": round(elapsed_s, 2),
+            "cameras": msgspec.to_builtins(cameras),
+            "world": {
+                "frames": self.watch.frames(),
+                "scored": scored,
+                "duplicates": score.duplicates,
+                "identity_swaps": score.identity_swaps,
+                "missed": score.missed,
+                "phantoms": score.phantoms,
+                "handovers": score.handovers,
+                "handover_jump_cm": score.handover_jump_cm,
+                "world_error_cm": {
+                    "mean": score.world_error_cm_mean,
+                    "max": score.world_error_cm_max,
+                },
+                "latency_ms": latency,
+            },
+            # where the time goes: capture → each camera's pose published (its chain),
+            # → the world published by fusion (chains, the wait for the slowest, merging)
+            "stages_ms": {
+                "capture_to_pose": percentiles(np.asarray(self.chain_ms, float)),
+                "capture_to_world_published": self.watch.published_ms(self.clock_from),
+            },
+            "restarts": {"fusion": restarts.get("fusion", 0)},
+            "gave_up": fleet.gave_up(),
+        }
+
+
+def _wait_alive(fleet: Any, session: Any, topics: Any, names: list[str], stop: Any) -> set[str]:
+    """Wait until fusion and every chain's downstream stages listen (or 30 s)."""
+    from ovis.services.cli.launcher import STARTUP_S
+    from ovis.services.cli.watching import alive_services
+
+    deadline = time.monotonic() + STARTUP_S
+    waiting: set[str] = set()
+    while not stop.is_set() and time.monotonic() < deadline:
+        fleet.supervise()
+        waiting = {"fusion"} - alive_services(session, topics, 0.5)
+        for name in names:
+            alive = alive_services(session, topics.of_camera(name), 0.5)
+            waiting |= {f"{name}-{s}" for s in CHAIN[:-1] if s not in alive}
+        if not waiting:
+            break
+        stop.wait(0.2)
+    return waiting
+
+
+def _wait_prerendered(
+    fleet: Any, session: Any, topics: Any, names: list[str], stop: Any, out: Any
+) -> None:
+    """Wait while the cameras prerender their period, saying how far they are."""
+    from ovis.services.cli.watching import query_statuses
+
+    deadline = time.monotonic() + PRERENDER_S
+    said = ""
+    while not stop.is_set() and time.monotonic() < deadline:
+        fleet.supervise()
+        states = {}
+        for name in names:
+            st = query_statuses(session, topics.of_camera(name), 1.0).get("capture")
+            states[name] = st.state if st is not None else "starting"
+        busy = {n: s for n, s in states.items() if s.startswith("prerendering") or s == "starting"}
+        if not busy:
+            return
+        line = "ovis up: cameras " + ", ".join(f"{n} {s}" for n, s in busy.items())
+        if line != said:
+            print(line, file=out, flush=True)
+            said = line
+        stop.wait(1.0)
+
+
+def _print_summary(summary: dict[str, Any]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console(highlight=False)
+    t = Table(title=f"cameras ({summary['grid']}, seed {summary['seed']})", title_justify="left")
+    for col in ("camera", "captured", "processed", "fused", "late", "dropped", "restarts"):
+        t.add_column(col, justify="right")
+    for name, c in summary["cameras"].items():
+        t.add_row(name, *(str(c[k]) for k in ("captured", "processed", "fused", "late",
+                                              "dropped", "restarts")))  # fmt: skip
+    con.print(t)
+    w = summary["world"]
+    con.print(
+        f"world: {w['frames']} frames ({w['scored']} scored), {w['duplicates']} duplicates, "
+        f"{w['identity_swaps']} identity swaps, {w['missed']} missed, {w['phantoms']} phantoms; "
+        f"hand-over jump max {w['handover_jump_cm']:.3f} cm over {w['handovers']} hand-overs; "
+        f"error mean {w['world_error_cm']['mean']:.3f} cm, max {w['world_error_cm']['max']:.3f}"
+        f" cm; latency capture → world p50 {w['latency_ms']['p50']:.1f} ms, p99 "
+        f"{w['latency_ms']['p99']:.1f} ms"
+    )

@@ -1,0 +1,115 @@
+"""`ovis up --cameras 2x2` end to end (issue 19): a real process starting a router, four
+real capture → preprocess → label → pose chains rendering the simulated grid, and the
+fusion service; its JSON summary scores the fused world against the ground truth."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+from zenoh_helpers import free_port, ovis_cmd
+
+CAMERAS = ("cam00", "cam10", "cam01", "cam11")
+
+
+def _up(tmp_path: Path, duration_s: int) -> tuple[list[str], dict[str, str]]:
+    """The `ovis up --cameras 2x2` command and its environment: on a loaded, shared 2-core
+    host the world waits longer for a late camera and the cameras run at 15 frames/s (the
+    30 frames/s budget is the benchmark's); the prerendered periods are kept between
+    runs in the system's temporary folder."""
+    cfg = tmp_path / "wait.toml"
+    cfg.write_text("[fusion]\nwait_ms = 250.0\n")
+    env = dict(os.environ, OVIS_CACHE=str(Path(tempfile.gettempdir()) / "ovis-test-cache"))
+    args = ["up", "--cameras", "2x2", "--duration", str(duration_s), "--json", "--seed", "7"]
+    args += ["--fps", "15", "--listen", f"tcp/127.0.0.1:{free_port()}", "--config", str(cfg)]
+    return ovis_cmd(*args), env
+
+
+def test_up_cameras_2x2_gives_one_clean_world(tmp_path: Path) -> None:
+    cmd, env = _up(tmp_path, 20)
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=240, env=env)
+    assert done.returncode == 0, done.stderr[-3000:]
+    summary = json.loads(done.stdout)
+    assert "prerendering" in done.stderr or "cameras" in done.stderr  # progress was shown
+    assert summary["grid"] == "2x2" and summary["seed"] == 7
+    cams = summary["cameras"]
+    assert sorted(cams) == sorted(CAMERAS)
+    world = summary["world"]
+    for name, c in cams.items():
+        assert c["processed"] > 100, (name, c)
+        # every count is consistent: nothing fused that was not processed, not captured
+        assert c["fused"] <= c["processed"] + 1 and c["processed"] <= c["captured"] + 1, c
+        assert c["dropped"] == max(0, c["captured"] - c["fused"])
+        assert c["fused"] <= world["frames"]
+        assert c["restarts"] == 0
+    assert world["scored"] >= 0.8 * world["frames"] > 0
+    assert world["duplicates"] == 0
+    assert world["identity_swaps"] == 0
+    assert world["phantoms"] == 0
+    assert world["handovers"] > 0  # robots did cross from one view to the next
+    assert world["handover_jump_cm"] <= 1.0
+    assert world["world_error_cm"]["mean"] <= 0.5
+    assert 0 < world["latency_ms"]["p50"] <= world["latency_ms"]["p99"]
+
+
+def test_up_cameras_refuses_what_cannot_go_with_the_grid() -> None:
+    bad = subprocess.run(
+        ovis_cmd("up", "--cameras", "2x2", "--source", "camera:0"), capture_output=True, text=True
+    )
+    assert bad.returncode == 2
+    assert "--cameras runs the simulated grid: not with --source" in bad.stderr
+    bad = subprocess.run(ovis_cmd("up", "--cameras", "9x9"), capture_output=True, text=True)
+    assert bad.returncode == 2 and "give columns x rows, e.g. 2x2" in bad.stderr
+
+
+def _child(parent: int, *words: str) -> int | None:
+    """The pid of a child of ``parent`` whose command line holds every word."""
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        if int(stat[1]) == parent and all(w in cmd for w in words):
+            return int(entry.name)
+    return None
+
+
+def test_up_cameras_restarts_a_killed_chain_stage_and_the_others_go_on(tmp_path: Path) -> None:
+    cmd, env = _up(tmp_path, 25)
+    err = tmp_path / "up.err"
+    with err.open("w") as log:
+        up = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, env=env)
+    try:
+        deadline = time.monotonic() + 150
+        victim = None
+        while victim is None and time.monotonic() < deadline:
+            capture = _child(up.pid, "run capture", "cam11.toml")
+            victim = _child(up.pid, "run pose", "cam01.toml") if capture else None
+            time.sleep(0.5)
+        assert victim is not None, err.read_text()[-2000:]
+        time.sleep(6)  # the cameras read their period (cached by the test above) and run
+        os.kill(victim, signal.SIGKILL)
+        out, _ = up.communicate(timeout=200)
+    finally:
+        if up.poll() is None:
+            up.kill()
+    assert up.returncode == 0, err.read_text()[-3000:]
+    summary = json.loads(out)
+    cams, world = summary["cameras"], summary["world"]
+    assert cams["cam01"]["restarts"] >= 1
+    assert "cam01-pose died (killed by SIGKILL)" in err.read_text()
+    for name in ("cam00", "cam10", "cam11"):  # undisturbed
+        c = cams[name]
+        assert c["restarts"] == 0 and c["dropped"] <= 0.1 * c["captured"], (name, c)
+    # cam01 is back in the world: killed about a quarter of the way in and never back, it
+    # would have fused about a quarter of what cam00 did
+    assert cams["cam01"]["fused"] > 0.7 * cams["cam00"]["fused"], cams
+    assert world["duplicates"] == 0 and world["phantoms"] == 0
