@@ -6,6 +6,7 @@ marked robots their markers, searched for around the blobs in the frame's median
 
 from __future__ import annotations
 
+from ovis.common.camera.plane_table import PlaneTables
 from ovis.common.messages import BinaryFrame
 from ovis.common.pipeline.stages import SizeFilter, blob_list
 from ovis.common.world.marker_search import BlobMarkers
@@ -17,6 +18,7 @@ def main(service: Service) -> None:
     publish = service.publisher(service.topics.blobs)
     size_filter = SizeFilter()
     find_markers = BlobMarkers()
+    tables = PlaneTables(background=True)  # a pinhole camera's plane maps, per calibration
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
         frame = service.decode(payload, BinaryFrame, "binary")
@@ -26,7 +28,7 @@ def main(service: Service) -> None:
         if not service.fits_camera(frame, "binary"):
             return
         service.saw_frame(frame.seq, frame.stamp_ns, frame.stream)
-        blobs = blob_list(frame, calib, size_filter.min_area_px(calib), find_markers)
+        blobs = blob_list(frame, calib, size_filter.min_area_px(calib), find_markers, tables)
         service.publish_result(publish, blobs)
 
     service.serve(service.inbox(service.topics.binary), handle)

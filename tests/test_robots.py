@@ -13,8 +13,8 @@ import pytest
 
 from ovis.common.analysis.robots import evaluate_marked
 from ovis.common.calibration.file import calibration_from_config
-from ovis.common.camera.plane_table import PlaneTable
-from ovis.common.camera.projection import back_project, project
+from ovis.common.camera.plane_table import PlaneTable, PlaneTables
+from ovis.common.camera.projection import back_project, pixel_jacobian, project
 from ovis.common.config import (
     MARKER_DICTIONARIES,
     ConfigError,
@@ -158,6 +158,36 @@ def test_plane_table_reads_the_back_projection_between_pixels(preset: str) -> No
     assert np.abs(xy.imag - exact.y_cm).max() < 1e-3
     _, outside = table(np.array([-0.5, 3.0, cam.rows - 0.5]), np.array([3.0, cam.cols, 3.0]))
     assert not outside.any()  # off the frame: not valid
+
+
+def test_plane_tables_give_the_pixel_jacobian_of_a_pinhole_camera() -> None:
+    """The label stage's pixel → plane maps read from the tables equal the iterated
+    back-projection's, inside the frame, at its edges and beyond (there back-projected)."""
+    cam = load_config(preset="pinhole").camera
+    rng = np.random.default_rng(161)
+    row = np.concatenate([rng.uniform(0.0, cam.rows - 1.0, 500), [0.0, cam.rows - 1.0, -3.0]])
+    col = np.concatenate([rng.uniform(0.0, cam.cols - 1.0, 500), [cam.cols - 1.0, 0.0, 20.0]])
+    tables = PlaneTables()
+    for z in (0.0, 7.0):
+        got, exact = tables.jacobian(row, col, cam, z), pixel_jacobian(row, col, cam, z)
+        assert got.valid.tolist() == exact.valid.tolist()
+        for a, b in zip(got[:-1], exact[:-1], strict=True):
+            assert np.abs(a - b).max() < 1e-3
+        assert np.abs(got.area_cm2 / exact.area_cm2 - 1.0).max() < 1e-3
+    assert tables.table(cam, 7.0) is tables.table(cam, 7.0)  # made once per plane
+    other = msgspec.structs.replace(cam, fx=cam.fx * 1.01)
+    assert tables.table(other, 7.0) is not tables.table(cam, 7.0)  # a new calibration
+    # made in the background: the same maps, back-projected until the table is ready
+    background = PlaneTables(background=True)
+    first = background.jacobian(row, col, cam, 7.0)
+    assert background.table(cam, 7.0) is None  # still being made
+    exact = pixel_jacobian(row, col, cam, 7.0)
+    assert all(np.array_equal(a, b) for a, b in zip(first, exact, strict=True))
+    deadline = time.monotonic() + 30.0
+    while background.table(cam, 7.0) is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    later = background.jacobian(row, col, cam, 7.0)
+    assert np.abs(later.x_cm - exact.x_cm).max() < 1e-3
 
 
 def test_tracker_poses_match_the_back_projected_ones(scene) -> None:

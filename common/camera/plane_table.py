@@ -11,13 +11,16 @@ perspective division and a radial polynomial), so over one pixel it is all but l
 
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ovis.common.camera.paper_model import PixelJacobian, five_points, jacobian_of
 from ovis.common.camera.projection import back_project
 from ovis.common.config import CameraModel
 
-__all__ = ["PlaneTable"]
+__all__ = ["PlaneTable", "PlaneTables"]
 
 
 class PlaneTable:
@@ -48,3 +51,50 @@ class PlaneTable:
         xy = top + (lower_a + (lower_b - lower_a) * fc - top) * fr
         inside = (fr >= 0.0) & (fr <= 1.0) & (fc >= 0.0) & (fc <= 1.0)
         return xy, inside & np.isfinite(xy)
+
+
+class PlaneTables:
+    """The :class:`PlaneTable` of each plane height of one camera (the newest asked
+    for; a new calibration replaces them), for the per-frame pixel → plane maps of a
+    pinhole camera, whose back-projection iterates to undo the lens distortion.
+
+    With ``background``, a table is made on a thread of its own while the frames asked
+    for meanwhile are back-projected directly: a running stage never stalls for it."""
+
+    def __init__(self, *, background: bool = False) -> None:
+        self._camera: CameraModel | None = None
+        self._tables: dict[float, Future[PlaneTable]] = {}
+        self._pool = ThreadPoolExecutor(max_workers=1) if background else None
+
+    def table(self, camera: CameraModel, z_cm: float) -> PlaneTable | None:
+        """``camera``'s table of the plane z = ``z_cm``; None while it is being made."""
+        if camera is not self._camera:
+            self._camera, self._tables = camera, {}
+        made = self._tables.get(z_cm)
+        if made is None:
+            if self._pool is None:
+                made = Future()
+                made.set_result(PlaneTable(camera, z_cm))
+            else:
+                made = self._pool.submit(PlaneTable, camera, z_cm)
+            self._tables[z_cm] = made
+        return made.result() if made.done() else None
+
+    def jacobian(
+        self, row: ArrayLike, col: ArrayLike, camera: CameraModel, z_cm: float
+    ) -> PixelJacobian:
+        """:func:`~ovis.common.camera.projection.pixel_jacobian` at (row, col) on
+        z = ``z_cm``, read from the table; the points the table does not cover (within
+        ½ px of the frame's edge, or beyond it) are back-projected."""
+        rows, cols = five_points(row, col)
+        table = self.table(camera, z_cm)
+        if table is None:
+            b = back_project(rows, cols, camera, z_cm)
+            return jacobian_of(np.asarray(b.x_cm), np.asarray(b.y_cm), np.asarray(b.valid))
+        xy, valid = table(rows, cols)
+        x, y = xy.real.copy(), xy.imag.copy()
+        rest = ~valid
+        if rest.any():
+            b = back_project(rows[rest], cols[rest], camera, z_cm)
+            x[rest], y[rest], valid[rest] = b.x_cm, b.y_cm, b.valid
+        return jacobian_of(x, y, valid)

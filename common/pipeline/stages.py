@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from ovis.common.calibration.file import Calibration
+from ovis.common.camera.plane_table import PlaneTables
 from ovis.common.config import CameraModel
 from ovis.common.messages import (
     BinaryFrame,
@@ -111,15 +112,17 @@ def blob_list(
     calib: Calibration,
     min_area_px: float,
     find_markers: BlobMarkers | None = None,
+    tables: PlaneTables | None = None,
 ) -> BlobList:
     """The labeling stage: the blobs of a binary frame (labeling, size filter,
     perimeter, compactness) and where back-projection puts them on the obstacles' and
-    the robot's top planes (so that the pose stage needs none); with marked robots, the
+    the robot's top planes (so that the pose stage needs none; a pinhole camera's read
+    from ``tables``, kept by the caller between frames); with marked robots, the
     markers ``find_markers`` finds in the frame's median around the blobs (as
     :meth:`Detector.detect` does), unless the binary frame brings them decoded."""
     planes = (calib.pose.obstacle_height_cm, calib.pose.robot_height_cm)
     blobs, (floor, top) = measure_blobs_and_maps(
-        frame.mask(), calib.image, calib.camera, planes, min_area_px=min_area_px
+        frame.mask(), calib.image, calib.camera, planes, min_area_px=min_area_px, tables=tables
     )
     markers, at_border = frame.markers, frame.markers_at_border
     median3 = frame.median_image()

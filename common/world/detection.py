@@ -18,8 +18,9 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
+from ovis.common.camera.plane_table import PlaneTables
 from ovis.common.camera.projection import PixelJacobian, pixel_footprint_cm2, pixel_jacobian
-from ovis.common.config import CameraModel, ImageParams, PoseConfig
+from ovis.common.config import CameraModel, ImageParams, PinholeParams, PoseConfig
 from ovis.common.vision.labeling import filter_components, label_components
 from ovis.common.vision.markers import Markers
 from ovis.common.vision.perimeter import perimeter
@@ -191,12 +192,13 @@ def measure_blobs_and_maps(
     planes_cm: tuple[float, ...],
     *,
     min_area_px: float = 0.0,
+    tables: PlaneTables | None = None,
 ) -> tuple[Blobs, list[PixelJacobian]]:
     """:func:`measure_blobs` (size filter on ``planes_cm[0]``), and the pixel → plane map
     at every kept blob on each of ``planes_cm``, all from one back-projection (the size
     filter needs the first anyway; the pose wants the obstacle and the robot plane)."""
     comp = label_components(binary, min_area_px=min_area_px)
-    maps = plane_maps(comp.row, comp.col, camera, planes_cm)
+    maps = plane_maps(comp.row, comp.col, camera, planes_cm, tables)
     footprint = maps[0].area_cm2
     keep = (footprint > 0) & (comp.area_px * footprint >= params.size_filter_cm2)
     if params.max_size_cm2 is not None:
@@ -221,9 +223,13 @@ def plane_maps(
     col: NDArray[np.float64],
     camera: CameraModel,
     planes_cm: tuple[float, ...],
+    tables: PlaneTables | None = None,
 ) -> list[PixelJacobian]:
     """The pixel → plane map at each (row, col) on each of ``planes_cm``, from one
-    back-projection of all of them."""
+    back-projection of all of them; for a pinhole camera, from ``tables`` when given
+    (a frame's many blobs would otherwise each iterate its lens undistortion)."""
+    if tables is not None and isinstance(camera, PinholeParams):
+        return [tables.jacobian(row, col, camera, z) for z in planes_cm]
     heights = np.asarray(planes_cm, dtype=np.float64)[:, None]
     maps = pixel_jacobian(row[None, :], col[None, :], camera, heights)
     return [PixelJacobian(*(f[k] for f in maps)) for k in range(len(planes_cm))]
@@ -304,6 +310,7 @@ class Detector:
         first_obstacle = max((r.id for r in pose.robots), default=ROBOT_ID) + 1
         self.tracker = Tracker(pose.track_gate_cm, _next_id=first_obstacle)
         self.robots = RobotTracker(pose)
+        self.tables = PlaneTables()
         self._last_stamp: float | None = None
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
         self.marker_side_px = marker_side_px(pose, camera)
@@ -339,7 +346,12 @@ class Detector:
             binary = binarize_frame(frame, self.image, self.camera)
         planes = (self.pose.obstacle_height_cm, self.pose.robot_height_cm)
         blobs, (floor, top) = measure_blobs_and_maps(
-            binary, self.image, self.camera, planes, min_area_px=self.min_area_px
+            binary,
+            self.image,
+            self.camera,
+            planes,
+            min_area_px=self.min_area_px,
+            tables=self.tables,
         )
         markers = None
         if median3 is not None:
@@ -378,7 +390,7 @@ class Detector:
         n = comp.area_px.size
         if floor is None or top is None:
             planes = (pose.obstacle_height_cm, pose.robot_height_cm)
-            floor, top = plane_maps(comp.row, comp.col, cam, planes)
+            floor, top = plane_maps(comp.row, comp.col, cam, planes, self.tables)
         now = stamp_s if stamp_s is not None else (self._last_stamp or 0.0) + 1.0
         dt = now - self._last_stamp if self._last_stamp is not None else 1.0
         self._last_stamp = now
