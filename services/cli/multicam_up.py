@@ -125,6 +125,7 @@ def up_cameras(
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
+    _prerender(chains, grid, max(1, len(os.sched_getaffinity(0))), out, stop)
     fleet.start("router", ["router", "--listen", listen])
     time.sleep(0.5)
     fleet.start("fusion", ["run", "fusion", "--config", str(fusion_cfg)])
@@ -300,6 +301,46 @@ def _wait_alive(fleet: Any, session: Any, topics: Any, names: list[str], stop: A
             break
         stop.wait(0.2)
     return waiting
+
+
+def _render_period(config_path: str, grid: tuple[int, int], name: str) -> None:
+    """One camera's period rendered into the cache (in a worker process)."""
+    from ovis.common.capture.sources import grid_cache_dir
+    from ovis.common.config import load_config
+    from ovis.common.sim.gridview import GridCamera
+
+    cfg = load_config(Path(config_path))
+    GridCamera(cfg, *grid, name, cfg.service.seed).render_period(None, grid_cache_dir())
+
+
+def _prerender(
+    chains: dict[str, Path], grid: tuple[int, int], workers: int, out: Any, stop: Any
+) -> None:
+    """Render (or find in the cache) every camera's period before any camera runs, on
+    ``workers`` processes, saying how far it is: a camera that started while others
+    still rendered would lose frames to their rendering, and the cameras would not
+    start together."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    began = time.monotonic()
+    ctx = multiprocessing.get_context("spawn")  # no fork of this process's threads
+    with ProcessPoolExecutor(max_workers=min(workers, len(chains)), mp_context=ctx) as pool:
+        jobs = [pool.submit(_render_period, str(path), grid, n) for n, path in chains.items()]
+        while not stop.is_set():
+            done = sum(j.done() for j in jobs)
+            if done == len(jobs):
+                break
+            took = time.monotonic() - began
+            if took > 2.0:
+                said = f"{done} of {len(jobs)} cameras done ({took:.0f} s)"
+                print(f"ovis up: rendering the cameras' frames: {said}", file=out, flush=True)
+            stop.wait(2.0)
+        for job in jobs:
+            if stop.is_set():
+                job.cancel()
+            elif job.exception() is not None:
+                raise UserError(f"rendering the simulated cameras failed: {job.exception()}")
 
 
 def _wait_prerendered(
