@@ -217,6 +217,32 @@ def test_population_cameras_broadcast() -> None:
     assert b.shape == (5, 3) and (b > 0).all()
 
 
+@settings(max_examples=300, deadline=None)
+@given(
+    k=st.tuples(
+        *[st.floats(-50.0, 50.0).filter(lambda v: abs(v) > 1e-6) | st.just(0.0) for _ in "abc"]
+    ),
+    r2=st.lists(st.floats(0.0, 20.0), min_size=1, max_size=40),
+)
+def test_one_cameras_one_to_one_bound_is_the_general_test(k, r2) -> None:
+    """One camera's radius bound (cached, a cubic's smallest positive root) says the
+    same as the exact test that a GA population's broadcast cameras go through."""
+    one = msgspec.structs.replace(TRUTH, k1=k[0], k2=k[1], k3=k[2])
+    as_arrays = msgspec.structs.replace(
+        TRUTH, k1=np.array([k[0]]), k2=np.array([k[1]]), k3=np.array([k[2]])
+    )
+    r2 = np.array(r2)
+    limit = pinhole._one_to_one_limit(k[0], k[1], k[2])
+    near = np.abs(r2 - limit) <= 1e-9 * max(1.0, limit)  # at the root itself: rounding
+    got = pinhole._monotonic_radius2(one, r2)
+    want = pinhole._monotonic_radius2(as_arrays, r2)
+    assert (got == want)[~near].all()
+    # and one camera's rotation (cached, read-only) is OpenCV's
+    R = pinhole._rotation(one)
+    np.testing.assert_allclose(R, cv2.Rodrigues(np.array(one.rvec))[0], atol=1e-12)
+    assert not R.flags.writeable
+
+
 # --------------------------------------------------------------------------- config
 def test_pinhole_preset_and_model_switch_over_another_preset() -> None:
     assert PINHOLE.camera.model == "pinhole" and isinstance(PINHOLE.camera, PinholeParams)

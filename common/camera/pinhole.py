@@ -32,6 +32,8 @@ points of shape ``(N,)``.
 
 from __future__ import annotations
 
+import functools
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -107,8 +109,24 @@ def rodrigues(rvec: ArrayLike) -> FloatArray:
     return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
 
 
+def _scalars(values: tuple[object, ...]) -> bool:
+    """Whether these camera fields are plain numbers (one camera, not a GA population)."""
+    return all(isinstance(v, float | int) for v in values)
+
+
+@functools.lru_cache(maxsize=256)
+def _rotation_of(rvec: tuple[float, float, float]) -> FloatArray:
+    R = rodrigues(np.array(rvec, dtype=np.float64))
+    R.flags.writeable = False
+    return R
+
+
 def _rotation(cam: PinholeParams) -> FloatArray:
-    """R of the camera, (..., 3, 3) over the camera fields' broadcast shape."""
+    """R of the camera, (..., 3, 3) over the camera fields' broadcast shape; one
+    camera's is computed once (per-frame calls project a few points, where the fixed
+    cost of the Rodrigues formula would dominate)."""
+    if _scalars(cam.rvec):
+        return _rotation_of(tuple(float(v) for v in cam.rvec))
     rx, ry, rz = np.broadcast_arrays(*(_f(v) for v in cam.rvec))
     return rodrigues(np.stack([rx, ry, rz], axis=-1))
 
@@ -155,6 +173,8 @@ def _monotonic_radius2(cam: PinholeParams, r2: FloatArray) -> NDArray[np.bool_]:
     The minimum of the cubic on the interval is at an end or at a root of
     ``g'(s) = 3k1 + 10k2 s + 21k3 s²`` (closed form), so the test is exact.
     """
+    if _scalars((cam.k1, cam.k2, cam.k3)):
+        return np.asarray(r2) < _one_to_one_limit(float(cam.k1), float(cam.k2), float(cam.k3))
     k1, k2, k3 = (_f(v) for v in (cam.k1, cam.k2, cam.k3))
 
     def g(s: FloatArray) -> FloatArray:
@@ -177,6 +197,20 @@ def _monotonic_radius2(cam: PinholeParams, r2: FloatArray) -> NDArray[np.bool_]:
         inside = (s > 0.0) & (s < r2b)
         ok = ok & ~(inside & (g(np.where(inside, s, 0.0)) <= 0.0))
     return ok
+
+
+@functools.lru_cache(maxsize=256)
+def _one_to_one_limit(k1: float, k2: float, k3: float) -> float:
+    """One camera's :func:`_monotonic_radius2` as a bound: ``g`` is 1 at 0, so it stays
+    positive on ``[0, r²]`` exactly when ``r²`` lies below its smallest positive root
+    (∞ when it has none)."""
+    coeffs = np.array([7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0])
+    while abs(coeffs[0]) <= 1e-12 * np.abs(coeffs).max():  # a vanishing leading term
+        coeffs = coeffs[1:]
+    roots = np.roots(coeffs)
+    real = roots.real[(np.abs(roots.imag) <= 1e-12 * np.maximum(1.0, np.abs(roots.real)))]
+    positive = real[real > 0.0]
+    return float(positive.min()) if positive.size else math.inf
 
 
 def project(x_cm: ArrayLike, y_cm: ArrayLike, z_cm: ArrayLike, cam: PinholeParams) -> Projection:
