@@ -6,7 +6,9 @@ marked robots their markers, searched for around the blobs in the frame's median
 
 from __future__ import annotations
 
+from ovis.common.calibration.file import Calibration
 from ovis.common.camera.plane_table import PlaneTables
+from ovis.common.config import PinholeParams
 from ovis.common.messages import BinaryFrame
 from ovis.common.pipeline.stages import SizeFilter, blob_list
 from ovis.common.world.marker_search import BlobMarkers
@@ -14,11 +16,18 @@ from ovis.services.service import Service
 
 
 def main(service: Service) -> None:
-    service.follow_calibration()
+    tables = PlaneTables(background=True)  # a pinhole camera's plane maps, per calibration
+
+    def prepare(calib: Calibration) -> None:  # made before the frames that need them
+        if isinstance(calib.camera, PinholeParams):
+            pose = calib.pose
+            tables.prepare(calib.camera, (pose.obstacle_height_cm, pose.robot_height_cm))
+
+    prepare(service.calibration)
+    service.follow_calibration(prepare)
     publish = service.publisher(service.topics.blobs)
     size_filter = SizeFilter()
     find_markers = BlobMarkers()
-    tables = PlaneTables(background=True)  # a pinhole camera's plane maps, per calibration
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
         frame = service.decode(payload, BinaryFrame, "binary")

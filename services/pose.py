@@ -8,6 +8,7 @@ from __future__ import annotations
 import threading
 import time
 
+from ovis.common.calibration.file import Calibration
 from ovis.common.messages import BlobList
 from ovis.common.pipeline.health import SERVICE_STATE, StreamWatch
 from ovis.common.pipeline.stages import obstacle_frame
@@ -18,8 +19,13 @@ from ovis.services.service import Service
 def main(service: Service) -> None:
     calib = service.calibration
     detector = Detector(calib.camera, calib.image, calib.pose)
+    detector.robots.prepare(calib.camera)  # the marker planes' tables, before any frame
 
-    service.follow_calibration(lambda c: detector.recalibrate(c.camera, c.image, c.pose))
+    def recalibrate(c: Calibration) -> None:
+        detector.robots.prepare(c.camera)  # the new tables first: no frame waits for them
+        detector.recalibrate(c.camera, c.image, c.pose)
+
+    service.follow_calibration(recalibrate)
     publish = service.publisher(service.topics.obstacles)
 
     def handle(payload: bytes, _receipt_ns: int) -> None:

@@ -190,6 +190,30 @@ def test_plane_tables_give_the_pixel_jacobian_of_a_pinhole_camera() -> None:
     assert np.abs(later.x_cm - exact.x_cm).max() < 1e-3
 
 
+def test_tables_are_made_before_the_first_frame_asks(scene) -> None:
+    """At start and on a new calibration the stages make their tables beforehand: the
+    label's plane maps on their own thread, the pose's marker planes at once; a later
+    frame reads them and builds nothing."""
+    cam = load_config(preset="pinhole").camera
+    tables = PlaneTables(background=True)
+    tables.prepare(cam, (0.0, 7.0))
+    deadline = time.monotonic() + 30.0
+    while any(tables.table(cam, z) is None for z in (0.0, 7.0)):
+        assert time.monotonic() < deadline, "tables not made within 30 s"
+        time.sleep(0.02)
+    made = [tables.table(cam, z) for z in (0.0, 7.0)]
+    tables.jacobian(np.array([100.0]), np.array([200.0]), cam, 7.0)
+    assert [tables.table(cam, z) for z in (0.0, 7.0)] == made  # the same, not remade
+    tracker = RobotTracker(scene.pose)
+    tracker.prepare(scene.camera)
+    heights = {r.marker_height_cm for r in scene.pose.robots}
+    assert set(tracker._tables) == heights
+    before = dict(tracker._tables)
+    image, _ = Arena(scene, 8).render()
+    tracker.update(find_markers(image, scene.pose.marker_dictionary), scene.camera, 0.0)
+    assert all(tracker._tables[h] is before[h] for h in heights)
+
+
 def test_tracker_poses_match_the_back_projected_ones(scene) -> None:
     image, _ = Arena(scene, 8).render()
     found = find_markers(image, scene.pose.marker_dictionary)

@@ -50,6 +50,7 @@ __all__ = [
     "distort_normalised",
     "distortion_coefficients",
     "project",
+    "rays_on_plane",
     "rodrigues",
     "undistort_normalised",
     "world_to_camera",
@@ -299,7 +300,13 @@ def back_project(
     point, whose ray is parallel to the plane or meets it behind the camera get
     ``valid = False`` and 0 coordinates.
     """
-    und = undistort_normalised(row, col, cam)
+    return rays_on_plane(undistort_normalised(row, col, cam), cam, z_cm)
+
+
+def rays_on_plane(und: Undistorted, cam: PinholeParams, z_cm: ArrayLike = 0.0) -> BackProjection:
+    """Where the rays of undistorted pixels (:func:`undistort_normalised`) meet the
+    plane Z = ``z_cm``: the second half of :func:`back_project`, so that one
+    undistortion serves several planes."""
     R = _rotation(cam)
     # Ray direction in the world: Rᵀ·(x', y', 1).
     dX = R[..., 0, 0] * und.x + R[..., 1, 0] * und.y + R[..., 2, 0]

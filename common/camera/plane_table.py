@@ -11,16 +11,40 @@ perspective division and a radial polynomial), so over one pixel it is all but l
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Iterable
 from concurrent.futures import Future, ThreadPoolExecutor
 
+import msgspec
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ovis.common.camera import pinhole
 from ovis.common.camera.paper_model import PixelJacobian, five_points, jacobian_of
 from ovis.common.camera.projection import back_project
-from ovis.common.config import CameraModel
+from ovis.common.config import CameraModel, PinholeParams
 
-__all__ = ["PlaneTable", "PlaneTables"]
+__all__ = ["PlaneTable", "PlaneTables", "frame_rays"]
+
+_RAYS: dict[bytes, pinhole.Undistorted] = {}  # the newest cameras' (a few)
+_RAYS_LOCK = threading.Lock()
+
+
+def frame_rays(camera: PinholeParams) -> pinhole.Undistorted:
+    """Every pixel centre of a pinhole camera's frame, undistorted: the costly half of
+    back-projecting the whole frame, the same for every plane, so made once per camera
+    (kept for the last few cameras: a recalibration brings a new one)."""
+    key = msgspec.msgpack.encode(camera)
+    with _RAYS_LOCK:
+        rays = _RAYS.get(key)
+    if rays is None:
+        r, c = np.mgrid[0 : camera.rows, 0 : camera.cols]
+        rays = pinhole.undistort_normalised(r.astype(np.float64), c.astype(np.float64), camera)
+        with _RAYS_LOCK:
+            while len(_RAYS) >= 4:
+                del _RAYS[next(iter(_RAYS))]
+            _RAYS[key] = rays
+    return rays
 
 
 class PlaneTable:
@@ -29,8 +53,11 @@ class PlaneTable:
 
     def __init__(self, camera: CameraModel, z_cm: float) -> None:
         self.rows, self.cols = camera.rows, camera.cols
-        r, c = np.mgrid[0 : self.rows, 0 : self.cols]
-        b = back_project(r.astype(np.float64), c.astype(np.float64), camera, z_cm)
+        if isinstance(camera, PinholeParams):
+            b = pinhole.rays_on_plane(frame_rays(camera), camera, z_cm)
+        else:
+            r, c = np.mgrid[0 : self.rows, 0 : self.cols]
+            b = back_project(r.astype(np.float64), c.astype(np.float64), camera, z_cm)
         xy = np.asarray(b.x_cm) + 1j * np.asarray(b.y_cm)
         self._xy = np.where(np.asarray(b.valid), xy, np.nan).ravel()
 
@@ -65,20 +92,28 @@ class PlaneTables:
         self._camera: CameraModel | None = None
         self._tables: dict[float, Future[PlaneTable]] = {}
         self._pool = ThreadPoolExecutor(max_workers=1) if background else None
+        self._lock = threading.Lock()  # the frame thread and a calibration's thread
 
     def table(self, camera: CameraModel, z_cm: float) -> PlaneTable | None:
         """``camera``'s table of the plane z = ``z_cm``; None while it is being made."""
-        if camera is not self._camera:
-            self._camera, self._tables = camera, {}
-        made = self._tables.get(z_cm)
-        if made is None:
-            if self._pool is None:
-                made = Future()
-                made.set_result(PlaneTable(camera, z_cm))
-            else:
-                made = self._pool.submit(PlaneTable, camera, z_cm)
-            self._tables[z_cm] = made
+        with self._lock:
+            if camera is not self._camera:
+                self._camera, self._tables = camera, {}
+            made = self._tables.get(z_cm)
+            if made is None:
+                if self._pool is None:
+                    made = Future()
+                    made.set_result(PlaneTable(camera, z_cm))
+                else:
+                    made = self._pool.submit(PlaneTable, camera, z_cm)
+                self._tables[z_cm] = made
         return made.result() if made.done() else None
+
+    def prepare(self, camera: CameraModel, heights_cm: Iterable[float]) -> None:
+        """Start making ``camera``'s tables of these plane heights now (at start or on a
+        new calibration), so that no frame waits or falls back for them."""
+        for z in heights_cm:
+            self.table(camera, z)
 
     def jacobian(
         self, row: ArrayLike, col: ArrayLike, camera: CameraModel, z_cm: float

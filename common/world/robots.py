@@ -228,6 +228,13 @@ class RobotTracker:
         self.pose = pose
         self._index()
 
+    def prepare(self, camera: CameraModel) -> None:
+        """Make ``camera``'s tables of the configured markers' planes now (at start, or
+        for a new calibration before the frames use it), so that no frame waits."""
+        heights = {r.marker_height_cm for r in self.pose.robots}
+        tables = {h: PlaneTable(camera, h) for h in heights}
+        self._tables, self._camera = tables, camera
+
     def update(
         self, markers: Markers, camera: CameraModel, stamp_s: float
     ) -> tuple[list[RobotState], list[UnknownMarker]]:
