@@ -9,6 +9,7 @@ A service is a thin loop: take the newest message from an inbox, decode and vali
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import signal
@@ -245,8 +246,14 @@ class Service:
         stage listens to its inputs, so that whoever waits for it to be alive (``ovis
         up`` before it starts the capture, tests before they publish) loses nothing.
         Zenoh sends a session's declarations in order, so a peer that sees the token
-        has seen the subscribers declared before it."""
+        has seen the subscribers declared before it.
+
+        What the start made (modules, tables, the session) is moved out of the garbage
+        collector's sight first (``gc.freeze``): a full collection would otherwise walk
+        all of it now and then, a pause in the middle of a frame."""
         if self._token is None:
+            gc.collect()
+            gc.freeze()
             self._token = self.session.liveliness().declare_token(self.topics.alive(self.name))
             self.log.info("listening: alive on %s", self.topics.alive(self.name))
 
