@@ -16,6 +16,7 @@ import signal
 import sys
 import threading
 import time
+import traceback
 from collections.abc import Callable
 from typing import Any
 
@@ -314,6 +315,8 @@ def run(name: str, config: OvisConfig, main: Callable[[Service], None]) -> int:
 
         def on_signal(signum: int, _frame: Any) -> None:
             service.log.info("signal %d: stopping", signum)
+            if not service.stop.is_set():
+                exit_if_stuck_after(STOP_GRACE_S, service.log)
             service.stop.set()
 
         signal.signal(signal.SIGTERM, on_signal)
@@ -337,6 +340,29 @@ def run(name: str, config: OvisConfig, main: Callable[[Service], None]) -> int:
 
 #: Seconds a stopped service may take to close its Zenoh session and exit.
 EXIT_GRACE_S = 2.0
+#: Seconds from a stop signal to the exit, whatever the service is doing (less than the
+#: supervisor waits before it kills).
+STOP_GRACE_S = 3.5
+
+
+def exit_if_stuck_after(seconds: float, logger: logging.Logger) -> None:
+    """After a stop signal, make sure the process ends within ``seconds``: a stage whose
+    loop does not come back (blocked in a call that the closing network never answers)
+    would otherwise be killed by the supervisor and counted as an abnormal exit. Where
+    each thread was is logged, to find out why."""
+
+    def force() -> None:
+        stacks = "".join(
+            f"\n  thread {ident}:\n" + "".join(traceback.format_stack(frame)[-4:])
+            for ident, frame in sys._current_frames().items()
+        )
+        logger.warning("not stopped %g s after the signal: exiting now; stacks:%s", seconds, stacks)
+        logging.shutdown()
+        os._exit(0)
+
+    timer = threading.Timer(seconds, force)
+    timer.daemon = True
+    timer.start()
 
 
 def exit_anyway_after(seconds: float, logger: logging.Logger) -> None:

@@ -312,3 +312,49 @@ def test_calibrator_waits_for_the_truth_that_trails_its_frame(tmp_path: Path) ->
     finally:
         stop([calibrator, router])
     assert "Traceback" not in (tmp_path / "calibrator.log").read_text()
+
+
+STUCK_STAGE = """
+import sys, time
+from ovis.common.config import ZenohConfig, load_config
+from ovis.services.service import run
+
+def main(service):
+    service.ready()
+    while True:  # a loop that never looks at service.stop (as if blocked in a call)
+        stuck_in_a_call()
+
+def stuck_in_a_call():
+    time.sleep(0.05)
+
+config = load_config()
+config = type(config)(**{**{f: getattr(config, f) for f in config.__struct_fields__},
+                        "zenoh": ZenohConfig(mode="peer", connect=[], listen=[])})
+sys.exit(run("stuck", config, main))
+"""
+
+
+def test_a_stage_that_does_not_stop_exits_after_the_grace_saying_where_it_was(
+    tmp_path: Path,
+) -> None:
+    """SIGTERM to a stage whose loop never comes back: it still exits (code 0, not
+    killed by the supervisor) within the grace, and logs where each thread was."""
+    import sys
+
+    from ovis.services.service import STOP_GRACE_S
+
+    log = tmp_path / "stuck.log"
+    proc = spawn([sys.executable, "-c", STUCK_STAGE], log)
+    try:
+        wait_for(lambda: "listening: alive" in log.read_text(), 60.0, "the stage to start")
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(STOP_GRACE_S + 10.0)
+        took = time.monotonic() - t0
+    finally:
+        stop([proc])
+    text = log.read_text()
+    assert code == 0, text
+    assert STOP_GRACE_S - 0.5 <= took <= STOP_GRACE_S + 5.0, (took, text)
+    assert f"not stopped {STOP_GRACE_S:g} s after the signal" in text
+    assert "stuck_in_a_call" in text  # where the main thread was
