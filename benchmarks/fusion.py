@@ -60,11 +60,12 @@ def _grid():
 def _merge_cost(frames: int) -> tuple[float, float]:
     specs, scene = _grid()
     cfg = FusionConfig()
-    fuser = WorldFuser([s.name for s in specs], cfg, stale_ns=10**9)
     rng = np.random.default_rng(SEED)
     maps = {s.name: AccuracyMap(s.camera, cfg.pixel_sigma_px) for s in specs}
     for m in maps.values():
         m.prepare(5.0, 7.0)  # robot and obstacle tops, as the service does at start
+    fuser = WorldFuser([s.name for s in specs], cfg, stale_ns=10**9, views=maps,
+                       robot_radius_cm=9.0)  # fmt: skip
     samples = []
     for f in range(frames):
         truth = scene.objects(f)

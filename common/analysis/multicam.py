@@ -83,10 +83,12 @@ def simulate_grid(
     if dead is not None and dead not in {s.name for s in specs}:
         raise ValueError(f"no camera {dead!r} in a {nx}x{ny} grid")
     scene = GridScene(*grid_arena(nx, ny, cell_cm), robots=robots, obstacles=obstacles, seed=seed)
-    fuser = WorldFuser([s.name for s in specs], cfg, stale_ns=200 * MS)
     maps = {s.name: AccuracyMap(s.camera, cfg.pixel_sigma_px) for s in specs}
     for m in maps.values():  # built before the clock runs, as the service does at start
         m.prepare(scene.robot_z, scene.obstacle_z)
+    radius = max(o.radius_cm for o in scene.objects(0) if o.kind == "robot") if robots else 0.0
+    fuser = WorldFuser([s.name for s in specs], cfg, stale_ns=200 * MS, views=maps,
+                       robot_radius_cm=radius)  # fmt: skip
     rng = np.random.default_rng(seed)
     scorer = WorldScorer()
     counts = {s.name: CameraCounts(captured=0, processed=0, dropped=0) for s in specs}

@@ -5,11 +5,15 @@ runs, without the network."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import msgspec
 
 from ovis.common.config import FusionConfig
+from ovis.common.fusion.coverage import View, reportable, without_suspects
 from ovis.common.fusion.matching import FrameMatcher
-from ovis.common.fusion.merge import Sighting, fuse
+from ovis.common.fusion.merge import fuse
+from ovis.common.fusion.sightings import Sighting, Sightings
 from ovis.common.fusion.tracks import Tracked, WorldTracker
 
 __all__ = ["WorldFrameResult", "WorldFuser"]
@@ -28,9 +32,22 @@ class WorldFrameResult(msgspec.Struct, kw_only=True):
 class WorldFuser:
     """Cameras' sightings in, world frames out (see the module docstring)."""
 
-    def __init__(self, cameras: list[str], cfg: FusionConfig, *, stale_ns: int) -> None:
+    def __init__(
+        self,
+        cameras: list[str],
+        cfg: FusionConfig,
+        *,
+        stale_ns: int,
+        views: Mapping[str, View] | None = None,
+        robot_radius_cm: float = 0.0,
+    ) -> None:
         self.cfg = cfg
-        self.matcher: FrameMatcher[list[Sighting]] = FrameMatcher(
+        #: each camera's view (its accuracy map; the service's dict, so a recalibrated
+        #: camera's new map is used) and the largest robot's radius, for
+        #: :mod:`~ovis.common.fusion.coverage` (none: every camera's blobs are taken and
+        #: every unseen obstacle ages)
+        self.views, self.robot_radius_cm = views, float(robot_radius_cm)
+        self.matcher: FrameMatcher[Sightings] = FrameMatcher(
             cameras,
             window_ns=int(cfg.match_window_ms * 1e6),
             wait_ns=int(cfg.wait_ms * 1e6),
@@ -41,9 +58,11 @@ class WorldFuser:
         self._robots: dict[int, _Footprint] = {}
 
     def add(
-        self, camera: str, stamp_ns: int, sightings: list[Sighting], now_ns: int
+        self, camera: str, stamp_ns: int, sightings: Sightings | list[Sighting], now_ns: int
     ) -> list[WorldFrameResult]:
         """One camera's sightings of one frame; the world frames that are now ready."""
+        if not isinstance(sightings, Sightings):
+            sightings = Sightings.of(sightings) if sightings else Sightings.empty(camera)
         return self._fused(self.matcher.add(camera, stamp_ns, sightings, now_ns), now_ns)
 
     def due(self, now_ns: int) -> list[WorldFrameResult]:
@@ -54,16 +73,27 @@ class WorldFuser:
         live = set(self.matcher.live(now_ns))
         out = []
         for g in groups:
-            sightings = [s for items in g.items.values() for s in items]
+            missing = sorted(live - g.items.keys())
+            parts = list(g.items.values())
+            covered = None
+            if self.views is not None:
+                views, present, radius = self.views, list(g.items), self.robot_radius_cm
+                if missing:
+                    parts = [without_suspects(views, p, missing, radius) for p in parts]
+
+                def covered(x, y, z, r, views=views, present=present, missing=missing):
+                    return reportable(views, present, missing, radius, x, y, z, r)
+
             footprints = [f.at(g.stamp_ns) for f in self._robots.values()]
-            objects = self.tracker.update(fuse(sightings, self.cfg, footprints))
+            fused = fuse(Sightings.joined(parts), self.cfg, footprints)
+            objects = self.tracker.update(fused, covered)
             self._remember_robots(objects, g.stamp_ns)
             out.append(
                 WorldFrameResult(
                     stamp_ns=g.stamp_ns,
                     objects=objects,
                     cameras=sorted(g.items),
-                    missing=sorted(live - g.items.keys()),
+                    missing=missing,
                 )
             )
         return out
