@@ -37,7 +37,7 @@ from benchmarks.bus import ARENA, Fleet, free_port, write_config
 from benchmarks.core import Row, ratio, stats
 from ovis.common.analysis.multicam import detections_frame
 from ovis.common.config import FusionConfig, ZenohConfig, load_config
-from ovis.common.fusion.accuracy import AccuracyMap, sightings_of
+from ovis.common.fusion.accuracy import AccuracyMap, detection_columns
 from ovis.common.fusion.world import WorldFuser
 from ovis.common.messages import ENCODING, ObstacleFrame, Topics, WorldFrame, decode, encode
 from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena, measure
@@ -78,7 +78,7 @@ def _merge_cost(frames: int) -> tuple[float, float]:
         stamp = f * 33_333_333
         t0 = time.perf_counter()
         for s, found in zip(specs, dets, strict=True):
-            fuser.add(s.name, stamp, sightings_of(s.name, maps[s.name], found, 0.3), stamp)
+            fuser.add(s.name, stamp, detection_columns(s.name, found), stamp)
         samples.append((time.perf_counter() - t0) * 1e3)
     st = stats(samples[5:])
     return st.p50, st.p99

@@ -15,7 +15,7 @@ import zenoh
 
 from ovis.common.calibration.file import load_calibration
 from ovis.common.config import CameraModel, CameraSpec
-from ovis.common.fusion.accuracy import AccuracyMap, sightings_of
+from ovis.common.fusion.accuracy import AccuracyMap
 from ovis.common.fusion.sightings import Sightings
 from ovis.common.fusion.world import WorldFrameResult, WorldFuser
 from ovis.common.messages import CalibrationUpdate, ObstacleFrame, WorldFrame, WorldObject
@@ -50,7 +50,7 @@ def detections(name: str, msg: ObstacleFrame) -> Sightings:
     robots = len(rows)
     rows += [(o.x_cm, o.y_cm, o.z_cm, o.radius_cm, nan, nan, nan, nan, nan) for o in msg.obstacles]
     data = np.array(rows, float).reshape(-1, 9)
-    return Sightings((name,), data, np.arange(len(data)) < robots)
+    return Sightings((name,), data, np.arange(len(data)) < robots, resolved=False)
 
 
 def world_message(r: WorldFrameResult, seq: int, arena: str, late: dict[str, int]) -> WorldFrame:
@@ -180,11 +180,9 @@ def main(service: Service) -> None:
             service.saw_frame(received, msg.stamp_ns)  # cameras' seqs interleave: ours
             received += 1
             try:
-                found = sightings_of(name, accuracy[name], detections(name, msg), sigma)
-            except Exception as exc:  # a camera's bad frame costs that frame only
+                emit(fuser.add(name, msg.stamp_ns, detections(name, msg), now))
+            except Exception as exc:  # a bad frame costs that world frame only
                 service.error("processing", f"camera {name}: {type(exc).__name__}: {exc}")
-                continue
-            emit(fuser.add(name, msg.stamp_ns, found, now))
 
     worker = threading.Thread(target=loop, daemon=True)
     worker.start()

@@ -13,7 +13,7 @@ import msgspec
 import numpy as np
 
 from ovis.common.config import CameraModel, FusionConfig
-from ovis.common.fusion.accuracy import AccuracyMap, sightings_of
+from ovis.common.fusion.accuracy import AccuracyMap, detection_columns
 from ovis.common.fusion.scoring import WorldScore, WorldScorer
 from ovis.common.fusion.world import WorldFuser
 from ovis.common.messages import ObstacleFrame, TruthFrame, WorldFrame
@@ -110,8 +110,8 @@ def simulate_grid(
             for d in dets:
                 d["marker_id"] = d["marker_id"] if d["kind"] == "robot" else None
             t0 = time.perf_counter()
-            sightings = sightings_of(spec.name, maps[spec.name], dets, cfg.pixel_sigma_px)
-            ready += fuser.add(spec.name, stamp, sightings, now_ns=stamp + (k + 1) * MS)
+            found = detection_columns(spec.name, dets)
+            ready += fuser.add(spec.name, stamp, found, now_ns=stamp + (k + 1) * MS)
             frame_ms += (time.perf_counter() - t0) * 1e3
         cost_ms.append(frame_ms)
         ready += fuser.due(stamp + 30 * MS)

@@ -13,7 +13,8 @@ from numpy.typing import ArrayLike, NDArray
 from ovis.common.camera.projection import back_project, disks_in_image, pixel_jacobian, project
 from ovis.common.config import CameraModel
 from ovis.common.fusion.border import BorderTable
-from ovis.common.fusion.sightings import CXX, CXY, CYY, MARKER, R, X, Y, Z, Sightings
+from ovis.common.fusion.sightings import MARKER, X, Y, Z, Sightings
+from ovis.common.fusion.tables import TableSet
 
 __all__ = ["AccuracyMap", "detection_columns", "position_covariance", "sightings_of"]
 
@@ -62,6 +63,8 @@ class AccuracyMap:
         self.cam, self.sigma, self.step = cam, pixel_sigma_px, step_cm
         self.border = BorderTable(cam)
         self._grids: dict[float, tuple[float, float, FloatArray]] = {}
+        self._heights: list[float] = []
+        self._tables = TableSet()
 
     def _grid(self, z: float) -> tuple[float, float, FloatArray]:
         key = round(z, 1)
@@ -90,6 +93,21 @@ class AccuracyMap:
         for z in heights_cm:
             self._grid(z)
         self.border.prepare(*heights_cm)
+        self._heights += [float(z) for z in heights_cm if float(z) not in self._heights]
+
+    def heights(self) -> list[float]:
+        """The plane heights prepared (tabulated), in order."""
+        return list(self._heights)
+
+    def cov_grid(self, z: float) -> tuple[float, float, float, int, int, FloatArray] | None:
+        """The covariance grid of plane ``z`` laid flat: origin, step, shape and the
+        ``(nx·ny, 3)`` covariances (xx, xy, yy) row by row; None if it is empty."""
+        x0, y0, cov = self._grid(z)
+        if not cov.size:
+            return None
+        nx, ny = cov.shape[:2]
+        flat = np.stack([cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]], axis=-1)
+        return x0, y0, self.step, nx, ny, flat.reshape(-1, 3)
 
     def whole(
         self, x_cm: ArrayLike, y_cm: ArrayLike, z_cm: ArrayLike, radius_cm: ArrayLike
@@ -133,6 +151,7 @@ def detection_columns(camera: str, objects: list[dict[str, Any]]) -> Sightings:
         (camera,),
         np.array(rows, float).reshape(-1, 9),
         np.array([o["kind"] == "robot" for o in objects], bool),
+        resolved=False,
     )
 
 
@@ -149,27 +168,18 @@ def sightings_of(
     its disk not wholly inside the image, see :data:`CUT_MARGIN_PX`) is left out, and so
     is a detection with a position or radius that is not a finite number."""
     found = objects if isinstance(objects, Sightings) else detection_columns(camera, objects)
-    d = found.data
-    keep = np.isfinite(d[:, [X, Y, Z, R]]).all(axis=1)
-    marked = ~np.isnan(d[:, MARKER])
-    blob = keep & ~marked
-    if blob.any():
-        x, y, z, r = d[blob, X], d[blob, Y], d[blob, Z], d[blob, R]
-        if isinstance(cam, AccuracyMap):
-            whole = cam.whole(x, y, z, r)
-        else:
-            whole = disks_in_image(x, y, z, r, cam, margin_px=CUT_MARGIN_PX)
-        keep[blob] = whole
-    d = d[keep]
-    if not len(d):
-        return Sightings((camera,), d, found.robot[keep])
     if isinstance(cam, AccuracyMap):
-        cov = cam(d[:, X], d[:, Y], d[:, Z])
-    else:
+        return cam._tables.resolve([found], {camera: cam}, CUT_MARGIN_PX)
+    d = found.data
+    keep = np.isfinite(d[:, :4]).all(axis=1)
+    blob = keep & np.isnan(d[:, MARKER])
+    if blob.any():
+        b = d[blob]
+        keep[blob] = disks_in_image(b[:, X], b[:, Y], b[:, Z], b[:, 3], cam, margin_px=CUT_MARGIN_PX)
+    d, robot = d[keep], found.robot[keep]
+    if len(d):
         cov = position_covariance(d[:, X], d[:, Y], d[:, Z], cam, pixel_sigma_px)
-    d[:, CXX], d[:, CXY], d[:, CYY] = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
-    seen = np.isfinite(d[:, [CXX, CXY, CYY]]).all(axis=1)
-    robot = found.robot[keep]
-    if not seen.all():
+        d[:, 4], d[:, 5], d[:, 6] = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+        seen = np.isfinite(d[:, 4:7]).all(axis=1)
         d, robot = d[seen], robot[seen]
     return Sightings((camera,), d, robot)

@@ -19,13 +19,13 @@ from numpy.typing import ArrayLike, NDArray
 from ovis.common.camera.projection import back_project, disks_in_image, project
 from ovis.common.config import CameraModel
 
-__all__ = ["BorderTable"]
+__all__ = ["ANGLES_COS", "ANGLES_SIN", "BorderTable"]
 
 FloatArray = NDArray[np.float64]
 
 #: the rim points of a disk, as disks_in_image takes them
 _ANGLES = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
-_COS, _SIN = np.cos(_ANGLES), np.sin(_ANGLES)
+ANGLES_COS, ANGLES_SIN = np.cos(_ANGLES), np.sin(_ANGLES)
 #: at most this many plane heights are tabulated; others are projected
 MAX_PLANES = 8
 #: at most this many grid nodes per plane (a camera seeing the horizon is projected)
@@ -93,6 +93,7 @@ class BorderTable:
     def __init__(self, cam: CameraModel, step_cm: float = 1.0) -> None:
         self.cam, self.step = cam, step_cm
         self._planes: dict[float, _Plane] = {}
+        self._band: float | None = None
 
     def plane(self, z: float) -> _Plane | None:
         """The table of plane height ``z`` (built on first use), or None when it is
@@ -102,6 +103,7 @@ class BorderTable:
             if len(self._planes) >= MAX_PLANES:
                 return None
             table = self._planes[z] = _Plane(self.cam, z, self.step)
+            self._band = None
         return table if table.ok else None
 
     def prepare(self, *heights_cm: float) -> None:
@@ -113,7 +115,10 @@ class BorderTable:
     def band_px(self) -> float:
         """How near the margin (pixels) a looked-up rim point is re-checked by
         projection: twice the largest interpolation error of the tables built."""
-        return 2.0 * max((p.error_px for p in self._planes.values() if p.ok), default=0.0) + 1e-9
+        if self._band is None:
+            errors = [p.error_px for p in self._planes.values() if p.ok]
+            self._band = 2.0 * max(errors, default=0.0) + 1e-9
+        return self._band
 
     def whole(
         self, x_cm: ArrayLike, y_cm: ArrayLike, z_cm: ArrayLike, radius_cm: ArrayLike,
@@ -137,7 +142,7 @@ class BorderTable:
                 out[sel] = disks_in_image(x[sel], y[sel], height, r[sel], self.cam, lo)
                 continue
             rs = r[sel][:, None]
-            rc, on = table.look_up(x[sel][:, None] + rs * _COS, y[sel][:, None] + rs * _SIN)
+            rc, on = table.look_up(x[sel][:, None] + rs * ANGLES_COS, y[sel][:, None] + rs * ANGLES_SIN)
             room = np.minimum(rc - lo, hi - rc).min(axis=-1)  # px inside the margin
             room = np.where(on, room, -np.inf).min(axis=-1)
             decided = np.abs(room) > band

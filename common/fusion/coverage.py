@@ -81,18 +81,24 @@ def without_suspects(
     missing: Collection[str],
     robot_radius_cm: float,
 ) -> Sightings:
-    """One camera's sightings (``found.cameras[0]``) without the blobs that may be a
-    cut robot (module docstring) and that a ``missing`` camera sees whole."""
+    """Sightings (of any cameras) without the blobs that may be a cut robot (module
+    docstring) and that a ``missing`` camera sees whole."""
     d = found.data
     blob = np.isnan(d[:, MARKER])
-    view = views.get(found.cameras[0])
-    if view is None or robot_radius_cm <= 0 or not missing or not blob.any():
+    if robot_radius_cm <= 0 or not missing or not blob.any():
         return found
     x, y, z, r = d[blob, X], d[blob, Y], d[blob, Z], d[blob, R]
-    near = ~view.whole(x, y, z, np.full_like(r, 2 * robot_radius_cm))
-    if not near.any():
+    late = _seen_by_any(views, missing, x, y, z, r)
+    if not late.any():
         return found
-    suspect = near & _seen_by_any(views, missing, x, y, z, r)
+    cams = found.cam[blob]
+    deep = np.zeros(len(x), bool)
+    reach = np.full(len(x), 2 * robot_radius_cm)
+    for c in set(cams[late].tolist()):
+        sel = late & (cams == c)
+        view = views.get(found.cameras[c])
+        deep[sel] = True if view is None else view.whole(x[sel], y[sel], z[sel], reach[sel])
+    suspect = late & ~deep
     if not suspect.any():
         return found
     keep = np.ones(len(d), bool)

@@ -94,14 +94,18 @@ def _merge_groups(d: FloatArray, label: NDArray[np.intp], groups: int,
     sa, sb, sc, sx, sy, sw, swz, swr, hs, hc, hn = (member @ w).T
     det = sa * sc - sb * sb
     pa, pb, pc = sc / det, -sb / det, sa / det
-    out = np.stack(
-        [pa * sx + pb * sy, pb * sx + pc * sy, swz / sw, swr / sw,
-         np.sqrt(_largest_eigenvalue(pa, pb, pc)),
-         np.where(hn > 0, np.degrees(np.arctan2(hs, hc)), np.nan)], axis=1,
-    )  # fmt: skip
-    one = member.sum(axis=1) == 1
-    if one.any():
-        out[np.ix_(one, [0, 1, 2, 3, 5])] = d[np.ix_(first[one], [X, Y, Z, R, HEADING])]
+    out = np.empty((groups, 6))
+    out[:, 0] = pa * sx + pb * sy
+    out[:, 1] = pb * sx + pc * sy
+    np.divide(np.stack([swz, swr], axis=1), sw[:, None], out=out[:, 2:4])
+    out[:, 4] = np.sqrt(_largest_eigenvalue(pa, pb, pc))
+    out[:, 5] = np.degrees(np.arctan2(hs, hc))
+    out[hn == 0, 5] = np.nan
+    one = np.flatnonzero(np.bincount(label, minlength=groups) == 1)
+    if len(one):
+        own = d[first[one]]
+        out[one, :4] = own[:, [X, Y, Z, R]]
+        out[one, 5] = own[:, HEADING]
     return out
 
 
@@ -138,7 +142,9 @@ def _obstacle_groups(d: FloatArray, cam: NDArray[np.intp], cfg: FusionConfig) ->
         & (np.abs(r[:, None] - r[None]) <= cfg.radius_gate_cm)
         & (cam[:, None] != cam[None])
     )
-    ii, jj = np.nonzero(np.triu(ok, 1))
+    ii, jj = np.nonzero(ok)
+    upper = ii < jj  # each pair once
+    ii, jj = ii[upper], jj[upper]
     members = {i: [i] for i in range(n)}
     if not len(ii):
         return list(members.values())
@@ -177,9 +183,11 @@ def fuse(
     rob, obs = np.flatnonzero(marked), np.flatnonzero(~marked)
     label: list[int] = []
     first: list[int] = []
-    if len(rob):  # robots by marker, in marker order
-        _, lead, inverse = np.unique(d[rob, MARKER], return_index=True, return_inverse=True)
-        label, first = inverse.tolist(), lead.tolist()
+    if len(rob):  # robots by marker, in marker order (a few: plain Python)
+        markers = d[rob, MARKER].tolist()
+        group = {m: g for g, m in enumerate(sorted(set(markers)))}
+        label = [group[m] for m in markers]
+        first = [markers.index(m) for m in group]
     # a blob inside a robot's footprint: its own robot sightings' or the footprints given
     disks = np.concatenate([d[rob][:, [X, Y, R]], np.asarray(footprints, float).reshape(-1, 3)])
     if len(obs) and len(disks):

@@ -40,9 +40,12 @@ class Sighting(msgspec.Struct, kw_only=True, frozen=True):
 class Sightings:
     """Several sightings as columns: ``data`` ``(n, 9)`` floats (x, y, z, radius,
     covariance xx, xy, yy, heading, marker; heading and marker NaN when absent),
-    ``robot`` (kind is "robot"), ``cam`` (index into ``cameras``, the camera names)."""
+    ``robot`` (kind is "robot"), ``cam`` (index into ``cameras``, the camera names).
+    ``resolved`` False: detections as a camera sent them, their covariances not known
+    yet and blobs cut by the image border not left out (see
+    :meth:`ovis.common.fusion.tables.TableSet.resolve`)."""
 
-    __slots__ = ("cam", "cameras", "data", "robot")
+    __slots__ = ("cam", "cameras", "data", "resolved", "robot")
 
     def __init__(
         self,
@@ -50,11 +53,14 @@ class Sightings:
         data: FloatArray,
         robot: NDArray[np.bool_],
         cam: NDArray[np.intp] | None = None,
+        *,
+        resolved: bool = True,
     ) -> None:
         self.cameras = tuple(cameras)
         self.data = data
         self.robot = robot
         self.cam = np.zeros(len(data), np.intp) if cam is None else cam
+        self.resolved = resolved
 
     def __len__(self) -> int:
         return len(self.data)

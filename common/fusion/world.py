@@ -10,10 +10,12 @@ from collections.abc import Mapping
 import msgspec
 
 from ovis.common.config import FusionConfig
-from ovis.common.fusion.coverage import View, reportable, without_suspects
+from ovis.common.fusion.accuracy import CUT_MARGIN_PX, AccuracyMap
+from ovis.common.fusion.coverage import reportable, without_suspects
 from ovis.common.fusion.matching import FrameMatcher
 from ovis.common.fusion.merge import fuse
 from ovis.common.fusion.sightings import Sighting, Sightings
+from ovis.common.fusion.tables import TableSet
 from ovis.common.fusion.tracks import Tracked, WorldTracker
 
 __all__ = ["WorldFrameResult", "WorldFuser"]
@@ -38,7 +40,7 @@ class WorldFuser:
         cfg: FusionConfig,
         *,
         stale_ns: int,
-        views: Mapping[str, View] | None = None,
+        views: Mapping[str, AccuracyMap] | None = None,
         robot_radius_cm: float = 0.0,
     ) -> None:
         self.cfg = cfg
@@ -47,6 +49,7 @@ class WorldFuser:
         #: :mod:`~ovis.common.fusion.coverage` (none: every camera's blobs are taken and
         #: every unseen obstacle ages)
         self.views, self.robot_radius_cm = views, float(robot_radius_cm)
+        self._tables = TableSet()
         self.matcher: FrameMatcher[Sightings] = FrameMatcher(
             cameras,
             window_ns=int(cfg.match_window_ms * 1e6),
@@ -75,6 +78,12 @@ class WorldFuser:
         for g in groups:
             missing = sorted(live - g.items.keys())
             parts = list(g.items.values())
+            pending = [p for p in parts if not p.resolved]
+            if pending:  # every camera's detections of this world frame in one pass
+                if self.views is None:
+                    raise ValueError("detections not resolved to sightings: give views")
+                done = [p for p in parts if p.resolved]
+                parts = [self._tables.resolve(pending, self.views, CUT_MARGIN_PX), *done]
             covered = None
             if self.views is not None:
                 views, present, radius = self.views, list(g.items), self.robot_radius_cm
