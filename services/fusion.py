@@ -16,7 +16,7 @@ import zenoh
 from ovis.common.calibration.file import load_calibration
 from ovis.common.config import CameraModel, CameraSpec
 from ovis.common.fusion.accuracy import AccuracyMap
-from ovis.common.fusion.sightings import Sightings
+from ovis.common.fusion.sightings import COLUMNS, Sightings
 from ovis.common.fusion.world import WorldFrameResult, WorldFuser
 from ovis.common.messages import CalibrationUpdate, ObstacleFrame, WorldFrame, WorldObject
 from ovis.services.inbox import Inbox
@@ -49,7 +49,7 @@ def detections(name: str, msg: ObstacleFrame) -> Sightings:
         rows.append((r.x_cm, r.y_cm, r.z_cm, r.radius_cm, nan, nan, nan, nan, nan))
     robots = len(rows)
     rows += [(o.x_cm, o.y_cm, o.z_cm, o.radius_cm, nan, nan, nan, nan, nan) for o in msg.obstacles]
-    data = np.array(rows, float).reshape(-1, 9)
+    data = np.array(rows, float).reshape(-1, COLUMNS)
     return Sightings((name,), data, np.arange(len(data)) < robots, resolved=False)
 
 

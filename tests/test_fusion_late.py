@@ -60,7 +60,7 @@ def test_a_robot_cut_by_the_border_is_no_obstacle_while_its_whole_camera_is_late
     """At start-up only cam00 runs: it sees robot 0's edge (the robot at x = 126 cm is
     cut by its border) as a blob at x = 122 cm whose disk is inside its image. cam10,
     which sees the robot whole, is late. The blob must not become an obstacle."""
-    fuser, names = _fuser()
+    fuser, _ = _fuser()
     scorer = WorldScorer()
     truth = [(1, 126.0, 40.0)]
     worlds = []

@@ -102,8 +102,10 @@ def test_one_pass_over_every_camera_gives_what_each_camera_gives_directly() -> N
             parts.append(detection_columns(s.name, found))
         together = tables.resolve(parts, maps, CUT_MARGIN_PX)
         direct = Sightings.joined(
-            [sightings_of(s.name, s.camera, p, cfg.pixel_sigma_px)
-             for s, p in zip(specs, parts, strict=True)]  # fmt: skip
+            [
+                sightings_of(s.name, s.camera, p, cfg.pixel_sigma_px)
+                for s, p in zip(specs, parts, strict=True)
+            ]
         )
         key = np.lexsort(together.data[:, :4].T)
         want = np.lexsort(direct.data[:, :4].T)

@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike, NDArray
 from ovis.common.camera.projection import back_project, disks_in_image, pixel_jacobian, project
 from ovis.common.config import CameraModel
 from ovis.common.fusion.border import BorderTable
-from ovis.common.fusion.sightings import MARKER, X, Y, Z, Sightings
+from ovis.common.fusion.sightings import COLUMNS, CXX, CXY, CYY, MARKER, R, Sightings, X, Y, Z
 from ovis.common.fusion.tables import TableSet
 
 __all__ = ["AccuracyMap", "detection_columns", "position_covariance", "sightings_of"]
@@ -64,7 +64,8 @@ class AccuracyMap:
         self.border = BorderTable(cam)
         self._grids: dict[float, tuple[float, float, FloatArray]] = {}
         self._heights: list[float] = []
-        self._tables = TableSet()
+        #: this camera's tables, for :func:`sightings_of` on its own
+        self.tables = TableSet()
 
     def _grid(self, z: float) -> tuple[float, float, FloatArray]:
         key = round(z, 1)
@@ -149,7 +150,7 @@ def detection_columns(camera: str, objects: list[dict[str, Any]]) -> Sightings:
     ]  # fmt: skip
     return Sightings(
         (camera,),
-        np.array(rows, float).reshape(-1, 9),
+        np.array(rows, float).reshape(-1, COLUMNS),
         np.array([o["kind"] == "robot" for o in objects], bool),
         resolved=False,
     )
@@ -169,17 +170,17 @@ def sightings_of(
     is a detection with a position or radius that is not a finite number."""
     found = objects if isinstance(objects, Sightings) else detection_columns(camera, objects)
     if isinstance(cam, AccuracyMap):
-        return cam._tables.resolve([found], {camera: cam}, CUT_MARGIN_PX)
+        return cam.tables.resolve([found], {camera: cam}, CUT_MARGIN_PX)
     d = found.data
-    keep = np.isfinite(d[:, :4]).all(axis=1)
+    keep = np.isfinite(d[:, [X, Y, Z, R]]).all(axis=1)
     blob = keep & np.isnan(d[:, MARKER])
     if blob.any():
         b = d[blob]
-        keep[blob] = disks_in_image(b[:, X], b[:, Y], b[:, Z], b[:, 3], cam, margin_px=CUT_MARGIN_PX)
+        keep[blob] = disks_in_image(b[:, X], b[:, Y], b[:, Z], b[:, R], cam, CUT_MARGIN_PX)
     d, robot = d[keep], found.robot[keep]
     if len(d):
         cov = position_covariance(d[:, X], d[:, Y], d[:, Z], cam, pixel_sigma_px)
-        d[:, 4], d[:, 5], d[:, 6] = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
-        seen = np.isfinite(d[:, 4:7]).all(axis=1)
+        d[:, CXX], d[:, CXY], d[:, CYY] = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+        seen = np.isfinite(cov).all(axis=(1, 2))
         d, robot = d[seen], robot[seen]
     return Sightings((camera,), d, robot)

@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 from ovis.common.camera.projection import back_project, disks_in_image, project
 from ovis.common.config import CameraModel
 
-__all__ = ["ANGLES_COS", "ANGLES_SIN", "BorderTable"]
+__all__ = ["ANGLES_COS", "ANGLES_SIN", "BorderTable", "bilinear", "room_px"]
 
 FloatArray = NDArray[np.float64]
 
@@ -74,17 +74,37 @@ class _Plane:
     def look_up(self, x: FloatArray, y: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
         """Bilinear (row, col) at the points, ``(..., 2)``, and whether each is on the
         grid."""
-        fx, fy = (x - self.x0) / self.step, (y - self.y0) / self.step
-        i, j = np.floor(fx), np.floor(fy)
-        on = (i >= 0) & (i < self.nx - 1) & (j >= 0) & (j < self.ny - 1)
-        i = np.clip(i, 0, self.nx - 2).astype(np.intp)
-        j = np.clip(j, 0, self.ny - 2).astype(np.intp)
-        tx, ty = (fx - i)[..., None], (fy - j)[..., None]
-        k = i * self.ny + j
-        rc = self.rc
-        top = rc[k] * (1 - ty) + rc[k + 1] * ty
-        bottom = rc[k + self.ny] * (1 - ty) + rc[k + self.ny + 1] * ty
-        return top * (1 - tx) + bottom * tx, on
+        return bilinear(self.rc, (self.x0, self.y0, 1.0 / self.step, self.nx, self.ny, 0), x, y)
+
+
+def bilinear(
+    flat: FloatArray, grid: tuple, x: FloatArray, y: FloatArray
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Values of a grid laid flat (``flat``, row by row from ``offset``) bilinear at the
+    points, and whether each point is on the grid (elsewhere: the first cell's value).
+    ``grid``: ``x0, y0, 1/step, nx, ny, offset``, numbers or arrays that broadcast with
+    the points (one grid per point)."""
+    x0, y0, inv, nx, ny, offset = grid
+    fx, fy = (x - x0) * inv, (y - y0) * inv
+    i, j = np.floor(fx), np.floor(fy)
+    on = (i >= 0) & (i < nx - 1) & (j >= 0) & (j < ny - 1)
+    i, j = np.where(on, i, 0.0), np.where(on, j, 0.0)
+    tx, ty = (fx - i)[..., None], (fy - j)[..., None]
+    k = (offset + i * ny + j).astype(np.intp)
+    stride = np.asarray(ny).astype(np.intp)
+    top = flat[k] * (1 - ty) + flat[k + 1] * ty
+    bottom = flat[k + stride] * (1 - ty) + flat[k + stride + 1] * ty
+    return top * (1 - tx) + bottom * tx, on
+
+
+def room_px(
+    rc: FloatArray, on: NDArray[np.bool_], last: FloatArray, margin_px: float
+) -> FloatArray:
+    """Per disk, from its rim points' pixels ``(n, 16, 2)`` (``on``: inside the table):
+    how far (pixels) its nearest rim point lies inside the margin of an image whose last
+    (row, col) is ``last``; negative: outside."""
+    room = np.minimum(rc, last - rc).min(axis=-1) - margin_px
+    return np.where(on, room, -np.inf).min(axis=-1)
 
 
 class BorderTable:
@@ -133,7 +153,7 @@ class BorderTable:
             x, y, r = (np.where(finite, v, 0.0) for v in (x, y, r))
         out = np.zeros(x.shape, bool)
         lo = float(margin_px)
-        hi = np.array([self.cam.rows - 1 - lo, self.cam.cols - 1 - lo])
+        last = np.array([self.cam.rows - 1.0, self.cam.cols - 1.0])
         band = self.band_px
         for height in set(z.tolist()):
             sel = z == height
@@ -142,11 +162,10 @@ class BorderTable:
                 out[sel] = disks_in_image(x[sel], y[sel], height, r[sel], self.cam, lo)
                 continue
             rs = r[sel][:, None]
-            rc, on = table.look_up(x[sel][:, None] + rs * ANGLES_COS, y[sel][:, None] + rs * ANGLES_SIN)
-            room = np.minimum(rc - lo, hi - rc).min(axis=-1)  # px inside the margin
-            room = np.where(on, room, -np.inf).min(axis=-1)
+            rim_x, rim_y = x[sel][:, None] + rs * ANGLES_COS, y[sel][:, None] + rs * ANGLES_SIN
+            room = room_px(*table.look_up(rim_x, rim_y), last, lo)
             decided = np.abs(room) > band
-            got = room > 0
+            got = room >= 0
             if not decided.all():  # near the margin: as disks_in_image decides
                 near = ~decided
                 got[near] = disks_in_image(

@@ -25,7 +25,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ovis.common.fusion.sightings import MARKER, R, X, Y, Z, Sightings
+from ovis.common.fusion.sightings import MARKER, R, Sightings, X, Y, Z
 
 __all__ = ["View", "reportable", "without_suspects"]
 

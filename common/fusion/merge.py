@@ -27,11 +27,11 @@ from ovis.common.fusion.sightings import (
     HEADING,
     MARKER,
     R,
+    Sighting,
+    Sightings,
     X,
     Y,
     Z,
-    Sighting,
-    Sightings,
 )
 
 __all__ = ["Fused", "Sighting", "Sightings", "fuse"]

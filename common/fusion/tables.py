@@ -20,8 +20,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.camera.projection import disks_in_image
-from ovis.common.fusion.border import ANGLES_COS, ANGLES_SIN, MAX_PLANES
-from ovis.common.fusion.sightings import CXX, CYY, MARKER, R, X, Y, Z, Sightings
+from ovis.common.fusion.border import ANGLES_COS, ANGLES_SIN, MAX_PLANES, bilinear, room_px
+from ovis.common.fusion.sightings import CXX, CYY, MARKER, R, Sightings, X, Y, Z
 
 if TYPE_CHECKING:
     from ovis.common.fusion.accuracy import AccuracyMap
@@ -121,23 +121,12 @@ class TableSet:
             tid = np.full_like(tid, -1)
             params = np.array([[0.0, 0.0, 1.0, 2.0, 2.0, 0.0]])
             flat = np.zeros((4, 2))
-        p = params[np.maximum(tid, 0)]
-        x0, y0, inv, nx, ny, off = (p[:, k : k + 1] for k in range(6))
+        grid = tuple(params[np.maximum(tid, 0)].T[:, :, None])  # one grid per disk
         r = d[:, R : R + 1]
-        fx = (d[:, X : X + 1] + r * ANGLES_COS - x0) * inv
-        fy = (d[:, Y : Y + 1] + r * ANGLES_SIN - y0) * inv
-        i, j = np.floor(fx), np.floor(fy)
-        on = (i >= 0) & (i < nx - 1) & (j >= 0) & (j < ny - 1)
-        i, j = np.where(on, i, 0.0), np.where(on, j, 0.0)
-        tx, ty = (fx - i)[..., None], (fy - j)[..., None]
-        k = (off + i * ny + j).astype(np.intp)
-        stride = ny.astype(np.intp)
-        top = flat[k] * (1 - ty) + flat[k + 1] * ty
-        bottom = flat[k + stride] * (1 - ty) + flat[k + stride + 1] * ty
-        rc = top * (1 - tx) + bottom * tx
+        rc, on = bilinear(flat, grid, d[:, X : X + 1] + r * ANGLES_COS,
+                          d[:, Y : Y + 1] + r * ANGLES_SIN)  # fmt: skip
         frame = np.array([self._frame[n] for n in names])[cam]  # last row, col; band
-        room = np.minimum(rc, frame[:, None, :2] - rc).min(axis=2) - margin_px
-        room = np.where(on, room, -np.inf).min(axis=1)
+        room = room_px(rc, on, frame[:, None, :2], margin_px)
         got = room >= 0
         unsure = (np.abs(room) <= frame[:, 2]) | (tid < 0)
         for c in set(cam[unsure].tolist()):  # near the decision: as disks_in_image says
@@ -147,8 +136,14 @@ class TableSet:
                                       margin_px)  # fmt: skip
         return got
 
-    def _covariance(self, d: FloatArray, tid: NDArray[np.intp], cam: NDArray[np.intp],
-                    names: Sequence[str], maps: Mapping[str, AccuracyMap]) -> FloatArray:  # fmt: skip
+    def _covariance(
+        self,
+        d: FloatArray,
+        tid: NDArray[np.intp],
+        cam: NDArray[np.intp],
+        names: Sequence[str],
+        maps: Mapping[str, AccuracyMap],
+    ) -> FloatArray:
         """``(n, 3)`` covariances (xx, xy, yy): nearest node of the camera's grid, or
         computed where there is none."""
         params, flat = self._cov

@@ -90,7 +90,8 @@ class WorldFuser:
                 if missing:
                     parts = [without_suspects(views, p, missing, radius) for p in parts]
 
-                def covered(x, y, z, r, views=views, present=present, missing=missing):
+                def covered(x, y, z, r, views=views, present=present, missing=missing,
+                            radius=radius):  # fmt: skip
                     return reportable(views, present, missing, radius, x, y, z, r)
 
             footprints = [f.at(g.stamp_ns) for f in self._robots.values()]
