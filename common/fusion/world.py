@@ -1,7 +1,10 @@
 """One world from several cameras: frames matched by capture time
-(:mod:`~ovis.common.fusion.matching`), merged (:mod:`~ovis.common.fusion.merge`) and
-given world identities (:mod:`~ovis.common.fusion.tracks`). What the fusion service
-runs, without the network."""
+(:mod:`~ovis.common.fusion.matching`), the world frame's detections of every camera
+resolved to sightings in one pass (:mod:`~ovis.common.fusion.tables`), blobs that a late
+camera should judge held back (:mod:`~ovis.common.fusion.coverage`), merged
+(:mod:`~ovis.common.fusion.merge`) and given world identities
+(:mod:`~ovis.common.fusion.tracks`). What the fusion service runs, without the
+network."""
 
 from __future__ import annotations
 
@@ -16,7 +19,7 @@ from ovis.common.fusion.matching import FrameMatcher
 from ovis.common.fusion.merge import fuse
 from ovis.common.fusion.sightings import Sighting, Sightings
 from ovis.common.fusion.tables import TableSet
-from ovis.common.fusion.tracks import Tracked, WorldTracker
+from ovis.common.fusion.tracks import Covered, Tracked, WorldTracker
 
 __all__ = ["WorldFrameResult", "WorldFuser"]
 
@@ -77,36 +80,37 @@ class WorldFuser:
         out = []
         for g in groups:
             missing = sorted(live - g.items.keys())
-            parts = list(g.items.values())
-            pending = [p for p in parts if not p.resolved]
-            if pending:  # every camera's detections of this world frame in one pass
-                if self.views is None:
-                    raise ValueError("detections not resolved to sightings: give views")
-                done = [p for p in parts if p.resolved]
-                parts = [self._tables.resolve(pending, self.views, CUT_MARGIN_PX), *done]
-            covered = None
-            if self.views is not None:
-                views, present, radius = self.views, list(g.items), self.robot_radius_cm
-                if missing:
-                    parts = [without_suspects(views, p, missing, radius) for p in parts]
-
-                def covered(x, y, z, r, views=views, present=present, missing=missing,
-                            radius=radius):  # fmt: skip
-                    return reportable(views, present, missing, radius, x, y, z, r)
-
             footprints = [f.at(g.stamp_ns) for f in self._robots.values()]
-            fused = fuse(Sightings.joined(parts), self.cfg, footprints)
-            objects = self.tracker.update(fused, covered)
+            fused = fuse(self._sightings(list(g.items.values()), missing), self.cfg, footprints)
+            objects = self.tracker.update(fused, self._covered(list(g.items), missing))
             self._remember_robots(objects, g.stamp_ns)
             out.append(
                 WorldFrameResult(
-                    stamp_ns=g.stamp_ns,
-                    objects=objects,
-                    cameras=sorted(g.items),
-                    missing=missing,
+                    stamp_ns=g.stamp_ns, objects=objects, cameras=sorted(g.items), missing=missing
                 )
             )
         return out
+
+    def _sightings(self, parts: list[Sightings], missing: list[str]) -> Sightings:
+        """A world frame's sightings: detections still to resolve resolved together, and
+        without the blobs that a ``missing`` camera should judge."""
+        pending = [p for p in parts if not p.resolved]
+        if pending:
+            if self.views is None:
+                raise ValueError("detections not resolved to sightings: give views")
+            done = [p for p in parts if p.resolved]
+            parts = [self._tables.resolve(pending, self.views, CUT_MARGIN_PX), *done]
+        seen = Sightings.joined(parts)
+        if self.views is not None and missing:
+            seen = without_suspects(self.views, seen, missing, self.robot_radius_cm)
+        return seen
+
+    def _covered(self, present: list[str], missing: list[str]) -> Covered | None:
+        """Which unseen obstacles this frame's cameras could have reported."""
+        views, radius = self.views, self.robot_radius_cm
+        if views is None:
+            return None
+        return lambda x, y, z, r: reportable(views, present, missing, radius, x, y, z, r)
 
     def _remember_robots(self, objects: list[Tracked], stamp_ns: int) -> None:
         """Keep each robot's last footprint for ``lost_frames`` world frames, moving on
