@@ -1,8 +1,9 @@
 """Several cameras fused into one world (issue 19), on the simulated 2×2 arena (4 robots,
 10 obstacles, four 640×480 cameras):
 
-* merge cost: one world frame in-process (each camera's sightings with their
-  covariances, merging, identities), p50/p99; the floor is the frame period;
+* merge cost: one world frame in-process (each camera's detections as columns, then
+  for the world frame: every camera's covariances and border tests in one pass,
+  merging, identities), p50/p99; the floor is the frame period;
 * live: the fusion service as a real process behind a router, fed each camera's
   detections at 30 frames/s per camera (simulated measurements published on
   ``ovis/<arena>/cam/<name>/obstacles`` as each camera's pose service would), camera
