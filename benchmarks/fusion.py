@@ -36,7 +36,7 @@ import zenoh
 
 from benchmarks.bus import ARENA, Fleet, free_port, write_config
 from benchmarks.core import Row, ratio, stats
-from ovis.common.analysis.multicam import detections_frame
+from ovis.common.analysis.multicam import as_detections, detections_frame
 from ovis.common.config import FusionConfig, ZenohConfig, load_config
 from ovis.common.fusion.accuracy import AccuracyMap, detection_columns
 from ovis.common.fusion.world import WorldFuser
@@ -70,12 +70,7 @@ def _merge_cost(frames: int) -> tuple[float, float]:
     samples = []
     for f in range(frames):
         truth = scene.objects(f)
-        dets = []
-        for s in specs:
-            found = [msgspec.structs.asdict(o) for o in measure(s.camera, truth, 0.3, rng)]
-            for d in found:
-                d["marker_id"] = d["marker_id"] if d["kind"] == "robot" else None
-            dets.append(found)
+        dets = [as_detections(measure(s.camera, truth, 0.3, rng)) for s in specs]
         stamp = f * 33_333_333
         t0 = time.perf_counter()
         for s, found in zip(specs, dets, strict=True):

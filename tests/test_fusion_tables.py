@@ -4,10 +4,10 @@ camera's tables gives what each camera's direct computation gives."""
 
 from __future__ import annotations
 
-import msgspec
 import numpy as np
 import pytest
 
+from ovis.common.analysis.multicam import as_detections
 from ovis.common.camera.projection import disks_in_image, project
 from ovis.common.config import FusionConfig
 from ovis.common.fusion.accuracy import (
@@ -95,9 +95,8 @@ def test_one_pass_over_every_camera_gives_what_each_camera_gives_directly() -> N
         truth = scene.objects(f)
         parts = []
         for s in specs:
-            found = [msgspec.structs.asdict(o) for o in measure(s.camera, truth, 0.3, rng)]
+            found = as_detections(measure(s.camera, truth, 0.3, rng))
             for d in found:
-                d["marker_id"] = d["marker_id"] if d["kind"] == "robot" else None
                 d["radius_cm"] *= rng.uniform(1.0, 1.6)  # some disks now reach the border
             parts.append(detection_columns(s.name, found))
         together = tables.resolve(parts, maps, CUT_MARGIN_PX)

@@ -33,6 +33,7 @@ __all__ = [
     "CameraRun",
     "GridRun",
     "WorldWatch",
+    "as_detections",
     "detections_frame",
     "percentiles",
     "simulate_grid",
@@ -106,9 +107,7 @@ def simulate_grid(
             measured = measure(spec.camera, truth, cfg.pixel_sigma_px, rng)
             counts[spec.name].captured += 1
             truths[stamp][1].update(o.id for o in measured)
-            dets = [msgspec.structs.asdict(o) for o in measured]
-            for d in dets:
-                d["marker_id"] = d["marker_id"] if d["kind"] == "robot" else None
+            dets = as_detections(measured)
             t0 = time.perf_counter()
             found = detection_columns(spec.name, dets)
             ready += fuser.add(spec.name, stamp, found, now_ns=stamp + (k + 1) * MS)
@@ -138,6 +137,15 @@ def simulate_grid(
         fuse_ms_p50=float(np.percentile(per_frame, 50)) if per_frame.size else 0.0,
         fuse_ms_p99=float(np.percentile(per_frame, 99)) if per_frame.size else 0.0,
     )
+
+
+def as_detections(measured: list[SimObject]) -> list[dict]:
+    """Measured objects as the detections fusion takes (mappings; only robots carry
+    their marker)."""
+    dets = [msgspec.structs.asdict(o) for o in measured]
+    for d in dets:
+        d["marker_id"] = d["marker_id"] if d["kind"] == "robot" else None
+    return dets
 
 
 def detections_frame(seq: int, stamp_ns: int, seen: list[SimObject]) -> ObstacleFrame:
