@@ -35,8 +35,15 @@ def camera_model(spec: CameraSpec) -> CameraModel:
     return load_calibration(spec.calibration).camera  # type: ignore[arg-type]
 
 
-def detections(name: str, msg: ObstacleFrame) -> Sightings:
-    """One camera's obstacle frame as detection columns (marked robots by marker; see
+def detections(msg: ObstacleFrame) -> list[dict]:
+    """One camera's obstacle frame as plain detections (marked robots by marker)."""
+    keys = ("kind", "x_cm", "y_cm", "z_cm", "radius_cm", "marker_id", "heading_deg")
+    return [{k: getattr(s, k) for k in keys} for s in frame_columns("camera", msg).to_list()]
+
+
+def frame_columns(name: str, msg: ObstacleFrame) -> Sightings:
+    """One camera's obstacle frame as detection columns, as fusion takes them (marked
+    robots seen in this frame, by marker; see
     :func:`~ovis.common.fusion.accuracy.detection_columns`)."""
     nan = float("nan")
     rows = [
@@ -180,7 +187,7 @@ def main(service: Service) -> None:
             service.saw_frame(received, msg.stamp_ns)  # cameras' seqs interleave: ours
             received += 1
             try:
-                emit(fuser.add(name, msg.stamp_ns, detections(name, msg), now))
+                emit(fuser.add(name, msg.stamp_ns, frame_columns(name, msg), now))
             except Exception as exc:  # a bad frame costs that world frame only
                 service.error("processing", f"camera {name}: {type(exc).__name__}: {exc}")
 
