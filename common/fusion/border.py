@@ -59,37 +59,37 @@ class _Plane:
         X, Y = np.meshgrid(gx, gy, indexing="ij")
         p = project(X.ravel(), Y.ravel(), z, cam)
         far = -1e9  # an unprojectable node: every rim point near it is outside
-        self.rc = np.stack(
-            [np.where(p.valid, p.row, far), np.where(p.valid, p.col, far)], axis=-1
-        ).reshape(-1, 2)
+        #: (row, col) of each node as row + 1j·col: one gather fetches both
+        self.rc = np.where(p.valid, p.row + 1j * p.col, far + 1j * far).ravel()
         # the interpolation error at the cells' centres, where bilinear is worst
         cx, cy = (gx[:-1] + step / 2), (gy[:-1] + step / 2)
         CX, CY = np.meshgrid(cx, cy, indexing="ij")
         exact = project(CX.ravel(), CY.ravel(), z, cam)
         got, inside = self.look_up(CX.ravel(), CY.ravel())
-        good = exact.valid & inside & (got > far / 2).all(axis=-1)
-        diff = np.abs(got[good] - np.stack([exact.row, exact.col], axis=-1)[good])
-        self.error_px = float(diff.max()) if diff.size else 0.0
+        good = exact.valid & inside & (got.real > far / 2) & (got.imag > far / 2)
+        diff = got[good] - (exact.row + 1j * exact.col)[good]
+        self.error_px = (
+            float(np.maximum(abs(diff.real), abs(diff.imag)).max()) if diff.size else 0.0
+        )
 
     def look_up(self, x: FloatArray, y: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
-        """Bilinear (row, col) at the points, ``(..., 2)``, and whether each is on the
-        grid."""
+        """Bilinear row + 1j·col at the points, and whether each is on the grid."""
         return bilinear(self.rc, (self.x0, self.y0, 1.0 / self.step, self.nx, self.ny, 0), x, y)
 
 
 def bilinear(
     flat: FloatArray, grid: tuple, x: FloatArray, y: FloatArray
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
-    """Values of a grid laid flat (``flat``, row by row from ``offset``) bilinear at the
-    points, and whether each point is on the grid (elsewhere: the first cell's value).
-    ``grid``: ``x0, y0, 1/step, nx, ny, offset``, numbers or arrays that broadcast with
-    the points (one grid per point)."""
+    """Values of a grid laid flat (``flat``, 1-D, row by row from ``offset``; complex
+    for two values per node) bilinear at the points, and whether each point is on the
+    grid (elsewhere: the first cell's value). ``grid``: ``x0, y0, 1/step, nx, ny,
+    offset``, numbers or arrays that broadcast with the points (one grid per point)."""
     x0, y0, inv, nx, ny, offset = grid
     fx, fy = (x - x0) * inv, (y - y0) * inv
     i, j = np.floor(fx), np.floor(fy)
     on = (i >= 0) & (i < nx - 1) & (j >= 0) & (j < ny - 1)
     i, j = np.where(on, i, 0.0), np.where(on, j, 0.0)
-    tx, ty = (fx - i)[..., None], (fy - j)[..., None]
+    tx, ty = fx - i, fy - j
     k = (offset + i * ny + j).astype(np.intp)
     stride = np.asarray(ny).astype(np.intp)
     top = flat[k] * (1 - ty) + flat[k + 1] * ty
@@ -100,10 +100,12 @@ def bilinear(
 def room_px(
     rc: FloatArray, on: NDArray[np.bool_], last: FloatArray, margin_px: float
 ) -> FloatArray:
-    """Per disk, from its rim points' pixels ``(n, 16, 2)`` (``on``: inside the table):
-    how far (pixels) its nearest rim point lies inside the margin of an image whose last
-    (row, col) is ``last``; negative: outside."""
-    room = np.minimum(rc, last - rc).min(axis=-1) - margin_px
+    """Per disk, from its rim points' pixels ``(n, 16)`` as row + 1j·col (``on``: inside
+    the table): how far (pixels) its nearest rim point lies inside the margin of an image
+    whose last pixel is ``last`` (row + 1j·col); negative: outside."""
+    inside = last - rc
+    room = np.minimum(np.minimum(rc.real, inside.real), np.minimum(rc.imag, inside.imag))
+    room -= margin_px
     return np.where(on, room, -np.inf).min(axis=-1)
 
 
@@ -153,7 +155,7 @@ class BorderTable:
             x, y, r = (np.where(finite, v, 0.0) for v in (x, y, r))
         out = np.zeros(x.shape, bool)
         lo = float(margin_px)
-        last = np.array([self.cam.rows - 1.0, self.cam.cols - 1.0])
+        last = (self.cam.rows - 1.0) + 1j * (self.cam.cols - 1.0)
         band = self.band_px
         for height in set(z.tolist()):
             sel = z == height

@@ -41,8 +41,7 @@ def _laid_end_to_end(
     for k, (x0, y0, step, nx, ny, values) in enumerate(tables):
         params[k] = (x0, y0, 1.0 / step, nx, ny, offset)
         offset += len(values)
-    width = tables[0][5].shape[1] if tables else 1
-    flat = np.concatenate([t[5] for t in tables]) if tables else np.zeros((0, width))
+    flat = np.concatenate([t[5] for t in tables]) if tables else np.zeros(0)
     return params, flat
 
 
@@ -54,7 +53,7 @@ class TableSet:
         self._key: tuple = ()
         self._ids: dict[tuple[str, float], int] = {}
         self._cov = self._rc = (np.zeros((0, 6)), np.zeros((0, 3)))
-        self._frame: dict[str, tuple[float, float, float]] = {}
+        self._frame: dict[str, tuple[complex, float]] = {}
 
     def _refresh(self, maps: Mapping[str, AccuracyMap]) -> None:
         key = tuple((n, id(m), len(m.heights())) for n, m in maps.items())
@@ -70,8 +69,8 @@ class TableSet:
                 cov.append(grid)
                 rc.append((plane.x0, plane.y0, plane.step, plane.nx, plane.ny, plane.rc))
         self._cov, self._rc = _laid_end_to_end(cov), _laid_end_to_end(rc)
-        #: per camera: last row, last column, the border table's re-check band (px)
-        self._frame = {n: (m.cam.rows - 1.0, m.cam.cols - 1.0, m.border.band_px)
+        #: per camera: its last pixel (row + 1j·col) and the border table's re-check band
+        self._frame = {n: (complex(m.cam.rows - 1.0, m.cam.cols - 1.0), m.border.band_px)
                        for n, m in maps.items()}  # fmt: skip
         self._key = key
 
@@ -89,16 +88,15 @@ class TableSet:
             return s
         names = s.cameras
         self._refresh(maps)
-        wanted = {(names[c], z) for c, z in zip(s.cam.tolist(), d[:, Z].tolist(), strict=True)}
-        new = [(n, z) for n, z in wanted - self._ids.keys() if np.isfinite(z)]
-        for n, z in new:  # a height not seen before: tabulated once (bounded)
-            if len(maps[n].heights()) < MAX_PLANES:
-                maps[n].prepare(z)
-        if new:
+        keys = [(names[c], z) for c, z in zip(s.cam.tolist(), d[:, Z].tolist(), strict=True)]
+        ids = [self._ids.get(k, -1) for k in keys]
+        if -1 in ids:  # a height not seen before: tabulated once (bounded)
+            for n, z in {k for k, i in zip(keys, ids, strict=True) if i < 0}:
+                if np.isfinite(z) and len(maps[n].heights()) < MAX_PLANES:
+                    maps[n].prepare(z)
             self._refresh(maps)
-        tid = np.array([self._ids.get((names[c], z), -1)
-                        for c, z in zip(s.cam.tolist(), d[:, Z].tolist(), strict=True)],
-                       np.intp)  # fmt: skip
+            ids = [self._ids.get(k, -1) for k in keys]
+        tid = np.array(ids, np.intp)
         keep = np.isfinite(d[:, :4]).all(axis=1)
         blob = keep & np.isnan(d[:, MARKER])
         if blob.any():
@@ -120,15 +118,15 @@ class TableSet:
         if not len(params):
             tid = np.full_like(tid, -1)
             params = np.array([[0.0, 0.0, 1.0, 2.0, 2.0, 0.0]])
-            flat = np.zeros((4, 2))
+            flat = np.zeros(4, complex)
         grid = tuple(params[np.maximum(tid, 0)].T[:, :, None])  # one grid per disk
         r = d[:, R : R + 1]
         rc, on = bilinear(flat, grid, d[:, X : X + 1] + r * ANGLES_COS,
                           d[:, Y : Y + 1] + r * ANGLES_SIN)  # fmt: skip
-        frame = np.array([self._frame[n] for n in names])[cam]  # last row, col; band
-        room = room_px(rc, on, frame[:, None, :2], margin_px)
+        frame = np.array([self._frame[n] for n in names])[cam]  # last pixel, band
+        room = room_px(rc, on, frame[:, :1], margin_px)
         got = room >= 0
-        unsure = (np.abs(room) <= frame[:, 2]) | (tid < 0)
+        unsure = (np.abs(room) <= frame[:, 1].real) | (tid < 0)
         for c in set(cam[unsure].tolist()):  # near the decision: as disks_in_image says
             sel = unsure & (cam == c)
             m = maps[names[c]]
@@ -152,7 +150,7 @@ class TableSet:
             i = np.rint((d[:, X] - x0) * inv)
             j = np.rint((d[:, Y] - y0) * inv)
             on = (tid >= 0) & (i >= 0) & (i < nx) & (j >= 0) & (j < ny)
-            out = flat[np.where(on, off + i * ny + j, 0).astype(np.intp)]
+            out = flat.take(np.where(on, off + i * ny + j, 0).astype(np.intp), axis=0)
         else:
             on, out = np.zeros(len(d), bool), np.zeros((len(d), 3))
         if not on.all():
