@@ -40,7 +40,15 @@ class View(Protocol):
               radius_cm: ArrayLike) -> Mask: ...  # fmt: skip
 
 
-def _seen_by_any(views: Mapping[str, View], cameras: Collection[str], x, y, z, r) -> Mask:
+def _seen_by_any(
+    views: Mapping[str, View],
+    cameras: Collection[str],
+    x: ArrayLike,
+    y: ArrayLike,
+    z: ArrayLike,
+    r: ArrayLike,
+) -> Mask:
+    """Per disk: wholly in the view of one of ``cameras`` at least."""
     out = np.zeros(np.shape(x), bool)
     for name in cameras:
         view = views.get(name)

@@ -56,7 +56,7 @@ class TableSet:
         self._frame: dict[str, tuple[complex, float]] = {}
 
     def _refresh(self, maps: Mapping[str, AccuracyMap]) -> None:
-        key = tuple((n, id(m), len(m.heights())) for n, m in maps.items())
+        key = tuple((n, m, len(m.heights())) for n, m in maps.items())  # maps by identity
         if key == self._key:
             return
         cov, rc, self._ids = [], [], {}
@@ -84,9 +84,9 @@ class TableSet:
         out."""
         s = Sightings.joined(list(parts))
         d = s.data.copy()
-        if not len(d):
-            return s
         names = s.cameras
+        if not len(d):
+            return Sightings(names, d, s.robot, s.cam)
         self._refresh(maps)
         keys = [(names[c], z) for c, z in zip(s.cam.tolist(), d[:, Z].tolist(), strict=True)]
         ids = [self._ids.get(k, -1) for k in keys]
