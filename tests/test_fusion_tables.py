@@ -144,3 +144,56 @@ def test_the_table_set_follows_a_recalibrated_camera(height: float) -> None:
     a = tables.resolve([found], {"cam00": sharp}, 0.5).data[0, CXX]
     b = tables.resolve([found], {"cam00": blurred}, 0.5).data[0, CXX]
     assert b == pytest.approx(4 * a)  # twice the pixel error: four times the variance
+
+
+def _reference_merge(group: list) -> tuple:
+    """One group merged the direct way (per group, numpy.linalg): the information-
+    weighted mean, sigma from eigvalsh, weighted circular mean of the headings."""
+    pts = np.array([[s.x_cm, s.y_cm] for s in group])
+    covs = np.array([[[s.cov_cm2[0], s.cov_cm2[1]], [s.cov_cm2[1], s.cov_cm2[2]]] for s in group])
+    info = np.linalg.inv(covs)
+    P = np.linalg.inv(info.sum(axis=0))
+    mean = P @ np.einsum("nij,nj->i", info, pts)
+    w = 1.0 / np.trace(covs, axis1=1, axis2=2)
+    h = [(np.radians(s.heading_deg), wi) for s, wi in zip(group, w, strict=True)
+         if s.heading_deg is not None]  # fmt: skip
+    heading = None
+    if h:
+        a, ww = np.array([v for v, _ in h]), np.array([v for _, v in h])
+        heading = float(np.degrees(np.arctan2(ww @ np.sin(a), ww @ np.cos(a))))
+    return (float(mean[0]), float(mean[1]), float(np.average([s.z_cm for s in group], weights=w)),
+            float(np.average([s.radius_cm for s in group], weights=w)),
+            float(np.sqrt(np.linalg.eigvalsh(P)[-1])), heading)  # fmt: skip
+
+
+def test_every_group_merged_at_once_equals_merging_each_group_directly() -> None:
+    """The benchmark's frames (robots with headings): each fused object equals its
+    sightings merged one group at a time with numpy.linalg, to 1e-9."""
+    specs, scene = _grid()
+    cfg = FusionConfig()
+    rng = np.random.default_rng(5)
+    merged = 0
+    for f in range(0, 600, 6):
+        truth = scene.objects(f)
+        sightings = []
+        for s in specs:
+            found = as_detections(measure(s.camera, truth, 0.3, rng))
+            for d in found:
+                if d["kind"] == "robot":
+                    d["heading_deg"] = float(rng.uniform(-179.0, 180.0))
+            sightings += sightings_of(s.name, s.camera, found, 0.3).to_list()
+        for obj in fuse(sightings, cfg):
+            group = [s for s in sightings if s.camera in obj.cameras and (
+                s.marker_id == obj.marker_id if obj.marker_id is not None
+                else s.marker_id is None and np.hypot(s.x_cm - obj.x_cm, s.y_cm - obj.y_cm) < 3.0
+            )]  # fmt: skip
+            assert sorted(s.camera for s in group) == obj.cameras
+            x, y, z, r, sigma, heading = _reference_merge(group)
+            got = (obj.x_cm, obj.y_cm, obj.z_cm, obj.radius_cm, obj.sigma_cm)
+            assert np.allclose(got, (x, y, z, r, sigma), rtol=0, atol=1e-9)
+            if heading is None:
+                assert obj.heading_deg is None
+            else:
+                assert abs((obj.heading_deg - heading + 180.0) % 360.0 - 180.0) < 1e-9
+            merged += len(group) > 1
+    assert merged > 300  # many objects were seen by two cameras or more
