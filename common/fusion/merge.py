@@ -76,35 +76,38 @@ def _merge_groups(d: FloatArray, label: NDArray[np.intp], groups: int,
     n = len(d)
     a, b, c = d[:, CXX], d[:, CXY], d[:, CYY]
     w = np.empty((n, 11))
-    np.divide(d[:, [CYY, CXY, CXX]], (a * c - b * b)[:, None], out=w[:, 0:3])
+    # columns: information (xx, xy, yy), information × position (x, y), weight,
+    # weight × (z, radius), weight × heading's (sin, cos), has a heading
+    np.divide(d[:, CYY : CXX - 1 : -1], (a * c - b * b)[:, None], out=w[:, 0:3])
     w[:, 1] *= -1.0
     x, y = d[:, X], d[:, Y]
     w[:, 3] = w[:, 0] * x + w[:, 1] * y
     w[:, 4] = w[:, 1] * x + w[:, 2] * y
     weight = np.reciprocal(a + c, out=w[:, 5])
-    np.multiply(d[:, [Z, R]], weight[:, None], out=w[:, 6:8])
+    np.multiply(d[:, Z : R + 1], weight[:, None], out=w[:, 6:8])
     heading = np.radians(d[:, HEADING])
-    has = ~np.isnan(heading)
+    has = heading == heading
     heading[~has] = 0.0
     w[:, 10] = has
-    np.multiply(np.stack([np.sin(heading), np.cos(heading)], axis=1),
-                (weight * w[:, 10])[:, None], out=w[:, 8:10])  # fmt: skip
+    np.sin(heading, out=w[:, 8])
+    np.cos(heading, out=w[:, 9])
+    w[:, 8:10] *= (weight * w[:, 10])[:, None]
     member = np.zeros((groups, n))
     member[label, np.arange(n)] = 1.0
-    sa, sb, sc, sx, sy, sw, swz, swr, hs, hc, hn = (member @ w).T
+    total = member @ w
+    sa, sb, sc, sx, sy, sw, _, _, hs, hc, hn = total.T
     det = sa * sc - sb * sb
     pa, pb, pc = sc / det, -sb / det, sa / det
     out = np.empty((groups, 6))
     out[:, 0] = pa * sx + pb * sy
     out[:, 1] = pb * sx + pc * sy
-    np.divide(np.stack([swz, swr], axis=1), sw[:, None], out=out[:, 2:4])
+    np.divide(total[:, 6:8], sw[:, None], out=out[:, 2:4])
     out[:, 4] = np.sqrt(_largest_eigenvalue(pa, pb, pc))
-    out[:, 5] = np.degrees(np.arctan2(hs, hc))
-    out[hn == 0, 5] = np.nan
-    one = np.flatnonzero(np.bincount(label, minlength=groups) == 1)
+    out[:, 5] = np.where(hn > 0, np.degrees(np.arctan2(hs, hc)), np.nan)
+    one = np.flatnonzero(member.sum(axis=1) == 1)
     if len(one):
         own = d[first[one]]
-        out[one, :4] = own[:, [X, Y, Z, R]]
+        out[one, :4] = own[:, X : R + 1]
         out[one, 5] = own[:, HEADING]
     return out
 
@@ -155,12 +158,16 @@ def _obstacle_groups(d: FloatArray, cam: NDArray[np.intp], cfg: FusionConfig) ->
     label = list(range(n))
     for i, j in zip(ii, jj, strict=True):
         a, b = label[i], label[j]
-        if a == b or {cams[m] for m in members[a]} & {cams[m] for m in members[b]}:
+        if a == b:
             continue
-        # every pair across the two groups must pass the gate (no chaining)
-        if not all((min(p, q), max(p, q)) in passing for p in members[a] for q in members[b]):
+        ma, mb = members[a], members[b]
+        if len(ma) + len(mb) > 2 and (  # two single sightings: (i, j) passed already
+            {cams[m] for m in ma} & {cams[m] for m in mb}
+            # every pair across the two groups must pass the gate (no chaining)
+            or not all((min(p, q), max(p, q)) in passing for p in ma for q in mb)
+        ):
             continue
-        for m in members[b]:
+        for m in mb:
             label[m] = a
         members[a] += members.pop(b)
     return list(members.values())
