@@ -32,6 +32,29 @@ def _grid():
     return specs, scene
 
 
+def _measured_frames(seed: int, alter, step: int = 6):
+    """Every ``step``-th frame of the benchmark's grid: per camera, its spec and what it
+    measured (detections, each changed by ``alter(detection, rng)``)."""
+    specs, scene = _grid()
+    rng = np.random.default_rng(seed)
+    for f in range(0, 600, step):
+        truth = scene.objects(f)
+        measured = [(s, as_detections(measure(s.camera, truth, 0.3, rng))) for s in specs]
+        for _, found in measured:
+            for d in found:
+                alter(d, rng)
+        yield measured
+
+
+def _enlarged(d: dict, rng: np.random.Generator) -> None:
+    d["radius_cm"] *= rng.uniform(1.0, 1.6)  # some disks now reach the border
+
+
+def _headed(d: dict, rng: np.random.Generator) -> None:
+    if d["kind"] == "robot":
+        d["heading_deg"] = float(rng.uniform(-179.0, 180.0))
+
+
 def _exact_room(x, y, z, r, cam, margin):
     """disks_in_image's own numbers: the smallest distance (px) of the 16 rim points'
     pixels inside the margin (negative: outside)."""
@@ -83,22 +106,15 @@ def test_one_pass_over_every_camera_gives_what_each_camera_gives_directly() -> N
     """The benchmark's frames: every camera's detections resolved together from the laid
     end to end tables keep exactly the detections the direct computation keeps (border
     test by projection, covariance by the Jacobian), with covariances within 1 %."""
-    specs, scene = _grid()
+    specs, _ = _grid()
     cfg = FusionConfig()
     maps = {s.name: AccuracyMap(s.camera, cfg.pixel_sigma_px) for s in specs}
     for m in maps.values():
         m.prepare(5.0, 7.0)
     tables = TableSet()
-    rng = np.random.default_rng(3)
     kept = 0
-    for f in range(0, 300, 3):
-        truth = scene.objects(f)
-        parts = []
-        for s in specs:
-            found = as_detections(measure(s.camera, truth, 0.3, rng))
-            for d in found:
-                d["radius_cm"] *= rng.uniform(1.0, 1.6)  # some disks now reach the border
-            parts.append(detection_columns(s.name, found))
+    for measured in _measured_frames(3, _enlarged):
+        parts = [detection_columns(s.name, found) for s, found in measured]
         together = tables.resolve(parts, maps, CUT_MARGIN_PX)
         direct = Sightings.joined(
             [
@@ -169,19 +185,11 @@ def _reference_merge(group: list) -> tuple:
 def test_every_group_merged_at_once_equals_merging_each_group_directly() -> None:
     """The benchmark's frames (robots with headings): each fused object equals its
     sightings merged one group at a time with numpy.linalg, to 1e-9."""
-    specs, scene = _grid()
     cfg = FusionConfig()
-    rng = np.random.default_rng(5)
     merged = 0
-    for f in range(0, 600, 6):
-        truth = scene.objects(f)
-        sightings = []
-        for s in specs:
-            found = as_detections(measure(s.camera, truth, 0.3, rng))
-            for d in found:
-                if d["kind"] == "robot":
-                    d["heading_deg"] = float(rng.uniform(-179.0, 180.0))
-            sightings += sightings_of(s.name, s.camera, found, 0.3).to_list()
+    for measured in _measured_frames(5, _headed):
+        sightings = [x for s, found in measured
+                     for x in sightings_of(s.name, s.camera, found, 0.3).to_list()]  # fmt: skip
         for obj in fuse(sightings, cfg):
             group = [s for s in sightings if s.camera in obj.cameras and (
                 s.marker_id == obj.marker_id if obj.marker_id is not None

@@ -1,7 +1,9 @@
 """A camera's expected position error at a floor point: its pixel error pushed through
 the back-projection Jacobian (cm per px there, see
 :func:`ovis.common.camera.projection.pixel_jacobian`). Far from the camera, or seen
-obliquely, one pixel covers more floor, so that camera's sighting weighs less."""
+obliquely, one pixel covers more floor, so that camera's sighting weighs less. Also a
+camera's detections as columns (:func:`detection_columns`) and as sightings
+(:func:`sightings_of`: covariances, blobs cut by the image border left out)."""
 
 from __future__ import annotations
 
