@@ -76,6 +76,8 @@ class WorldFuser:
         return self._fused(self.matcher.due(now_ns), now_ns)
 
     def _fused(self, groups: list, now_ns: int) -> list[WorldFrameResult]:
+        if not groups:
+            return []
         live = set(self.matcher.live(now_ns))
         out = []
         for g in groups:
