@@ -1,8 +1,9 @@
 """Several cameras fused into one world (issue 19), on the simulated 2×2 arena (4 robots,
 10 obstacles, four 640×480 cameras):
 
-* merge cost: one world frame in-process (each camera's sightings with their
-  covariances, merging, identities), p50/p99; the floor is the frame period;
+* merge cost: one world frame in-process (each camera's detections as columns, then
+  for the world frame: every camera's covariances and border tests in one pass,
+  merging, identities), p50/p99; the floor is the frame period;
 * live: the fusion service as a real process behind a router, fed each camera's
   detections at 30 frames/s per camera (simulated measurements published on
   ``ovis/<arena>/cam/<name>/obstacles`` as each camera's pose service would), camera
@@ -35,9 +36,9 @@ import zenoh
 
 from benchmarks.bus import ARENA, Fleet, free_port, write_config
 from benchmarks.core import Row, ratio, stats
-from ovis.common.analysis.multicam import detections_frame
+from ovis.common.analysis.multicam import as_detections, detections_frame
 from ovis.common.config import FusionConfig, ZenohConfig, load_config
-from ovis.common.fusion.accuracy import AccuracyMap, sightings_of
+from ovis.common.fusion.accuracy import AccuracyMap, detection_columns
 from ovis.common.fusion.world import WorldFuser
 from ovis.common.messages import ENCODING, ObstacleFrame, Topics, WorldFrame, decode, encode
 from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena, measure
@@ -60,24 +61,20 @@ def _grid():
 def _merge_cost(frames: int) -> tuple[float, float]:
     specs, scene = _grid()
     cfg = FusionConfig()
-    fuser = WorldFuser([s.name for s in specs], cfg, stale_ns=10**9)
     rng = np.random.default_rng(SEED)
     maps = {s.name: AccuracyMap(s.camera, cfg.pixel_sigma_px) for s in specs}
     for m in maps.values():
         m.prepare(5.0, 7.0)  # robot and obstacle tops, as the service does at start
+    fuser = WorldFuser([s.name for s in specs], cfg, stale_ns=10**9, views=maps,
+                       robot_radius_cm=9.0)  # fmt: skip
     samples = []
     for f in range(frames):
         truth = scene.objects(f)
-        dets = []
-        for s in specs:
-            found = [msgspec.structs.asdict(o) for o in measure(s.camera, truth, 0.3, rng)]
-            for d in found:
-                d["marker_id"] = d["marker_id"] if d["kind"] == "robot" else None
-            dets.append(found)
+        dets = [as_detections(measure(s.camera, truth, 0.3, rng)) for s in specs]
         stamp = f * 33_333_333
         t0 = time.perf_counter()
         for s, found in zip(specs, dets, strict=True):
-            fuser.add(s.name, stamp, sightings_of(s.name, maps[s.name], found, 0.3), stamp)
+            fuser.add(s.name, stamp, detection_columns(s.name, found), stamp)
         samples.append((time.perf_counter() - t0) * 1e3)
     st = stats(samples[5:])
     return st.p50, st.p99

@@ -10,12 +10,13 @@ from __future__ import annotations
 import threading
 import time
 
+import numpy as np
 import zenoh
 
 from ovis.common.calibration.file import load_calibration
 from ovis.common.config import CameraModel, CameraSpec
-from ovis.common.fusion.accuracy import AccuracyMap, sightings_of
-from ovis.common.fusion.merge import Sighting
+from ovis.common.fusion.accuracy import AccuracyMap
+from ovis.common.fusion.sightings import COLUMNS, Sightings
 from ovis.common.fusion.world import WorldFrameResult, WorldFuser
 from ovis.common.messages import CalibrationUpdate, ObstacleFrame, WorldFrame, WorldObject
 from ovis.services.inbox import Inbox
@@ -36,21 +37,27 @@ def camera_model(spec: CameraSpec) -> CameraModel:
 
 def detections(msg: ObstacleFrame) -> list[dict]:
     """One camera's obstacle frame as plain detections (marked robots by marker)."""
-    out = [
-        {"kind": "robot", "x_cm": r.x_cm, "y_cm": r.y_cm, "z_cm": r.z_cm,
-         "radius_cm": r.radius_cm, "marker_id": r.marker_id, "heading_deg": r.heading_deg}
+    keys = ("kind", "x_cm", "y_cm", "z_cm", "radius_cm", "marker_id", "heading_deg")
+    return [{k: getattr(s, k) for k in keys} for s in frame_columns("camera", msg).to_list()]
+
+
+def frame_columns(name: str, msg: ObstacleFrame) -> Sightings:
+    """One camera's obstacle frame as detection columns, as fusion takes them (marked
+    robots seen in this frame, by marker; see
+    :func:`~ovis.common.fusion.accuracy.detection_columns`)."""
+    nan = float("nan")
+    rows = [
+        (r.x_cm, r.y_cm, r.z_cm, r.radius_cm, nan, nan, nan, r.heading_deg, r.marker_id)
         for r in msg.robots
         if r.age_s == 0.0  # seen in this frame, not predicted
-    ]  # fmt: skip
+    ]
     if not msg.robots and msg.robot is not None:
-        out.append({"kind": "robot", "x_cm": msg.robot.x_cm, "y_cm": msg.robot.y_cm,
-                    "z_cm": msg.robot.z_cm, "radius_cm": msg.robot.radius_cm})  # fmt: skip
-    out += [
-        {"kind": "obstacle", "x_cm": o.x_cm, "y_cm": o.y_cm, "z_cm": o.z_cm,
-         "radius_cm": o.radius_cm}
-        for o in msg.obstacles
-    ]  # fmt: skip
-    return out
+        r = msg.robot
+        rows.append((r.x_cm, r.y_cm, r.z_cm, r.radius_cm, nan, nan, nan, nan, nan))
+    robots = len(rows)
+    rows += [(o.x_cm, o.y_cm, o.z_cm, o.radius_cm, nan, nan, nan, nan, nan) for o in msg.obstacles]
+    data = np.array(rows, float).reshape(-1, COLUMNS)
+    return Sightings((name,), data, np.arange(len(data)) < robots, resolved=False)
 
 
 def world_message(r: WorldFrameResult, seq: int, arena: str, late: dict[str, int]) -> WorldFrame:
@@ -125,7 +132,13 @@ def main(service: Service) -> None:
     accuracy = {name: AccuracyMap(cam, sigma) for name, cam in models.items()}
     for each in accuracy.values():
         each.prepare(cfg.pose.robot_height_cm, cfg.pose.obstacle_height_cm)
-    fuser = WorldFuser(list(models), cfg.fusion, stale_ns=int(cfg.service.frame_timeout_s * 1e9))
+    fuser = WorldFuser(
+        list(models),
+        cfg.fusion,
+        stale_ns=int(cfg.service.frame_timeout_s * 1e9),
+        views=accuracy,  # the same dict: a recalibrated camera's new map is used
+        robot_radius_cm=max((r.radius_cm for r in cfg.pose.robots), default=0.0),
+    )
     # every camera's frames are wanted (a world frame needs them all): room for several
     # frames of each; what overflows is counted as dropped in the status
     follow_calibrations(service, accuracy)
@@ -174,11 +187,9 @@ def main(service: Service) -> None:
             service.saw_frame(received, msg.stamp_ns)  # cameras' seqs interleave: ours
             received += 1
             try:
-                found: list[Sighting] = sightings_of(name, accuracy[name], detections(msg), sigma)
-            except Exception as exc:  # a camera's bad frame costs that frame only
+                emit(fuser.add(name, msg.stamp_ns, frame_columns(name, msg), now))
+            except Exception as exc:  # a bad frame costs that world frame only
                 service.error("processing", f"camera {name}: {type(exc).__name__}: {exc}")
-                continue
-            emit(fuser.add(name, msg.stamp_ns, found, now))
 
     worker = threading.Thread(target=loop, daemon=True)
     worker.start()

@@ -13,7 +13,7 @@ import msgspec
 import numpy as np
 
 from ovis.common.config import CameraModel, FusionConfig
-from ovis.common.fusion.accuracy import AccuracyMap, sightings_of
+from ovis.common.fusion.accuracy import AccuracyMap, detection_columns
 from ovis.common.fusion.scoring import WorldScore, WorldScorer
 from ovis.common.fusion.world import WorldFuser
 from ovis.common.messages import ObstacleFrame, TruthFrame, WorldFrame
@@ -33,6 +33,7 @@ __all__ = [
     "CameraRun",
     "GridRun",
     "WorldWatch",
+    "as_detections",
     "detections_frame",
     "percentiles",
     "simulate_grid",
@@ -83,10 +84,12 @@ def simulate_grid(
     if dead is not None and dead not in {s.name for s in specs}:
         raise ValueError(f"no camera {dead!r} in a {nx}x{ny} grid")
     scene = GridScene(*grid_arena(nx, ny, cell_cm), robots=robots, obstacles=obstacles, seed=seed)
-    fuser = WorldFuser([s.name for s in specs], cfg, stale_ns=200 * MS)
     maps = {s.name: AccuracyMap(s.camera, cfg.pixel_sigma_px) for s in specs}
     for m in maps.values():  # built before the clock runs, as the service does at start
         m.prepare(scene.robot_z, scene.obstacle_z)
+    radius = max(o.radius_cm for o in scene.objects(0) if o.kind == "robot") if robots else 0.0
+    fuser = WorldFuser([s.name for s in specs], cfg, stale_ns=200 * MS, views=maps,
+                       robot_radius_cm=radius)  # fmt: skip
     rng = np.random.default_rng(seed)
     scorer = WorldScorer()
     counts = {s.name: CameraCounts(captured=0, processed=0, dropped=0) for s in specs}
@@ -104,12 +107,10 @@ def simulate_grid(
             measured = measure(spec.camera, truth, cfg.pixel_sigma_px, rng)
             counts[spec.name].captured += 1
             truths[stamp][1].update(o.id for o in measured)
-            dets = [msgspec.structs.asdict(o) for o in measured]
-            for d in dets:
-                d["marker_id"] = d["marker_id"] if d["kind"] == "robot" else None
+            dets = as_detections(measured)
             t0 = time.perf_counter()
-            sightings = sightings_of(spec.name, maps[spec.name], dets, cfg.pixel_sigma_px)
-            ready += fuser.add(spec.name, stamp, sightings, now_ns=stamp + (k + 1) * MS)
+            found = detection_columns(spec.name, dets)
+            ready += fuser.add(spec.name, stamp, found, now_ns=stamp + (k + 1) * MS)
             frame_ms += (time.perf_counter() - t0) * 1e3
         cost_ms.append(frame_ms)
         ready += fuser.due(stamp + 30 * MS)
@@ -136,6 +137,15 @@ def simulate_grid(
         fuse_ms_p50=float(np.percentile(per_frame, 50)) if per_frame.size else 0.0,
         fuse_ms_p99=float(np.percentile(per_frame, 99)) if per_frame.size else 0.0,
     )
+
+
+def as_detections(measured: list[SimObject]) -> list[dict]:
+    """Measured objects as the detections fusion takes (mappings; only robots carry
+    their marker)."""
+    dets = [msgspec.structs.asdict(o) for o in measured]
+    for d in dets:
+        d["marker_id"] = d["marker_id"] if d["kind"] == "robot" else None
+    return dets
 
 
 def detections_frame(seq: int, stamp_ns: int, seen: list[SimObject]) -> ObstacleFrame:

@@ -1,7 +1,9 @@
 """A camera's expected position error at a floor point: its pixel error pushed through
 the back-projection Jacobian (cm per px there, see
 :func:`ovis.common.camera.projection.pixel_jacobian`). Far from the camera, or seen
-obliquely, one pixel covers more floor, so that camera's sighting weighs less."""
+obliquely, one pixel covers more floor, so that camera's sighting weighs less. Also a
+camera's detections as columns (:func:`detection_columns`) and as sightings
+(:func:`sightings_of`: covariances, blobs cut by the image border left out)."""
 
 from __future__ import annotations
 
@@ -12,9 +14,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from ovis.common.camera.projection import back_project, disks_in_image, pixel_jacobian, project
 from ovis.common.config import CameraModel
-from ovis.common.fusion.merge import Sighting
+from ovis.common.fusion.border import BorderTable
+from ovis.common.fusion.sightings import COLUMNS, CXX, CXY, CYY, MARKER, R, Sightings, X, Y, Z
+from ovis.common.fusion.tables import TableSet
 
-__all__ = ["AccuracyMap", "position_covariance", "sightings_of"]
+__all__ = ["AccuracyMap", "detection_columns", "position_covariance", "sightings_of"]
 
 FloatArray = NDArray[np.float64]
 
@@ -53,11 +57,17 @@ class AccuracyMap:
     """:func:`position_covariance` of one camera tabulated on a floor grid of
     ``step_cm`` per plane height (built on first use of a height, one vectorised call),
     so that a frame's sightings cost a look-up, not a back-projection each: the
-    covariance changes smoothly over a few cm. Points off the grid are computed."""
+    covariance changes smoothly over a few cm. Points off the grid are computed. It
+    also holds the camera's :class:`~ovis.common.fusion.border.BorderTable` (is a blob
+    wholly inside the image), built with it."""
 
     def __init__(self, cam: CameraModel, pixel_sigma_px: float, step_cm: float = 2.0) -> None:
         self.cam, self.sigma, self.step = cam, pixel_sigma_px, step_cm
+        self.border = BorderTable(cam)
         self._grids: dict[float, tuple[float, float, FloatArray]] = {}
+        self._heights: list[float] = []
+        #: this camera's tables, for :func:`sightings_of` on its own
+        self.tables = TableSet()
 
     def _grid(self, z: float) -> tuple[float, float, FloatArray]:
         key = round(z, 1)
@@ -81,9 +91,32 @@ class AccuracyMap:
         return grid
 
     def prepare(self, *heights_cm: float) -> None:
-        """Build the grids of these plane heights now (at start, not on a frame)."""
+        """Build the grids and border tables of these plane heights now (at start, not
+        on a frame)."""
         for z in heights_cm:
             self._grid(z)
+        self.border.prepare(*heights_cm)
+        self._heights += [float(z) for z in heights_cm if float(z) not in self._heights]
+
+    def heights(self) -> list[float]:
+        """The plane heights prepared (tabulated), in order."""
+        return list(self._heights)
+
+    def cov_grid(self, z: float) -> tuple[float, float, float, int, int, FloatArray] | None:
+        """The covariance grid of plane ``z`` laid flat: origin, step, shape and the
+        ``(nx·ny, 3)`` covariances (xx, xy, yy) row by row; None if it is empty."""
+        x0, y0, cov = self._grid(z)
+        if not cov.size:
+            return None
+        nx, ny = cov.shape[:2]
+        flat = np.stack([cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]], axis=-1)
+        return x0, y0, self.step, nx, ny, flat.reshape(-1, 3)
+
+    def whole(
+        self, x_cm: ArrayLike, y_cm: ArrayLike, z_cm: ArrayLike, radius_cm: ArrayLike
+    ) -> NDArray[np.bool_]:
+        """Per disk: wholly inside the image, :data:`CUT_MARGIN_PX` from its border."""
+        return self.border.whole(x_cm, y_cm, z_cm, radius_cm, CUT_MARGIN_PX)
 
     def __call__(self, x_cm: ArrayLike, y_cm: ArrayLike, z_cm: ArrayLike) -> FloatArray:
         """``(n, 2, 2)`` covariances at the points (nearest grid node)."""
@@ -91,66 +124,65 @@ class AccuracyMap:
             *(np.atleast_1d(np.asarray(v, float)) for v in (x_cm, y_cm, z_cm))
         )
         out = np.empty((x.size, 2, 2))
-        for height in np.unique(z):
+        for height in set(z.tolist()):
             sel = z == height
-            x0, y0, cov = self._grid(float(height))
-            i = np.rint((x[sel] - x0) / self.step).astype(int)
-            j = np.rint((y[sel] - y0) / self.step).astype(int)
+            x0, y0, cov = self._grid(height)
+            i = np.rint((x[sel] - x0) / self.step)
+            j = np.rint((y[sel] - y0) / self.step)
             on = (i >= 0) & (i < cov.shape[0]) & (j >= 0) & (j < cov.shape[1])
+            if on.all():
+                out[sel] = cov[i.astype(np.intp), j.astype(np.intp)]
+                continue
             got = np.empty((int(sel.sum()), 2, 2))
-            got[on] = cov[i[on], j[on]]
-            if (~on).any():
-                got[~on] = position_covariance(
-                    x[sel][~on], y[sel][~on], float(height), self.cam, self.sigma
-                )
+            got[on] = cov[i[on].astype(np.intp), j[on].astype(np.intp)]
+            got[~on] = position_covariance(x[sel][~on], y[sel][~on], height, self.cam, self.sigma)
             out[sel] = got
         return out
+
+
+def detection_columns(camera: str, objects: list[dict[str, Any]]) -> Sightings:
+    """Detections as mappings (``kind, x_cm, y_cm, z_cm, radius_cm``, optionally
+    ``marker_id``, ``heading_deg``) as columns, their covariances not known yet (NaN)."""
+    nan = float("nan")
+    rows = [
+        (o["x_cm"], o["y_cm"], o["z_cm"], o["radius_cm"], nan, nan, nan,
+         nan if o.get("heading_deg") is None else o["heading_deg"],
+         nan if o.get("marker_id") is None else o["marker_id"])
+        for o in objects
+    ]  # fmt: skip
+    return Sightings(
+        (camera,),
+        np.array(rows, float).reshape(-1, COLUMNS),
+        np.array([o["kind"] == "robot" for o in objects], bool),
+        resolved=False,
+    )
 
 
 def sightings_of(
     camera: str,
     cam: CameraModel | AccuracyMap,
-    objects: list[dict[str, Any]],
+    objects: list[dict[str, Any]] | Sightings,
     pixel_sigma_px: float,
-) -> list[Sighting]:
-    """One camera's detections (mappings with ``kind, x_cm, y_cm, z_cm, radius_cm`` and
-    optionally ``marker_id``, ``heading_deg``) as sightings with that camera's position
-    covariance at each (see :func:`position_covariance`; from the camera's
-    :class:`AccuracyMap` when given one, then ``pixel_sigma_px`` is the map's). A blob
-    that the image border cuts (no marker, its disk not wholly inside the image, see
-    :data:`CUT_MARGIN_PX`) is left out."""
-    model = cam.cam if isinstance(cam, AccuracyMap) else cam
-    objects = [o for o, whole in zip(objects, _whole(objects, model), strict=True) if whole]
-    if not objects:
-        return []
-    xyz = ([o[k] for o in objects] for k in ("x_cm", "y_cm", "z_cm"))
+) -> Sightings:
+    """One camera's detections (columns, or mappings as :func:`detection_columns`
+    takes) as sightings with that camera's position covariance at each (see
+    :func:`position_covariance`; from the camera's :class:`AccuracyMap` when given one,
+    then ``pixel_sigma_px`` is the map's). A blob that the image border cuts (no marker,
+    its disk not wholly inside the image, see :data:`CUT_MARGIN_PX`) is left out, and so
+    is a detection with a position or radius that is not a finite number."""
+    found = objects if isinstance(objects, Sightings) else detection_columns(camera, objects)
     if isinstance(cam, AccuracyMap):
-        cov = cam(*xyz)
-    else:
-        cov = position_covariance(*xyz, cam, pixel_sigma_px)
-    return [
-        Sighting(
-            camera=camera,
-            kind=o["kind"],
-            x_cm=float(o["x_cm"]),
-            y_cm=float(o["y_cm"]),
-            z_cm=float(o["z_cm"]),
-            radius_cm=float(o["radius_cm"]),
-            cov_cm2=(float(c[0, 0]), float(c[0, 1]), float(c[1, 1])),
-            marker_id=o.get("marker_id"),
-            heading_deg=o.get("heading_deg"),
-        )
-        for o, c in zip(objects, cov, strict=True)
-        if np.isfinite(c).all()
-    ]
-
-
-def _whole(objects: list[dict[str, Any]], cam: CameraModel) -> NDArray[np.bool_]:
-    """Per detection: found by its marker, or its disk wholly inside ``cam``'s image."""
-    if not objects:
-        return np.zeros(0, bool)
-    x, y, z, r = (
-        np.array([float(o[k]) for o in objects]) for k in ("x_cm", "y_cm", "z_cm", "radius_cm")
-    )
-    marked = np.array([o.get("marker_id") is not None for o in objects])
-    return marked | disks_in_image(x, y, z, r, cam, margin_px=CUT_MARGIN_PX)
+        return cam.tables.resolve([found], {camera: cam}, CUT_MARGIN_PX)
+    d = found.data
+    keep = np.isfinite(d[:, [X, Y, Z, R]]).all(axis=1)
+    blob = keep & np.isnan(d[:, MARKER])
+    if blob.any():
+        b = d[blob]
+        keep[blob] = disks_in_image(b[:, X], b[:, Y], b[:, Z], b[:, R], cam, CUT_MARGIN_PX)
+    d, robot = d[keep], found.robot[keep]
+    if len(d):
+        cov = position_covariance(d[:, X], d[:, Y], d[:, Z], cam, pixel_sigma_px)
+        d[:, CXX], d[:, CXY], d[:, CYY] = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+        seen = np.isfinite(cov).all(axis=(1, 2))
+        d, robot = d[seen], robot[seen]
+    return Sightings((camera,), d, robot)

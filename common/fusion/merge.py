@@ -6,11 +6,13 @@ cameras expect there (the larger axis of the summed covariances, plus
 ``gate_floor_cm``) and their radii agree within ``radius_gate_cm``. The merged position
 is the inverse-covariance (information) weighted mean, so the camera that sees a point
 more sharply counts more; its covariance is the inverse of the summed information.
+
+Every group of a world frame is merged at once: the 2×2 inverses in closed form, the
+sums over each group's members with :func:`numpy.bincount` on the group labels.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import msgspec
@@ -18,26 +20,23 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.config import FusionConfig
+from ovis.common.fusion.sightings import (
+    CXX,
+    CXY,
+    CYY,
+    HEADING,
+    MARKER,
+    R,
+    Sighting,
+    Sightings,
+    X,
+    Y,
+    Z,
+)
 
-__all__ = ["Fused", "Sighting", "fuse", "weighted_mean"]
+__all__ = ["Fused", "Sighting", "Sightings", "fuse"]
 
 FloatArray = NDArray[np.float64]
-
-
-class Sighting(msgspec.Struct, kw_only=True, frozen=True):
-    """One object as one camera saw it, on the shared floor frame (cm, degrees);
-    ``cov_cm2`` is the position covariance ``(xx, xy, yy)``, see
-    :func:`ovis.common.fusion.accuracy.position_covariance`."""
-
-    camera: str
-    kind: str  # "robot" or "obstacle"
-    x_cm: float
-    y_cm: float
-    z_cm: float
-    radius_cm: float
-    cov_cm2: tuple[float, float, float]
-    marker_id: int | None = None
-    heading_deg: float | None = None
 
 
 class Fused(msgspec.Struct, kw_only=True):
@@ -54,88 +53,128 @@ class Fused(msgspec.Struct, kw_only=True):
     heading_deg: float | None = None
 
 
-def _cov(s: Sighting) -> FloatArray:
-    xx, xy, yy = s.cov_cm2
-    return np.array([[xx, xy], [xy, yy]])
+def _inverse(a: FloatArray, b: FloatArray, c: FloatArray) -> tuple[FloatArray, ...]:
+    """Closed-form inverse of the symmetric 2×2 matrices ``[[a, b], [b, c]]``."""
+    det = a * c - b * b
+    return c / det, -b / det, a / det
 
 
-def weighted_mean(points: FloatArray, covs: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Information-weighted mean of ``(n, 2)`` points with ``(n, 2, 2)`` covariances,
-    and its covariance ``(Σ Cᵢ⁻¹)⁻¹``."""
-    info = np.linalg.inv(covs)
-    P = np.linalg.inv(info.sum(axis=0))
-    return P @ np.einsum("nij,nj->i", info, points), P
+def _largest_eigenvalue(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
+    """Larger eigenvalue of the symmetric 2×2 matrices ``[[a, b], [b, c]]``."""
+    return (a + c) / 2 + np.hypot((a - c) / 2, b)
 
 
-def _merge(group: list[Sighting]) -> Fused:
-    if len(group) == 1:  # seen by one camera: as it saw it
-        s = group[0]
-        xx, xy, yy = s.cov_cm2
-        largest = (xx + yy) / 2 + math.hypot((xx - yy) / 2, xy)
-        return Fused(kind=s.kind, x_cm=s.x_cm, y_cm=s.y_cm, z_cm=s.z_cm,
-                     radius_cm=s.radius_cm, sigma_cm=math.sqrt(largest), cameras=[s.camera],
-                     marker_id=s.marker_id, heading_deg=s.heading_deg)  # fmt: skip
-    pts = np.array([[s.x_cm, s.y_cm] for s in group])
-    covs = np.stack([_cov(s) for s in group])
-    mean, P = weighted_mean(pts, covs)
-    w = 1.0 / np.trace(covs, axis1=1, axis2=2)
-    headings = [
-        (s.heading_deg, wi) for s, wi in zip(group, w, strict=True) if s.heading_deg is not None
-    ]
-    heading = None
-    if headings:
-        a = np.radians([h for h, _ in headings])
-        ww = np.array([wi for _, wi in headings])
-        heading = math.degrees(math.atan2(ww @ np.sin(a), ww @ np.cos(a)))
-    return Fused(
-        kind=group[0].kind,
-        x_cm=float(mean[0]),
-        y_cm=float(mean[1]),
-        z_cm=float(np.average([s.z_cm for s in group], weights=w)),
-        radius_cm=float(np.average([s.radius_cm for s in group], weights=w)),
-        sigma_cm=float(math.sqrt(np.linalg.eigvalsh(P)[-1])),
-        cameras=sorted(s.camera for s in group),
-        marker_id=group[0].marker_id,
-        heading_deg=heading,
-    )
+def _merge_groups(d: FloatArray, label: NDArray[np.intp], groups: int,
+                  first: NDArray[np.intp]) -> FloatArray:  # fmt: skip
+    """Every group at once: ``(groups, 6)`` x, y, z, radius, sigma, heading (NaN: none).
+
+    Per sighting, its information ``Cᵢ⁻¹`` (closed-form 2×2 inverse), ``Cᵢ⁻¹ xᵢ``, the
+    weight ``wᵢ = 1 / trace Cᵢ`` (for height, radius and heading) and the heading's unit
+    vector; per group their sums (one matrix product with the group indicator); then
+    ``P = (Σ Cᵢ⁻¹)⁻¹``, ``x = P Σ Cᵢ⁻¹ xᵢ``, sigma ``√λmax(P)`` and the weighted circular
+    mean of the headings. A group of one is reported as its camera saw it."""
+    n = len(d)
+    a, b, c = d[:, CXX], d[:, CXY], d[:, CYY]
+    w = np.empty((n, 11))
+    # columns: information (xx, xy, yy), information × position (x, y), weight,
+    # weight × (z, radius), weight × heading's (sin, cos), has a heading
+    np.divide(d[:, CYY : CXX - 1 : -1], (a * c - b * b)[:, None], out=w[:, 0:3])
+    w[:, 1] *= -1.0
+    x, y = d[:, X], d[:, Y]
+    w[:, 3] = w[:, 0] * x + w[:, 1] * y
+    w[:, 4] = w[:, 1] * x + w[:, 2] * y
+    weight = np.reciprocal(a + c, out=w[:, 5])
+    np.multiply(d[:, Z : R + 1], weight[:, None], out=w[:, 6:8])
+    heading = np.radians(d[:, HEADING])
+    has = heading == heading
+    heading[~has] = 0.0
+    w[:, 10] = has
+    np.sin(heading, out=w[:, 8])
+    np.cos(heading, out=w[:, 9])
+    w[:, 8:10] *= (weight * w[:, 10])[:, None]
+    member = np.zeros((groups, n))
+    member[label, np.arange(n)] = 1.0
+    total = member @ w
+    sa, sb, sc, sx, sy, sw, _, _, hs, hc, hn = total.T
+    det = sa * sc - sb * sb
+    pa, pb, pc = sc / det, -sb / det, sa / det
+    out = np.empty((groups, 6))
+    out[:, 0] = pa * sx + pb * sy
+    out[:, 1] = pb * sx + pc * sy
+    np.divide(total[:, 6:8], sw[:, None], out=out[:, 2:4])
+    out[:, 4] = np.sqrt(_largest_eigenvalue(pa, pb, pc))
+    out[:, 5] = np.where(hn > 0, np.degrees(np.arctan2(hs, hc)), np.nan)
+    one = np.flatnonzero(member.sum(axis=1) == 1)
+    if len(one):
+        own = d[first[one]]
+        out[one, :4] = own[:, X : R + 1]
+        out[one, 5] = own[:, HEADING]
+    return out
 
 
-def _obstacle_groups(obs: list[Sighting], cfg: FusionConfig) -> list[list[int]]:
+def _fused(s: Sightings, rows: NDArray[np.intp], label: list[int], first: list[int]) -> list[Fused]:
+    """The groups of the sightings ``s.data[rows]`` (group ``label`` each; ``first``:
+    each group's first member) merged, as :class:`Fused`."""
+    merged = _merge_groups(s.data[rows], np.array(label, np.intp), len(first),
+                           np.array(first, np.intp))  # fmt: skip
+    names: list[list[str]] = [[] for _ in first]
+    for g, c in zip(label, s.cam[rows].tolist(), strict=True):
+        names[g].append(s.cameras[c])
+    lead = rows[first]
+    robot, marker = s.robot[lead].tolist(), s.data[lead, MARKER].tolist()
+    return [
+        Fused(kind="robot" if rb else "obstacle", x_cm=x, y_cm=y, z_cm=z, radius_cm=r,
+              sigma_cm=sg, cameras=sorted(cams), marker_id=None if mk != mk else int(mk),
+              heading_deg=None if h != h else h)
+        for rb, mk, (x, y, z, r, sg, h), cams in zip(robot, marker, merged.tolist(), names,
+                                                     strict=True)
+    ]  # fmt: skip
+
+
+def _obstacle_groups(d: FloatArray, cam: NDArray[np.intp], cfg: FusionConfig) -> list[list[int]]:
     """Greedy agglomeration, closest pairs first; a group holds one sighting per camera."""
-    n = len(obs)
+    n = len(d)
     if n == 0:
         return []
-    pts = np.array([[s.x_cm, s.y_cm] for s in obs])
-    covs = np.stack([_cov(s) for s in obs])
-    radii = np.array([s.radius_cm for s in obs])
-    cams = np.array([s.camera for s in obs])
-    dist = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
-    spread = np.linalg.eigvalsh(covs[:, None] + covs[None])[..., -1]
-    gate = cfg.gate_sigmas * np.sqrt(spread) + cfg.gate_floor_cm
+    x, y, r = d[:, X], d[:, Y], d[:, R]
+    dist = np.hypot(x[:, None] - x[None], y[:, None] - y[None])
+    sa, sb, sc = (d[:, k][:, None] + d[:, k][None] for k in (CXX, CXY, CYY))
+    gate = cfg.gate_sigmas * np.sqrt(_largest_eigenvalue(sa, sb, sc)) + cfg.gate_floor_cm
     ok = (
         (dist <= gate)
-        & (np.abs(radii[:, None] - radii[None]) <= cfg.radius_gate_cm)
-        & (cams[:, None] != cams[None])
-        & np.triu(np.ones((n, n), bool), 1)
+        & (np.abs(r[:, None] - r[None]) <= cfg.radius_gate_cm)
+        & (cam[:, None] != cam[None])
     )
-    label = list(range(n))
-    members = {i: [i] for i in range(n)}
     ii, jj = np.nonzero(ok)
-    for k in np.argsort((dist / gate)[ii, jj], kind="stable"):
-        a, b = label[ii[k]], label[jj[k]]
-        if a == b or set(cams[members[a]]) & set(cams[members[b]]):
+    upper = ii < jj  # each pair once
+    ii, jj = ii[upper], jj[upper]
+    members = {i: [i] for i in range(n)}
+    if not len(ii):
+        return list(members.values())
+    order = np.argsort((dist / gate)[ii, jj], kind="stable")
+    ii, jj = ii[order].tolist(), jj[order].tolist()
+    passing = set(zip(ii, jj, strict=True))
+    cams = cam.tolist()
+    label = list(range(n))
+    for i, j in zip(ii, jj, strict=True):
+        a, b = label[i], label[j]
+        if a == b:
             continue
-        # every pair across the two groups must pass the gate (no chaining)
-        if not (ok | ok.T)[np.ix_(members[a], members[b])].all():
+        ma, mb = members[a], members[b]
+        if len(ma) + len(mb) > 2 and (  # two single sightings: (i, j) passed already
+            {cams[m] for m in ma} & {cams[m] for m in mb}
+            # every pair across the two groups must pass the gate (no chaining)
+            or not all((min(p, q), max(p, q)) in passing for p in ma for q in mb)
+        ):
             continue
-        for m in members[b]:
+        for m in mb:
             label[m] = a
         members[a] += members.pop(b)
     return list(members.values())
 
 
 def fuse(
-    sightings: list[Sighting],
+    sightings: Sightings | Sequence[Sighting],
     cfg: FusionConfig,
     footprints: Sequence[tuple[float, float, float]] = (),
 ) -> list[Fused]:
@@ -145,17 +184,26 @@ def fuse(
     ``footprints``: (x, y, radius) of robots seen just before, whose camera's frame is
     late) is part of that robot as another camera saw it (partly, its marker not found
     there) and is no obstacle."""
-    robots: dict[int, list[Sighting]] = {}
-    obstacles: list[Sighting] = []
-    for s in sightings:
-        if s.kind == "robot" and s.marker_id is not None:
-            robots.setdefault(s.marker_id, []).append(s)
-        else:
-            obstacles.append(s)
-    out = [_merge(robots[m]) for m in sorted(robots)]
-    disks = [(r.x_cm, r.y_cm, r.radius_cm) for r in out] + list(footprints)
-    obstacles = [o for o in obstacles if not any(
-        math.hypot(o.x_cm - x, o.y_cm - y) < r for x, y, r in disks
-    )]  # fmt: skip
-    out += [_merge([obstacles[i] for i in g]) for g in _obstacle_groups(obstacles, cfg)]
-    return out
+    s = sightings if isinstance(sightings, Sightings) else Sightings.of(sightings)
+    d = s.data
+    marked = s.robot & ~np.isnan(d[:, MARKER])
+    rob, obs = np.flatnonzero(marked), np.flatnonzero(~marked)
+    label: list[int] = []
+    first: list[int] = []
+    if len(rob):  # robots by marker, in marker order (a few: plain Python)
+        markers = d[rob, MARKER].tolist()
+        group = {m: g for g, m in enumerate(sorted(set(markers)))}
+        label = [group[m] for m in markers]
+        first = [markers.index(m) for m in group]
+    # a blob inside a robot's footprint: its own robot sightings' or the footprints given
+    disks = np.concatenate([d[rob][:, [X, Y, R]], np.asarray(footprints, float).reshape(-1, 3)])
+    if len(obs) and len(disks):
+        inside = np.hypot(d[obs, X][:, None] - disks[:, 0], d[obs, Y][:, None] - disks[:, 1])
+        obs = obs[~(inside < disks[:, 2]).any(axis=1)]
+    robots = len(first)
+    grouped = [0] * len(obs)
+    for g, members in enumerate(_obstacle_groups(d[obs], s.cam[obs], cfg)):
+        for m in members:
+            grouped[m] = robots + g
+        first.append(len(rob) + members[0])
+    return _fused(s, np.concatenate([rob, obs]), label + grouped, first) if first else []
