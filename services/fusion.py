@@ -24,8 +24,9 @@ from ovis.services.service import Service
 
 __all__ = ["camera_model", "main"]
 
-#: how often overdue world frames are let go while no camera speaks, s
-TICK_S = 0.002
+#: longest wait for a camera's frame while no world frame is open, s (how soon a silent
+#: camera shows in the status); with one open, the wait ends when its wait runs out
+IDLE_S = 0.05
 
 
 def camera_model(spec: CameraSpec) -> CameraModel:
@@ -171,7 +172,9 @@ def main(service: Service) -> None:
         service.ready()
         service.state = "waiting for input"
         while not service.stop.is_set():
-            item = inbox.get(timeout=TICK_S)
+            due_ns = fuser.matcher.next_due_ns()
+            wait_s = IDLE_S if due_ns is None else (due_ns - time.time_ns()) / 1e9
+            item = inbox.get(timeout=min(max(wait_s, 0.0), IDLE_S))
             now = time.time_ns()
             if item is None:
                 emit(fuser.due(now))

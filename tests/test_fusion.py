@@ -222,7 +222,9 @@ def test_frames_are_matched_by_capture_time_with_a_wait_and_a_late_count() -> No
     assert m.add("a", 0, "a0", now_ns=1 * MS) == []  # waits for b
     (g,) = m.add("b", 2 * MS, "b0", now_ns=3 * MS)
     assert g.items == {"a": "a0", "b": "b0"} and g.stamp_ns == 0
+    assert m.next_due_ns() is None  # nothing open: nothing to wake up for
     assert m.add("a", 33 * MS, "a1", now_ns=34 * MS) == []
+    assert m.next_due_ns() == 54 * MS  # the service sleeps until then, unless b speaks
     assert m.due(50 * MS) == []
     (g,) = m.due(54 * MS)  # b is 20 ms late: the world frame leaves without it
     assert g.items == {"a": "a1"}

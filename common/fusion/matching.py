@@ -92,6 +92,13 @@ class FrameMatcher(Generic[T]):
         )
         return out
 
+    def next_due_ns(self) -> int | None:
+        """When the oldest open world frame's wait for a late camera runs out (None when
+        none is open): until then, only a camera's frame can let one leave."""
+        if not self._open:
+            return None
+        return min(g.opened_ns for g in self._open) + self.wait_ns
+
     def _fits_open(self, stamp_ns: int) -> bool:
         return any(abs(stamp_ns - g.stamp_ns) <= self.window_ns for g in self._open)
 
