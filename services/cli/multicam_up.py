@@ -138,11 +138,13 @@ def up_cameras(
         for stage in CHAIN[:-1]:
             start(name, stage, where)
     from ovis.common.config import ZenohConfig
-    from ovis.services.bus import open_session
+    from ovis.services.bus import local_peers, open_session
 
     run, started = _Run(names, grid, base, topics), time.monotonic()
     try:
-        with open_session(ZenohConfig(connect=[listen])) as session:
+        # a loopback peer, as the services: the summary's messages come straight from
+        # their stages, not through the router (which then relays nothing on this host)
+        with open_session(local_peers(ZenohConfig(connect=[listen]))) as session:
             run.attach(session)
             # the cameras once every chain and fusion listen: no frame is lost at start
             late = _wait_alive(fleet, session, topics, names, stop)
