@@ -3,6 +3,7 @@ Kalman filter, the detector on simulated arenas against ground truth, bad input.
 
 from __future__ import annotations
 
+import cmath
 import math
 import time
 
@@ -36,7 +37,9 @@ from ovis.common.world.robots import (
     RobotFilter,
     RobotState,
     RobotTracker,
+    corner_pose,
     marker_poses,
+    poses_of,
     wrap_deg,
 )
 
@@ -158,6 +161,12 @@ def test_plane_table_reads_the_back_projection_between_pixels(preset: str) -> No
     assert np.abs(xy.imag - exact.y_cm).max() < 1e-3
     _, outside = table(np.array([-0.5, 3.0, cam.rows - 0.5]), np.array([3.0, cam.cols, 3.0]))
     assert not outside.any()  # off the frame: not valid
+    # one point at a time (the tracker's few corners): the same reading, NaN off the frame
+    edges = [(0.0, 0.0), (cam.rows - 1.0, cam.cols - 1.0), (cam.rows - 1.0, 0.5)]
+    for r, c in [*zip(row[:200].tolist(), col[:200].tolist(), strict=True), *edges]:
+        one, one_valid = table(np.array([r]), np.array([c]))
+        assert one_valid[0] and abs(table.point(r, c) - one[0]) < 1e-12
+    assert all(cmath.isnan(table.point(r, c)) for r, c in [(-0.5, 3.0), (3.0, cam.cols - 0.5)])
 
 
 def test_plane_tables_give_the_pixel_jacobian_of_a_pinhole_camera() -> None:
@@ -212,6 +221,23 @@ def test_tables_are_made_before_the_first_frame_asks(scene) -> None:
     image, _ = Arena(scene, 8).render()
     tracker.update(find_markers(image, scene.pose.marker_dictionary), scene.camera, 0.0)
     assert all(tracker._tables[h] is before[h] for h in heights)
+
+
+def test_one_marker_pose_equals_the_array_poses() -> None:
+    """The tracker's per-marker pose (plain Python) is :func:`poses_of`'s, both
+    handednesses, and refuses what poses_of marks invalid (NaN, degenerate)."""
+    rng = np.random.default_rng(162)
+    points = rng.normal(0.0, 20.0, (300, 4)) + 1j * rng.normal(0.0, 20.0, (300, 4))
+    points[0, 2] = complex(math.nan, 0.0)
+    points[1] = 3.0 + 4.0j  # all four corners at one point
+    ref = poses_of(points, np.isfinite(points))
+    for k, corners in enumerate(points.tolist()):
+        one = corner_pose(*corners)
+        assert (one is not None) == bool(ref.valid[k])
+        if one is not None:
+            assert abs(one[0] - ref.x_cm[k]) < 1e-9 and abs(one[1] - ref.y_cm[k]) < 1e-9
+            assert abs(wrap_deg(one[2] - ref.heading_deg[k])) < 1e-9
+            assert -180.0 < one[2] <= 180.0
 
 
 def test_tracker_poses_match_the_back_projected_ones(scene) -> None:

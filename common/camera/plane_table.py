@@ -11,6 +11,7 @@ perspective division and a radial polynomial), so over one pixel it is all but l
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Iterable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -78,6 +79,21 @@ class PlaneTable:
         xy = top + (lower_a + (lower_b - lower_a) * fc - top) * fr
         inside = (fr >= 0.0) & (fr <= 1.0) & (fc >= 0.0) & (fc <= 1.0)
         return xy, inside & np.isfinite(xy)
+
+    def point(self, row: float, col: float) -> complex:
+        """:meth:`__call__` at one point, in plain Python (NaN where not valid): for a
+        few points (a handful of markers' corners) a dozen array calls cost more than
+        the arithmetic."""
+        if not (0.0 <= row <= self.rows - 1 and 0.0 <= col <= self.cols - 1):
+            return complex(math.nan, math.nan)
+        w = self.cols
+        r0, c0 = min(int(row), self.rows - 2), min(int(col), w - 2)
+        fr, fc = row - r0, col - c0
+        i = r0 * w + c0
+        t = self._xy.item
+        a, b, lower_a, lower_b = t(i), t(i + 1), t(i + w), t(i + w + 1)
+        top = a + (b - a) * fc
+        return top + (lower_a + (lower_b - lower_a) * fc - top) * fr
 
 
 class PlaneTables:

@@ -84,7 +84,7 @@ def find_markers(
     dictionary: str,
     *,
     side_px: tuple[float, float] | None = None,
-    boxes: NDArray[np.int64] | None = None,
+    boxes: NDArray[np.int64] | list[tuple[int, int, int, int]] | None = None,
     median_done: bool = False,
 ) -> Markers:
     """Decode every marker of ``dictionary`` in a grey uint8 frame.
@@ -99,9 +99,13 @@ def find_markers(
         raise ValueError(f"expected a grey uint8 (H, W) image, got {gray.dtype} {gray.shape}")
     rows, cols = gray.shape
     if boxes is None:
-        boxes = np.array([[0, rows, 0, cols]], dtype=np.int64)
-    found: list[tuple[Any, ...]] = []  # OpenCV's (corners, ids) and the crop's origin
-    for r0, r1, c0, c1 in np.asarray(boxes, dtype=np.int64).reshape(-1, 4).tolist():
+        boxes = [(0, rows, 0, cols)]
+    elif not isinstance(boxes, list):
+        boxes = np.asarray(boxes, dtype=np.int64).reshape(-1, 4).tolist()
+    found_ids: list[int] = []
+    found_xy: list[Any] = []  # OpenCV's corners, (1, 4, 2) each, x = col, y = row
+    origin: list[tuple[int, int]] = []  # the crop's (row, col) in the frame, per marker
+    for r0, r1, c0, c1 in boxes:
         r0, c0, r1, c1 = max(r0, 0), max(c0, 0), min(r1, rows), min(c1, cols)
         if r1 - r0 < 8 or c1 - c0 < 8:
             continue
@@ -112,21 +116,27 @@ def find_markers(
             crop = cv2.medianBlur(np.ascontiguousarray(crop), 3)
         detector = marker_detector(dictionary, side_px, max(r1 - r0, c1 - c0))
         corners, ids, _ = detector.detectMarkers(crop)
-        if ids is not None and len(ids):
-            found.append((corners, ids, r0, c0))
-    if not found:
+        if ids is not None:
+            found_ids += ids.ravel().tolist()
+            found_xy += corners
+            origin += [(r0, c0)] * len(corners)
+    if not found_ids:
         return Markers.none()
-    id_list = [i for _, ids, _, _ in found for i in ids.reshape(-1).tolist()]
-    origin = [(r0, c0) for corners, _, r0, c0 in found for _ in corners]
-    xy = np.concatenate([c for corners, _, _, _ in found for c in corners], dtype=np.float64)
-    # OpenCV's corners are x = col, y = row
-    rc = xy.reshape(-1, 4, 2)[:, :, ::-1] + np.array(origin, dtype=np.float64)[:, None, :]
-    ids = np.array(id_list, dtype=np.int64)
-    if len(set(id_list)) < len(id_list):
+    # a few markers a frame: as few array calls as can be (each costs more than its work)
+    xy = np.array(found_xy, dtype=np.float64).reshape(-1, 4, 2)
+    rc = xy[:, :, ::-1] + np.array(origin, dtype=np.float64)[:, None, :]
+    ids = np.array(found_ids, dtype=np.int64)
+    if len(set(found_ids)) < len(found_ids):
         ids, rc = _unique(ids, rc)
     m = BORDER_MARGIN_PX
-    inside = ((rc >= m) & (rc <= (rows - 1 - m, cols - 1 - m))).all(axis=(1, 2))
-    return Markers(ids[inside], rc[inside], int(ids.size - np.count_nonzero(inside)))
+    inside = [
+        min(p) >= m and max(p[0::2]) <= rows - 1 - m and max(p[1::2]) <= cols - 1 - m
+        for p in rc.reshape(-1, 8).tolist()
+    ]
+    if all(inside):
+        return Markers(ids, rc, 0)
+    keep = np.array(inside, dtype=bool)
+    return Markers(ids[keep], rc[keep], len(inside) - int(keep.sum()))
 
 
 def _unique(

@@ -264,14 +264,13 @@ class _MarkedFrame(NamedTuple):
     robots: list[RobotState]
     unknown: list[UnknownMarker]
     owner: NDArray[np.int64]
-    rep: NDArray[np.int64]
+    rep: list[int]
     keep: NDArray[np.bool_]
     at_border: int
 
     @classmethod
     def none(cls, n: int) -> _MarkedFrame:
-        empty = np.zeros(0, dtype=np.int64)
-        return cls([], [], np.full(n, -1, dtype=np.int64), empty, np.ones(n, dtype=bool), 0)
+        return cls([], [], np.full(n, -1, dtype=np.int64), [], np.ones(n, dtype=bool), 0)
 
     def fill(
         self,
@@ -282,7 +281,7 @@ class _MarkedFrame(NamedTuple):
         vel: NDArray[np.float64],
     ) -> None:
         """Write each robot's id and filtered pose into its blob's columns (in place)."""
-        for robot, k in zip(self.robots, self.rep.tolist(), strict=True):
+        for robot, k in zip(self.robots, self.rep, strict=True):
             if k >= 0:
                 ids[k], z[k], heading[k] = robot.id, robot.z_cm, robot.heading_deg
                 xy[k] = robot.x_cm, robot.y_cm
@@ -473,20 +472,27 @@ class Detector:
         nearest such blob stands for it; the rest, e.g. bits of its marker, are dropped)."""
         robots, unknown = self.robots.update(markers, self.camera, now)
         n = top.x_cm.size
-        owner = np.full(n, -1, dtype=np.int64)
-        rep = np.full(len(robots), -1, dtype=np.int64)
+        # a few robots: plain Python over (blob, robot) pairs costs less than the dozen
+        # array calls of a distance matrix
+        owner = [-1] * n
+        rep = [-1] * len(robots)
         if robots and n:
-            rx = np.array([[r.x_cm, r.y_cm, r.radius_cm] for r in robots])
-            d = np.hypot(top.x_cm[:, None] - rx[:, 0], top.y_cm[:, None] - rx[:, 1])
-            d[~(d <= rx[:, 2])] = np.inf  # (NaN for pixels that miss the plane, too)
-            nearest = d.argmin(axis=1)
-            owner = np.where(np.isfinite(d[np.arange(n), nearest]), nearest, -1)
-            mine = np.where(owner[:, None] == np.arange(len(robots)), d, np.inf)
-            best = mine.argmin(axis=0)  # per robot, its nearest own blob
-            rep = np.where(np.isfinite(mine[best, np.arange(len(robots))]), best, -1)
-        keep = owner < 0
-        keep[rep[rep >= 0]] = True
-        return _MarkedFrame(robots, unknown, owner, rep, keep, markers.partial)
+            xs, ys = top.x_cm.tolist(), top.y_cm.tolist()
+            nearest = [math.inf] * n
+            for k, robot in enumerate(robots):
+                x, y, radius = robot.x_cm, robot.y_cm, robot.radius_cm
+                for i in range(n):
+                    d = math.hypot(xs[i] - x, ys[i] - y)  # NaN off the plane: never within
+                    if d <= radius and d < nearest[i]:
+                        nearest[i], owner[i] = d, k
+            best = [math.inf] * len(robots)
+            for i, k in enumerate(owner):  # per robot, its nearest own blob
+                if k >= 0 and nearest[i] < best[k]:
+                    best[k], rep[k] = nearest[i], i
+        owned = np.array(owner, dtype=np.int64)
+        keep = owned < 0
+        keep[[k for k in rep if k >= 0]] = True
+        return _MarkedFrame(robots, unknown, owned, rep, keep, markers.partial)
 
     def _plan(
         self,

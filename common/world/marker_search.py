@@ -15,6 +15,8 @@ preprocess service sends it the median with the binary frame.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -88,28 +90,38 @@ def marker_boxes(
     mu_cc: NDArray[np.float64],
     mu_rc: NDArray[np.float64],
     side_px: tuple[float, float],
-    largest_px: NDArray[np.float64] | None = None,
-) -> NDArray[np.int64]:
-    """Boxes ``(k, 4)`` = row0, row1, col0, col1 around the blobs that may carry a marker;
-    ``largest_px`` (n,): the largest marker's side at each blob, px (else the largest
-    anywhere in the frame, ``side_px[1]``)."""
-    # fill < MAX_FILL  ⇔  area² < (MAX_FILL·4π)²·det Σ (no square root, no division)
-    det = mu_rr * mu_cc - mu_rc * mu_rc
-    spread = _BOX_SIGMAS * np.sqrt(np.maximum(mu_rr, mu_cc))
-    pick = (area_px * area_px < (MAX_FILL * 4.0 * np.pi) ** 2 * det) & (spread >= 0.5 * side_px[0])
-    # the marker is centred on its robot: a box round the largest marker (half its
-    # diagonal, plus room for the refinement) is enough, whatever the robot's size
-    r, c, s = row[pick], col[pick], spread[pick]
-    largest = side_px[1] if largest_px is None else largest_px[pick]
-    h = np.minimum(s, _MARKER_HALF * largest) + _BOX_PAD_PX
-    return np.column_stack([r - h, r + h + 1, c - h, c + h + 1]).astype(np.int64)
+    top: tuple[float, NDArray[np.float64]] | None = None,
+) -> list[tuple[int, int, int, int]]:
+    """Boxes ``row0, row1, col0, col1`` around the blobs that may carry a marker.
+
+    ``top``: :func:`top_side_cm` and each blob's pixel footprint on the robot plane
+    (cm²), which give the largest marker's side at each blob (else the largest anywhere
+    in the frame, ``side_px[1]``)."""
+    # fill < MAX_FILL  ⇔  area² < (MAX_FILL·4π)²·det Σ; and the blob's spread along its
+    # wider image axis, _BOX_SIGMAS·√var, at least half the smallest marker side
+    var = np.maximum(mu_rr, mu_cc)
+    holed = area_px * area_px < (MAX_FILL * 4.0 * np.pi) ** 2 * (mu_rr * mu_cc - mu_rc * mu_rc)
+    pick = np.flatnonzero(holed & (var >= (0.5 * side_px[0] / _BOX_SIGMAS) ** 2))
+    if not pick.size:
+        return []
+    # the few picked blobs in plain Python (array calls would cost more than the work)
+    footprint = top[1] if top is not None else np.zeros_like(row)
+    picked = np.stack((row, col, var, footprint))[:, pick].tolist()
+    boxes = []
+    for r, c, v, area in zip(*picked, strict=True):
+        largest = top[0] / math.sqrt(area) if top is not None and area > 0 else side_px[1]
+        # the marker is centred on its robot: a box round the largest marker (half its
+        # diagonal, plus room for the refinement) is enough, whatever the robot's size
+        h = min(_BOX_SIGMAS * math.sqrt(v), _MARKER_HALF * largest) + _BOX_PAD_PX
+        boxes.append((int(r - h), int(r + h + 1), int(c - h), int(c + h + 1)))
+    return boxes
 
 
 def search_markers(
     gray: NDArray[np.uint8],
     pose: PoseConfig,
     side_px: tuple[float, float],
-    boxes: NDArray[np.int64] | None = None,
+    boxes: list[tuple[int, int, int, int]] | None = None,
     *,
     median_done: bool = False,
 ) -> Markers:
@@ -136,12 +148,7 @@ def markers_around(
     :func:`top_side_cm` and each blob's pixel footprint on the robot plane (cm²), which
     size its box to the largest marker as seen at that blob instead of where the frame
     magnifies most."""
-    largest = None
-    if top is not None:
-        side_cm, area = top
-        seen = area > 0
-        largest = np.where(seen, side_cm / np.sqrt(np.where(seen, area, 1.0)), side_px[1])
-    boxes = marker_boxes(*blobs[:3], *blobs[5:], side_px, largest)
+    boxes = marker_boxes(*blobs[:3], *blobs[5:], side_px, top)
     return search_markers(median3, pose, side_px, boxes, median_done=True)
 
 

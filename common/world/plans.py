@@ -48,10 +48,10 @@ class RobotPlan(msgspec.Struct, kw_only=True):
     entries: list[TargetEntry]
 
 
-def _goal_directions(robots: list[RobotState], pose: PoseConfig) -> NDArray[np.float64]:
+def _goal_directions(robots: list[RobotState], pose: PoseConfig) -> list[float]:
     """Each robot's goal direction (deg from +X); NaN without a goal or on it."""
     specs = {r.id: r for r in pose.robots}
-    out = np.full(len(robots), np.nan)
+    out = [math.nan] * len(robots)
     for k, robot in enumerate(robots):
         spec = specs.get(robot.id)
         own = spec is not None and (spec.goal_cm is not None or spec.goal_angle_deg is not None)
@@ -78,18 +78,20 @@ def robot_plans(
     if not robots:
         return []
     obstacles_xyr = np.asarray(obstacles_xyr, dtype=np.float64).reshape(-1, 3)
-    me = np.array([[r.x_cm, r.y_cm, r.radius_cm, r.heading_deg] for r in robots])
-    targets = np.concatenate([obstacles_xyr, me[:, :3]])
+    goal = _goal_directions(robots, pose)
+    me = np.array([[r.x_cm, r.y_cm, r.radius_cm] for r in robots])
+    targets = np.concatenate([obstacles_xyr, me])
     ids = [*np.asarray(obstacle_ids).tolist(), *(r.id for r in robots)]
     m = len(obstacles_xyr)
     kinds = ["obstacle"] * m + ["robot"] * len(robots)
     dx = targets[None, :, 0] - me[:, 0, None]
     dy = targets[None, :, 1] - me[:, 1, None]
     distance = (np.hypot(dx, dy) - targets[None, :, 2]).tolist()
-    bearing = np.arctan2(dy, dx)
-    relative = signed_angle_deg(np.radians(me[:, 3, None]), bearing).tolist()
-    goal = _goal_directions(robots, pose)
-    to_goal = signed_angle_deg(np.radians(goal[:, None]), bearing).tolist()
+    # both references at once: (robots, [heading, goal direction], targets)
+    refs = np.radians([[[r.heading_deg], [g]] for r, g in zip(robots, goal, strict=True)])
+    relative, to_goal = zip(
+        *signed_angle_deg(refs, np.arctan2(dy, dx)[:, None, :]).tolist(), strict=True
+    )
     plans = []
     for k, robot in enumerate(robots):
         has_goal = not math.isnan(goal[k])
@@ -105,6 +107,6 @@ def robot_plans(
             for c in range(len(ids))
             if c != m + k  # not itself
         ]
-        direction = float(goal[k]) if has_goal else None
+        direction = goal[k] if has_goal else None
         plans.append(RobotPlan(robot_id=robot.id, goal_direction_deg=direction, entries=entries))
     return plans

@@ -23,6 +23,8 @@ dropped (a later sighting starts a new filter).
 
 from __future__ import annotations
 
+import cmath
+import math
 from dataclasses import dataclass, field
 from typing import Annotated, NamedTuple
 
@@ -41,6 +43,7 @@ __all__ = [
     "RobotState",
     "RobotTracker",
     "UnknownMarker",
+    "corner_pose",
     "marker_poses",
     "poses_of",
     "wrap_deg",
@@ -121,6 +124,22 @@ def poses_of(points: NDArray[np.complex128], valid: NDArray[np.bool_]) -> Marker
     centre = (tl + tr + br + bl) / 4.0
     ok = valid.all(axis=1) & (turn != 0)
     return MarkerPoses(centre.real, centre.imag, wrap_deg(heading), ok)
+
+
+def corner_pose(
+    tl: complex, tr: complex, br: complex, bl: complex
+) -> tuple[float, float, float] | None:
+    """:func:`poses_of` for one marker, in plain Python: (x, y, heading) from its corners
+    on its plane (x + iy, cm), None when not valid."""
+    if not all(map(cmath.isfinite, (tl, tr, br, bl))):
+        return None
+    up, across = (tl + tr - bl - br) / 2.0, (tr + br - tl - bl) / 2.0
+    cross = (across.conjugate() * up).imag
+    if cross == 0.0:
+        return None
+    forward = up + (1j if cross > 0.0 else -1j) * across
+    centre = (tl + tr + br + bl) / 4.0
+    return centre.real, centre.imag, _wrap(math.degrees(math.atan2(forward.imag, forward.real)))
 
 
 def _wrap(angle: float) -> float:
@@ -239,35 +258,33 @@ class RobotTracker:
         self, markers: Markers, camera: CameraModel, stamp_s: float
     ) -> tuple[list[RobotState], list[UnknownMarker]]:
         """Fold in this frame's markers; the robots still tracked and the unknown markers."""
+        if camera is not self._camera:
+            self._camera, self._tables = camera, {}
         specs = self._by_marker
-        ids = markers.ids.tolist()
-        spec_of = [specs.get(i) for i in ids]
         measured: dict[int, tuple[float, float, float]] = {}
         unknown: list[UnknownMarker] = []
-        if ids:
-            default_h = self.pose.robot_height_cm
-            heights = [default_h if r is None else r.marker_height_cm for r in spec_of]
-            poses = poses_of(*self._on_planes(markers.corners, heights, camera))
-            xs, ys, hs = poses.x_cm.tolist(), poses.y_cm.tolist(), poses.heading_deg.tolist()
-            for k, (robot, ok) in enumerate(zip(spec_of, poses.valid.tolist(), strict=True)):
-                if not ok:
-                    continue
-                if robot is None:
-                    centre = markers.corners[k].mean(axis=0)
-                    unknown.append(
-                        UnknownMarker(
-                            marker_id=ids[k],
-                            row=float(centre[0]),
-                            col=float(centre[1]),
-                            x_cm=xs[k],
-                            y_cm=ys[k],
-                        )
+        # a few markers a frame: plain Python per marker costs less than array calls
+        for marker, corners in zip(markers.ids.tolist(), markers.corners.tolist(), strict=True):
+            robot = specs.get(marker)
+            height = self.pose.robot_height_cm if robot is None else robot.marker_height_cm
+            z = self._pose(corners, height, camera)
+            if z is None:
+                continue
+            if robot is None:
+                rows, cols = zip(*corners, strict=True)
+                unknown.append(
+                    UnknownMarker(
+                        marker_id=marker,
+                        row=sum(rows) / 4.0,
+                        col=sum(cols) / 4.0,
+                        x_cm=z[0],
+                        y_cm=z[1],
                     )
-                    continue
-                z = (xs[k], ys[k], hs[k])
-                if robot.id in measured:  # the same marker twice: keep the one nearer the filter
-                    z = self._nearer(robot.id, measured[robot.id], z)
-                measured[robot.id] = z
+                )
+                continue
+            if robot.id in measured:  # the same marker twice: keep the one nearer the filter
+                z = self._nearer(robot.id, measured[robot.id], z)
+            measured[robot.id] = z
         states: list[RobotState] = []
         for robot in self._in_order:
             f = self.filters.get(robot.id)
@@ -287,23 +304,16 @@ class RobotTracker:
             states.append(_state(robot, f, age))
         return states, unknown
 
-    def _on_planes(
-        self, corners: NDArray[np.float64], heights: list[float], camera: CameraModel
-    ) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
-        """Corners (n, 4, 2) → their points on each marker's plane, x + iy (cm), and
-        validity, from the planes' tables (made once per camera and plane)."""
-        if camera is not self._camera:
-            self._camera, self._tables = camera, {}
-        points = np.empty(corners.shape[:2], dtype=np.complex128)
-        valid = np.empty(corners.shape[:2], dtype=bool)
-        planes = set(heights)
-        for h in planes:  # usually one plane for every marker
-            at = slice(None) if len(planes) == 1 else [k for k, z in enumerate(heights) if z == h]
-            table = self._tables.get(h)
-            if table is None:
-                table = self._tables[h] = PlaneTable(camera, h)
-            points[at], valid[at] = table(corners[at, :, 0], corners[at, :, 1])
-        return points, valid
+    def _pose(
+        self, corners: list[list[float]], height_cm: float, camera: CameraModel
+    ) -> tuple[float, float, float] | None:
+        """One marker's (x, y, heading) from its four image corners (row, col), on the
+        plane z = ``height_cm`` (read from that plane's table, made once per camera)."""
+        table = self._tables.get(height_cm)
+        if table is None:
+            table = self._tables[height_cm] = PlaneTable(camera, height_cm)
+        tl, tr, br, bl = (table.point(r, c) for r, c in corners)
+        return corner_pose(tl, tr, br, bl)
 
     def _nearer(
         self, robot_id: int, a: tuple[float, float, float], b: tuple[float, float, float]
