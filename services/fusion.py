@@ -36,12 +36,6 @@ def camera_model(spec: CameraSpec) -> CameraModel:
     return load_calibration(spec.calibration).camera  # type: ignore[arg-type]
 
 
-def detections(msg: ObstacleFrame) -> list[dict]:
-    """One camera's obstacle frame as plain detections (marked robots by marker)."""
-    keys = ("kind", "x_cm", "y_cm", "z_cm", "radius_cm", "marker_id", "heading_deg")
-    return [{k: getattr(s, k) for k in keys} for s in frame_columns("camera", msg).to_list()]
-
-
 def frame_columns(name: str, msg: ObstacleFrame) -> Sightings:
     """One camera's obstacle frame as detection columns, as fusion takes them (marked
     robots seen in this frame, by marker; see

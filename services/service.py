@@ -351,27 +351,32 @@ def exit_if_stuck_after(seconds: float, logger: logging.Logger) -> None:
     would otherwise be killed by the supervisor and counted as an abnormal exit. Where
     each thread was is logged, to find out why."""
 
-    def force() -> None:
-        stacks = "".join(
+    def stacks() -> str:
+        return "".join(
             f"\n  thread {ident}:\n" + "".join(traceback.format_stack(frame)[-4:])
             for ident, frame in sys._current_frames().items()
         )
-        logger.warning("not stopped %g s after the signal: exiting now; stacks:%s", seconds, stacks)
-        logging.shutdown()
-        os._exit(0)
 
-    timer = threading.Timer(seconds, force)
-    timer.daemon = True
-    timer.start()
+    _exit_after(
+        seconds,
+        lambda: logger.warning(
+            "not stopped %g s after the signal: exiting now; stacks:%s", seconds, stacks()
+        ),
+    )
 
 
 def exit_anyway_after(seconds: float, logger: logging.Logger) -> None:
     """Once a service has stopped (its state logged), make sure the process ends: a Zenoh
     session whose close, or an interpreter shutdown, hangs (seen on loaded hosts) would
     otherwise leave the supervisor to SIGKILL it and report an abnormal exit."""
+    _exit_after(seconds, lambda: logger.warning("closing took over %g s: exiting now", seconds))
+
+
+def _exit_after(seconds: float, say: Callable[[], None]) -> None:
+    """In ``seconds``, unless the process has ended: ``say`` why, then exit (code 0)."""
 
     def force() -> None:
-        logger.warning("closing took over %g s: exiting now", seconds)
+        say()
         logging.shutdown()
         os._exit(0)
 

@@ -72,7 +72,7 @@ SILENT = "no frames from east, west (area uncovered)"
 def subscribe_world(session: Any, key: str, write: Write) -> None:
     """World frames, and each camera's obstacles (what fusion takes of them) and truth."""
     from ovis.common.messages import ObstacleFrame, TruthFrame, WorldFrame
-    from ovis.services.fusion import detections
+    from ovis.services.fusion import frame_columns
 
     def camera(sample: Any) -> str:
         return str(sample.key_expr).split("/")[3]  # ovis/<arena>/cam/<name>/…
@@ -94,7 +94,8 @@ def subscribe_world(session: Any, key: str, write: Write) -> None:
         m = decoded(sample, ObstacleFrame, write)
         if m is None:
             return
-        objs = [[d["kind"], d["x_cm"], d["y_cm"], d["radius_cm"]] for d in detections(m)]
+        seen = frame_columns(camera(sample), m).to_list()
+        objs = [[d.kind, d.x_cm, d.y_cm, d.radius_cm] for d in seen]
         write(
             {
                 "k": "co", "cam": camera(sample), "seq": m.seq, "stamp": m.stamp_ns,

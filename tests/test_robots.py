@@ -223,21 +223,27 @@ def test_tables_are_made_before_the_first_frame_asks(scene) -> None:
     assert all(tracker._tables[h] is before[h] for h in heights)
 
 
-def test_one_marker_pose_equals_the_array_poses() -> None:
-    """The tracker's per-marker pose (plain Python) is :func:`poses_of`'s, both
-    handednesses, and refuses what poses_of marks invalid (NaN, degenerate)."""
-    rng = np.random.default_rng(162)
-    points = rng.normal(0.0, 20.0, (300, 4)) + 1j * rng.normal(0.0, 20.0, (300, 4))
-    points[0, 2] = complex(math.nan, 0.0)
-    points[1] = 3.0 + 4.0j  # all four corners at one point
-    ref = poses_of(points, np.isfinite(points))
-    for k, corners in enumerate(points.tolist()):
-        one = corner_pose(*corners)
-        assert (one is not None) == bool(ref.valid[k])
-        if one is not None:
-            assert abs(one[0] - ref.x_cm[k]) < 1e-9 and abs(one[1] - ref.y_cm[k]) < 1e-9
-            assert abs(wrap_deg(one[2] - ref.heading_deg[k])) < 1e-9
-            assert -180.0 < one[2] <= 180.0
+def test_one_marker_pose_known_answers_both_handednesses_and_refusals() -> None:
+    """A square marker of known centre and heading on its plane, in a right-handed and
+    a mirrored world: its centre and heading back; NaN or collinear corners refused."""
+    for heading in (0.0, 37.0, 90.0, 179.0, -120.0):
+        up = cmath.rect(1.0, math.radians(heading))
+        right = up * -1j  # right-handed: the right edge is `up` turned clockwise
+        centre = 40.0 + 25.0j
+        corners = [
+            centre + 4.0 * (a * right + b * up) for a, b in ((-1, 1), (1, 1), (1, -1), (-1, -1))
+        ]
+        x, y, h = corner_pose(*corners)
+        assert abs(x - 40.0) < 1e-9 and abs(y - 25.0) < 1e-9
+        assert abs(wrap_deg(h - heading)) < 1e-9 and -180.0 < h <= 180.0
+        mirrored = [c.conjugate() for c in corners]  # y flipped: the other handedness
+        _, my, mh = corner_pose(*mirrored)
+        assert abs(my + 25.0) < 1e-9 and abs(wrap_deg(mh + heading)) < 1e-9
+    assert corner_pose(complex(math.nan, 0.0), 1.0, 1.0 + 1.0j, 1.0j) is None
+    assert corner_pose(3.0 + 4.0j, 3.0 + 4.0j, 3.0 + 4.0j, 3.0 + 4.0j) is None
+    pts = np.array([[0.0, 2.0, 2.0 + 2.0j, 2.0j], [0.0, 1.0, 2.0, 3.0]])  # 2nd: on a line
+    poses = poses_of(pts, np.isfinite(pts))
+    assert poses.valid.tolist() == [True, False] and np.isnan(poses.x_cm[1])
 
 
 def test_tracker_poses_match_the_back_projected_ones(scene) -> None:

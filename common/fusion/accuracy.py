@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ovis.common.camera.projection import back_project, disks_in_image, pixel_jacobian, project
+from ovis.common.camera.projection import disks_in_image, pixel_jacobian, project
 from ovis.common.config import CameraModel
-from ovis.common.fusion.border import BorderTable
+from ovis.common.fusion.border import BorderTable, floor_seen
 from ovis.common.fusion.sightings import COLUMNS, CXX, CXY, CYY, MARKER, R, Sightings, X, Y, Z
 from ovis.common.fusion.tables import TableSet
 
@@ -73,11 +73,7 @@ class AccuracyMap:
         key = round(z, 1)
         grid = self._grids.get(key)
         if grid is None:
-            rows, cols = self.cam.rows - 1.0, self.cam.cols - 1.0
-            r = np.array([0.0, 0.0, rows, rows, rows / 2, 0.0, rows, rows / 2])
-            c = np.array([0.0, cols, 0.0, cols, 0.0, cols / 2, cols / 2, cols])
-            b = back_project(r, c, self.cam, key)
-            x, y = np.asarray(b.x_cm)[b.valid], np.asarray(b.y_cm)[b.valid]
+            x, y, _ = floor_seen(self.cam, key)
             if x.size == 0:
                 grid = (0.0, 0.0, np.full((0, 0, 2, 2), np.inf))
             else:

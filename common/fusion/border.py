@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 from ovis.common.camera.projection import back_project, disks_in_image, project
 from ovis.common.config import CameraModel
 
-__all__ = ["ANGLES_COS", "ANGLES_SIN", "BorderTable", "bilinear", "room_px"]
+__all__ = ["ANGLES_COS", "ANGLES_SIN", "BorderTable", "bilinear", "floor_seen", "room_px"]
 
 FloatArray = NDArray[np.float64]
 
@@ -34,18 +34,26 @@ MAX_NODES = 4_000_000
 EDGE_SAMPLES = 64
 
 
+def floor_seen(cam: CameraModel, z: float) -> tuple[FloatArray, FloatArray, bool]:
+    """Where the image's border meets the plane z (``EDGE_SAMPLES`` pixels along each
+    edge, back-projected): the floor points (x, y; cm) that bound what the camera sees
+    there, and whether every edge pixel sees the plane (else the view reaches beyond
+    its horizon)."""
+    rows, cols = cam.rows - 1.0, cam.cols - 1.0
+    t = np.linspace(0.0, 1.0, EDGE_SAMPLES)
+    r = np.concatenate([t * rows, t * rows, np.zeros_like(t), np.full_like(t, rows)])
+    c = np.concatenate([np.zeros_like(t), np.full_like(t, cols), t * cols, t * cols])
+    b = back_project(r, c, cam, z)
+    valid = np.asarray(b.valid)
+    return np.asarray(b.x_cm)[valid], np.asarray(b.y_cm)[valid], bool(valid.all())
+
+
 class _Plane:
     """One plane height's table: grid origin, step, shape and (row, col) per node."""
 
     def __init__(self, cam: CameraModel, z: float, step: float) -> None:
         self.step = step
-        rows, cols = cam.rows - 1.0, cam.cols - 1.0
-        t = np.linspace(0.0, 1.0, EDGE_SAMPLES)
-        r = np.concatenate([t * rows, t * rows, np.zeros_like(t), np.full_like(t, rows)])
-        c = np.concatenate([np.zeros_like(t), np.full_like(t, cols), t * cols, t * cols])
-        b = back_project(r, c, cam, z)
-        x, y = np.asarray(b.x_cm)[b.valid], np.asarray(b.y_cm)[b.valid]
-        self.ok = bool(b.valid.all())
+        x, y, self.ok = floor_seen(cam, z)
         if not self.ok:  # the image sees beyond the plane's horizon: project instead
             return
         self.x0, self.y0 = float(x.min()) - 2 * step, float(y.min()) - 2 * step

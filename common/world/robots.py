@@ -115,22 +115,26 @@ def marker_poses(
 
 def poses_of(points: NDArray[np.complex128], valid: NDArray[np.bool_]) -> MarkerPoses:
     """:func:`marker_poses` from the markers' corners on their planes, (n, 4) x + iy (cm)
-    in OpenCV's corner order, and where each was valid."""
-    tl, tr, br, bl = points.T
-    up, across = (tl + tr - bl - br) / 2.0, (tr + br - tl - bl) / 2.0
-    # turn `across` by 90° towards `up` (which way depends on the world's handedness)
-    turn = np.sign((across.conjugate() * up).imag)
-    heading = np.angle(up + 1j * turn * across, deg=True)
-    centre = (tl + tr + br + bl) / 4.0
-    ok = valid.all(axis=1) & (turn != 0)
-    return MarkerPoses(centre.real, centre.imag, wrap_deg(heading), ok)
+    in OpenCV's corner order, and where each was valid: :func:`corner_pose` of each (a
+    handful of markers: one formula, in plain Python)."""
+    poses = [
+        corner_pose(*corners) if ok else None
+        for corners, ok in zip(points.tolist(), valid.all(axis=1).tolist(), strict=True)
+    ]
+    x, y, heading = (
+        np.array([math.nan if p is None else p[k] for p in poses], dtype=np.float64)
+        for k in range(3)
+    )
+    return MarkerPoses(x, y, heading, np.array([p is not None for p in poses], dtype=bool))
 
 
 def corner_pose(
     tl: complex, tr: complex, br: complex, bl: complex
 ) -> tuple[float, float, float] | None:
-    """:func:`poses_of` for one marker, in plain Python: (x, y, heading) from its corners
-    on its plane (x + iy, cm), None when not valid."""
+    """One marker's (x, y, heading) from its corners on its plane (x + iy, cm, OpenCV's
+    order), None when not valid (a corner not finite, or all on one line): its centre,
+    and the direction from its bottom edge to its top edge turned by 90° towards the
+    right-hand edge's one (which way depends on the world's handedness)."""
     if not all(map(cmath.isfinite, (tl, tr, br, bl))):
         return None
     up, across = (tl + tr - bl - br) / 2.0, (tr + br - tl - bl) / 2.0
