@@ -404,7 +404,9 @@ def e2e_rows(quick: bool, log=print) -> list[Row]:
                     value=best_step.latency.p99,
                 )
             )
-    return rows
+    from benchmarks.frame_hop import frame_hop_rows  # it uses this module's free_port
+
+    return rows + frame_hop_rows(quick, log)
 
 
 # ----------------------------------------------------------------------- memory
