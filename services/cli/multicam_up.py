@@ -156,6 +156,9 @@ def up_cameras(
             _wait_prerendered(fleet, session, topics, names, stop, out)
             run.clock_from = time.time_ns()
             began = time.monotonic()
+            until = f"for {duration:g} s" if duration is not None else "until Ctrl-C"
+            print(f"ovis up: all {len(names)} cameras running; scoring the world {until}",
+                  file=out, flush=True)  # fmt: skip
             while not stop.is_set():
                 for news in fleet.supervise():
                     print(f"ovis up: {news}", file=sys.stderr)

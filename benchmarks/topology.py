@@ -1,0 +1,186 @@
+"""The floor under ``ovis up --cameras 2x2``: the same processes, placement and messages
+with every stage empty.
+
+Four chains of a capture and three relays (preprocess, label, pose), each its own
+process, a Zenoh peer on loopback and pinned as ``ovis up`` pins the chains (dealt round
+the cores), plus a fusion relay that publishes a world message once all four cameras'
+messages of a frame are in. Every message has the size of the real stage's message
+for a 640×480 frame (a grey frame; the packed binary frame with its 3×3 median; the
+blobs; the obstacles). The captures publish together at 30 frames/s; this process
+subscribes to the world and measures capture stamp → world. What the real pipeline
+adds to this is the stages' work and its cache misses.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+import time
+
+import zenoh
+
+from benchmarks.bus import free_port
+from benchmarks.core import Stats, stats
+from ovis.common.config import ZenohConfig
+from ovis.services.bus import LOOPBACK_PEER, zenoh_config
+from ovis.services.inbox import Inbox
+
+__all__ = ["empty_chains"]
+
+#: Bytes each stage publishes per 640×480 frame (the real stages' encoded messages).
+SIZES = {"capture": 307_300, "preprocess": 345_700, "label": 1_600, "pose": 2_400}
+CHAIN = ("capture", "preprocess", "label", "pose")
+CAMERAS = 4
+ALIVE = "bench/topology/alive/**"
+STAMP = 16  # bytes: capture stamp (ns) and frame number, at the head of every message
+
+
+def _key(camera: int, stage: str) -> str:
+    return f"bench/topology/{camera}/{stage}"
+
+
+def _stage(port: int, stage: str, camera: int, frames: int, fps: float) -> None:
+    """One relay process (or a capture, or the fusion relay) until ``frames`` are done:
+    it says it listens (a liveliness token), then the captures wait for the start."""
+    from ovis.services.memory import keep_freed_memory
+
+    keep_freed_memory()
+    if stage != "fusion":
+        cores = sorted(os.sched_getaffinity(0))
+        os.sched_setaffinity(0, {cores[camera % len(cores)]})
+    zc = ZenohConfig(mode="peer", connect=[f"tcp/127.0.0.1:{port}"], listen=[LOOPBACK_PEER])
+    session = zenoh.open(zenoh_config(zc))
+    go = Inbox(1)
+    session.declare_subscriber("bench/topology/go", lambda s: go.put(s.payload.to_bytes()))
+    _listen(session, stage, camera)
+    token = session.liveliness().declare_token(f"{ALIVE[:-3]}/{camera}/{stage}")  # noqa: F841
+    said = None
+    while said is None:
+        said = go.get(timeout=1.0)
+    start = float(said.decode())
+    end = start + frames / fps + 3.0
+    if stage == "capture":
+        pub = session.declare_publisher(_key(camera, stage))
+        pad = bytes(SIZES[stage])
+        for k in range(frames):
+            time.sleep(max(0.0, start + k / fps - time.time()))
+            pub.put(time.time_ns().to_bytes(8, "little") + k.to_bytes(8, "little") + pad)
+    elif stage != "fusion":
+        inbox, pub = _INBOX[0], session.declare_publisher(_key(camera, stage))
+        pad = bytes(SIZES[stage])
+        while time.time() < end:
+            payload = inbox.get(timeout=0.2)
+            if payload is not None:
+                pub.put(payload[:STAMP] + pad)
+    time.sleep(max(0.0, end - time.time()))
+    os._exit(0)  # no session close: nothing is left to send
+
+
+_INBOX: list[Inbox] = []  # a relay's inbox (one per process)
+
+
+def _listen(session: zenoh.Session, stage: str, camera: int) -> None:
+    """Subscribe what ``stage`` receives: the fusion relay publishes a world message once
+    the four cameras' pose messages of a frame are in; a relay's input goes to its inbox
+    (newest wins, as in the services)."""
+    if stage == "capture":
+        return
+    if stage == "fusion":
+        pub = session.declare_publisher("bench/topology/world")
+        waiting: dict[int, list[bytes]] = {}
+        lock = threading.Lock()
+
+        def on_pose(sample: zenoh.Sample) -> None:
+            head = sample.payload.to_bytes()[:STAMP]
+            k = int.from_bytes(head[8:], "little")
+            with lock:
+                waiting.setdefault(k, []).append(head)
+                if len(waiting[k]) == CAMERAS:
+                    first = min(waiting.pop(k))  # the cameras' common stamp
+                    pub.put(first + bytes(SIZES["pose"]))
+
+        for c in range(CAMERAS):
+            session.declare_subscriber(_key(c, "pose"), on_pose)
+        return
+    inbox = Inbox(2)
+    _INBOX.append(inbox)
+    before = CHAIN[CHAIN.index(stage) - 1]
+    session.declare_subscriber(_key(camera, before), lambda s: inbox.put(s.payload.to_bytes()))
+
+
+def empty_chains(frames: int, fps: float = 30.0) -> tuple[Stats, int]:
+    """Capture stamp → world (ms) of the empty topology, and world frames received."""
+    port = free_port()
+    zc = ZenohConfig(mode="peer", listen=[f"tcp/127.0.0.1:{port}"])
+    got: list[float] = []
+    seen: list[int] = []
+    with zenoh.open(zenoh_config(zc)) as session:
+
+        def on_world(sample: zenoh.Sample) -> None:
+            head = sample.payload.to_bytes()[:STAMP]
+            got.append((time.time_ns() - int.from_bytes(head[:8], "little")) / 1e6)
+            seen.append(int.from_bytes(head[8:], "little"))
+
+        session.declare_subscriber("bench/topology/world", on_world)
+        procs = [
+            subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "benchmarks.topology",
+                    str(port),
+                    stage,
+                    str(camera),
+                    str(frames),
+                    str(fps),
+                ]
+            )
+            for camera in range(CAMERAS)
+            for stage in reversed(CHAIN)  # the receivers first
+        ]
+        procs.append(
+            subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "benchmarks.topology",
+                    str(port),
+                    "fusion",
+                    "0",
+                    str(frames),
+                    str(fps),
+                ]
+            )
+        )
+        try:
+            start = _start_when_listening(session, len(procs), procs)
+            for p in procs:
+                p.wait(timeout=start - time.time() + frames / fps + 30)
+        finally:
+            for p in procs:
+                if p.poll() is None:
+                    p.kill()
+    return stats(got), len(set(seen))
+
+
+def _start_when_listening(
+    session: zenoh.Session, count: int, procs: list[subprocess.Popen[bytes]]
+) -> float:
+    """Wait until all ``count`` processes listen, then tell the captures when to start
+    (a second later: the peers' direct links are made by then)."""
+    deadline = time.monotonic() + 120.0
+    while (seen := len(list(session.liveliness().get(ALIVE, timeout=1.0)))) < count:
+        exited = [p.args[4:6] for p in procs if p.poll() is not None]
+        if time.monotonic() > deadline or exited:
+            raise RuntimeError(f"{seen} of the {count} empty stages started; exited: {exited}")
+        time.sleep(0.2)
+    start = time.time() + 1.0
+    session.put("bench/topology/go", repr(start))
+    return start
+
+
+if __name__ == "__main__":
+    port, stage, camera, frames, fps = sys.argv[1:6]
+    _stage(int(port), stage, int(camera), int(frames), float(fps))
