@@ -155,25 +155,31 @@ def up_cameras(duration_s: float, *, pin: str = "auto", fps: float = FPS) -> dic
             "--duration", str(duration_s), "--seed", str(SEED % 1000), "--fps", str(fps),
             "--pin", pin, "--listen", f"tcp/127.0.0.1:{free_port()}"]  # fmt: skip
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    cpu: list[tuple[float, float]] = []  # (monotonic s, CPU s of the process tree)
-
-    def watch() -> None:
-        for line in proc.stderr:
-            if "cameras running" in line and duration_s > 6.0:
-                time.sleep(3.0)
-                cpu.append((time.monotonic(), tree_cpu_s(proc.pid)))
-                time.sleep(duration_s - 5.0)
-                cpu.append((time.monotonic(), tree_cpu_s(proc.pid)))
-            err.append(line)
-
     err: list[str] = []
-    watcher = threading.Thread(target=watch, daemon=True)
-    watcher.start()
+    running = threading.Event()
+
+    def read_stderr() -> None:
+        for line in proc.stderr:
+            err.append(line)
+            if "cameras running" in line:
+                running.set()
+
+    reader = threading.Thread(target=read_stderr, daemon=True)
+    reader.start()
+    cpu: list[tuple[float, float]] = []  # (monotonic s, CPU s of the process tree)
+    while not running.wait(0.5) and proc.poll() is None:
+        pass
+    if duration_s > 6.0 and running.is_set():
+        for wait_s in (3.0, duration_s - 5.0):
+            time.sleep(wait_s)
+            cpu.append((time.monotonic(), tree_cpu_s(proc.pid)))
     out = proc.stdout.read()  # the summary, at the end
     proc.wait(60)
-    watcher.join(5.0)
+    reader.join(5.0)
     if proc.returncode != 0:
-        raise RuntimeError(f"ovis up --cameras failed: {''.join(err)[-2000:]}")
+        raise RuntimeError(
+            f"ovis up --cameras failed (exit {proc.returncode}): {''.join(err)[-2000:]}"
+        )
     run = json.loads(out)
     if len(cpu) == 2:
         (t0, c0), (t1, c1) = cpu
