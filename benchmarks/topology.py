@@ -29,8 +29,10 @@ from ovis.services.inbox import Inbox
 
 __all__ = ["empty_chains"]
 
-#: Bytes each stage publishes per 640×480 frame (the real stages' encoded messages).
-SIZES = {"capture": 307_300, "preprocess": 345_700, "label": 1_600, "pose": 2_400}
+PIXELS = 640 * 480
+#: Bytes each stage publishes per frame: the grey frame; its packed binary frame and 3×3
+#: median; the blobs and the obstacles of a few robots and obstacles (a few KB each).
+SIZES = {"capture": PIXELS, "preprocess": PIXELS // 8 + PIXELS, "label": 1_600, "pose": 2_400}
 CHAIN = ("capture", "preprocess", "label", "pose")
 CAMERAS = 4
 ALIVE = "bench/topology/alive/**"
@@ -54,7 +56,7 @@ def _stage(port: int, stage: str, camera: int, frames: int, fps: float) -> None:
     session = zenoh.open(zenoh_config(zc))
     go = Inbox(1)
     session.declare_subscriber("bench/topology/go", lambda s: go.put(s.payload.to_bytes()))
-    _listen(session, stage, camera)
+    inbox = _listen(session, stage, camera)
     token = session.liveliness().declare_token(f"{ALIVE[:-3]}/{camera}/{stage}")  # noqa: F841
     said = None
     while said is None:
@@ -67,8 +69,8 @@ def _stage(port: int, stage: str, camera: int, frames: int, fps: float) -> None:
         for k in range(frames):
             time.sleep(max(0.0, start + k / fps - time.time()))
             pub.put(time.time_ns().to_bytes(8, "little") + k.to_bytes(8, "little") + pad)
-    elif stage != "fusion":
-        inbox, pub = _INBOX[0], session.declare_publisher(_key(camera, stage))
+    elif inbox is not None:
+        pub = session.declare_publisher(_key(camera, stage))
         pad = bytes(SIZES[stage])
         while time.time() < end:
             payload = inbox.get(timeout=0.2)
@@ -78,15 +80,12 @@ def _stage(port: int, stage: str, camera: int, frames: int, fps: float) -> None:
     os._exit(0)  # no session close: nothing is left to send
 
 
-_INBOX: list[Inbox] = []  # a relay's inbox (one per process)
-
-
-def _listen(session: zenoh.Session, stage: str, camera: int) -> None:
+def _listen(session: zenoh.Session, stage: str, camera: int) -> Inbox | None:
     """Subscribe what ``stage`` receives: the fusion relay publishes a world message once
-    the four cameras' pose messages of a frame are in; a relay's input goes to its inbox
-    (newest wins, as in the services)."""
+    the four cameras' pose messages of a frame are in; a relay's input goes to the inbox
+    returned (newest wins, as in the services)."""
     if stage == "capture":
-        return
+        return None
     if stage == "fusion":
         pub = session.declare_publisher("bench/topology/world")
         waiting: dict[int, list[bytes]] = {}
@@ -103,11 +102,11 @@ def _listen(session: zenoh.Session, stage: str, camera: int) -> None:
 
         for c in range(CAMERAS):
             session.declare_subscriber(_key(c, "pose"), on_pose)
-        return
+        return None
     inbox = Inbox(2)
-    _INBOX.append(inbox)
     before = CHAIN[CHAIN.index(stage) - 1]
     session.declare_subscriber(_key(camera, before), lambda s: inbox.put(s.payload.to_bytes()))
+    return inbox
 
 
 def empty_chains(frames: int, fps: float = 30.0) -> tuple[Stats, int]:
