@@ -17,17 +17,26 @@ from ovis.services.service import Service
 
 def main(service: Service) -> None:
     tables = PlaneTables(background=True)  # a pinhole camera's plane maps, per calibration
-
-    def prepare(calib: Calibration) -> None:  # made before the frames that need them
-        if isinstance(calib.camera, PinholeParams):
-            pose = calib.pose
-            tables.prepare(calib.camera, (pose.obstacle_height_cm, pose.robot_height_cm))
-
-    prepare(service.calibration)
-    service.follow_calibration(prepare)
-    publish = service.publisher(service.topics.blobs)
     size_filter = SizeFilter()
     find_markers = BlobMarkers()
+
+    def prepare(calib: Calibration, *, wait: bool = False) -> None:
+        """What a calibration's frames need, made before they come: the smallest blob,
+        the marker sizes, and (in the background unless ``wait``) the plane tables."""
+        size_filter.min_area_px(calib)
+        if calib.pose.robots:
+            find_markers.sizes(calib.version, calib.camera, calib.pose)
+        if isinstance(calib.camera, PinholeParams):
+            pose = calib.pose
+            heights = (pose.obstacle_height_cm, pose.robot_height_cm)
+            tables.prepare(calib.camera, heights, wait=wait)
+
+    # at start, all of it before the first frame (which would otherwise take many frame
+    # periods and make the next frames queue up behind it); a new calibration's while
+    # the frames go on
+    prepare(service.calibration, wait=True)
+    service.follow_calibration(prepare)
+    publish = service.publisher(service.topics.blobs)
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
         frame = service.decode(payload, BinaryFrame, "binary")

@@ -213,6 +213,18 @@ def test_tables_are_made_before_the_first_frame_asks(scene) -> None:
     made = [tables.table(cam, z) for z in (0.0, 7.0)]
     tables.jacobian(np.array([100.0]), np.array([200.0]), cam, 7.0)
     assert [tables.table(cam, z) for z in (0.0, 7.0)] == made  # the same, not remade
+    # at a stage's start it waits for them: the first frame finds them made
+    at_start = PlaneTables(background=True)
+    at_start.prepare(cam, (0.0, 7.0), wait=True)
+    assert all(at_start.table(cam, z) is not None for z in (0.0, 7.0))
+    # the label's marker sizes are worked out once per calibration version, beforehand
+    markers = BlobMarkers()
+    sizes = markers.sizes(3, scene.camera, scene.pose)
+    lo, hi = sizes[0]
+    assert 0.0 < lo < hi and sizes[1] > 0.0
+    zoomed = msgspec.structs.replace(scene.camera, lam_mm=scene.camera.lam_mm * 1.2)
+    assert markers.sizes(3, zoomed, scene.pose) == sizes  # the same version: kept
+    assert markers.sizes(4, zoomed, scene.pose)[0][1] > hi  # a longer lens: larger markers
     tracker = RobotTracker(scene.pose)
     tracker.prepare(scene.camera)
     heights = {r.marker_height_cm for r in scene.pose.robots}

@@ -48,6 +48,11 @@ def test_up_cameras_2x2_gives_one_clean_world(tmp_path: Path) -> None:
         assert c["dropped"] == max(0, c["captured"] - c["fused"])
         assert c["fused"] <= world["frames"]
         assert c["restarts"] == 0
+    # the first second after every camera ran is the start-up: its frames counted apart
+    startup = summary["startup"]
+    assert startup["seconds"] == 1.0 and sorted(startup["cameras"]) == sorted(CAMERAS)
+    for c in startup["cameras"].values():
+        assert 0 <= c["dropped"] <= c["captured"]
     assert world["scored"] >= 0.8 * world["frames"] > 0
     assert world["duplicates"] == 0
     assert world["identity_swaps"] == 0

@@ -197,17 +197,22 @@ class WorldWatch:
             with self._lock:
                 self._truth.setdefault(msg.stamp_ns, msg.objects)
 
+    def has_truth(self, stamp_ns: int) -> bool:
+        """Whether a camera's truth of this stamp came already (the others' are alike)."""
+        return stamp_ns in self._truth
+
     def add_world(self, msg: WorldFrame, receipt_ns: int) -> None:
         with self._lock:
             self._world.append((msg, receipt_ns))
 
-    def fused(self) -> dict[str, int]:
-        """World frames each camera has a frame in, so far."""
+    def fused(self, since_ns: int = 0) -> dict[str, int]:
+        """World frames stamped from ``since_ns`` on that each camera has a frame in."""
         with self._lock:
             out = dict.fromkeys(self.cameras, 0)
             for w, _ in self._world:
-                for name in w.cameras:
-                    out[name] = out.get(name, 0) + 1
+                if w.stamp_ns >= since_ns:
+                    for name in w.cameras:
+                        out[name] = out.get(name, 0) + 1
             return out
 
     def frames(self) -> int:
@@ -221,10 +226,21 @@ class WorldWatch:
                           if w.stamp_ns >= since_ns])  # fmt: skip
         return percentiles(a)
 
-    def late(self) -> dict[str, int]:
-        """Each camera's frames that came after their world frame left (the newest count)."""
+    def first_stamp(self, since_ns: int) -> int | None:
+        """The stamp of the first world frame stamped from ``since_ns`` on (None: none)."""
         with self._lock:
-            return dict(self._world[-1][0].late_frames) if self._world else {}
+            return min((w.stamp_ns for w, _ in self._world if w.stamp_ns >= since_ns), default=None)
+
+    def late(self, since_ns: int = 0) -> dict[str, int]:
+        """Each camera's frames that came after their world frame left (fusion's newest
+        count), less those counted by the last world frame stamped before ``since_ns``."""
+        with self._lock:
+            if not self._world:
+                return {}
+            newest = dict(self._world[-1][0].late_frames)
+            before = [w for w, _ in self._world if w.stamp_ns < since_ns]
+            old = before[-1].late_frames if before else {}
+            return {name: max(0, n - old.get(name, 0)) for name, n in newest.items()}
 
     def score(self, since_ns: int = 0) -> tuple[WorldScore, dict[str, float], int]:
         """The score of the world frames stamped from ``since_ns`` on, their latency

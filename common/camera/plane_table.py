@@ -125,11 +125,21 @@ class PlaneTables:
                 self._tables[z_cm] = made
         return made.result() if made.done() else None
 
-    def prepare(self, camera: CameraModel, heights_cm: Iterable[float]) -> None:
+    def prepare(
+        self, camera: CameraModel, heights_cm: Iterable[float], *, wait: bool = False
+    ) -> None:
         """Start making ``camera``'s tables of these plane heights now (at start or on a
-        new calibration), so that no frame waits or falls back for them."""
-        for z in heights_cm:
+        new calibration), so that no frame waits or falls back for them; with ``wait``,
+        return once they are made (at start: the first frames then run at full speed
+        instead of sharing the interpreter with the thread making them)."""
+        heights = list(heights_cm)
+        for z in heights:
             self.table(camera, z)
+        if wait:
+            with self._lock:
+                made = [self._tables[z] for z in heights if z in self._tables]
+            for future in made:
+                future.result()
 
     def jacobian(
         self, row: ArrayLike, col: ArrayLike, camera: CameraModel, z_cm: float

@@ -173,8 +173,17 @@ class BlobMarkers:
         """The frame's markers (none when no robot is configured)."""
         if not pose.robots:
             return Markers.none()
+        side_px, top_cm = self.sizes(version, camera, pose)
+        top = None if top_area_cm2 is None else (top_cm, top_area_cm2)
+        return markers_around(median3, blobs, pose, side_px, top)
+
+    def sizes(
+        self, version: int, camera: CameraModel, pose: PoseConfig
+    ) -> tuple[tuple[float, float], float]:
+        """:func:`marker_side_px` and :func:`top_side_cm` of calibration ``version``
+        (worked out on its first call: call it when the calibration comes, so that no
+        frame waits for it)."""
         if version != self._version:
-            self._version, self._side_px = version, marker_side_px(pose, camera)
-            self._top_side_cm = top_side_cm(pose, camera)
-        top = None if top_area_cm2 is None else (self._top_side_cm, top_area_cm2)
-        return markers_around(median3, blobs, pose, self._side_px, top)
+            side_px, top_cm = marker_side_px(pose, camera), top_side_cm(pose, camera)
+            self._side_px, self._top_side_cm, self._version = side_px, top_cm, version
+        return self._side_px, self._top_side_cm

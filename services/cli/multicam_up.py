@@ -13,7 +13,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import msgspec
 
@@ -28,6 +28,10 @@ ROBOTS, OBSTACLES = 4, 10  # the issue's scene
 PRERENDER_S = 180.0
 #: seconds the processes (four per camera) get to stop cleanly, on a loaded host too
 STOP_S = 15.0
+#: seconds after every camera runs that are the start-up (each chain's first frames,
+#: first calls and first messages on each route, come while the last cameras start):
+#: its frames are counted apart (``startup`` in the summary) and the world is scored after
+STARTUP_SETTLE_S = 1.0
 
 
 def chain_cores(allowed: list[int], cameras: int, pin: str) -> list[list[int]]:
@@ -154,11 +158,13 @@ def up_cameras(
                 print(f"ovis up: started the cameras though {', '.join(sorted(late))} did "
                       f"not listen yet (see {log_dir})", file=sys.stderr)  # fmt: skip
             _wait_prerendered(fleet, session, topics, names, stop, out)
-            run.clock_from = time.time_ns()
-            began = time.monotonic()
+            # the chains' first frames (first calls, first messages on each route, the
+            # other cameras still starting) are the start-up: counted apart, not scored
+            run.clock_from = time.time_ns() + int(STARTUP_SETTLE_S * 1e9)
+            began = time.monotonic() + STARTUP_SETTLE_S
             until = f"for {duration:g} s" if duration is not None else "until Ctrl-C"
-            print(f"ovis up: all {len(names)} cameras running; scoring the world {until}",
-                  file=out, flush=True)  # fmt: skip
+            print(f"ovis up: all {len(names)} cameras running; scoring the world {until} "
+                  f"after {STARTUP_SETTLE_S:g} s of start-up", file=out, flush=True)  # fmt: skip
             while not stop.is_set():
                 for news in fleet.supervise():
                     print(f"ovis up: {news}", file=sys.stderr)
@@ -188,6 +194,13 @@ def up_cameras(
         raise UserError(f"{reasons}; see the logs in {log_dir}", 1)
 
 
+class _Stamps(msgspec.Struct):
+    """A truth or obstacle frame's stamps only (the rest of the message is skipped)."""
+
+    stamp_ns: Annotated[int, msgspec.Meta(ge=0)] | None = None
+    published_ns: Annotated[int, msgspec.Meta(ge=0)] | None = None
+
+
 class _Run:
     """What the summary needs, subscribed: the world frames, the truth, and each
     camera's frames captured (its truth messages, one per frame its capture published)
@@ -202,15 +215,21 @@ class _Run:
         specs = grid_specs(nx, ny, base, base.service.seed)
         self.grid = f"{nx}x{ny}"
         self.watch = WorldWatch({s.name: s.camera for s in specs})
-        self.captured = dict.fromkeys(names, 0)
-        self.processed = dict.fromkeys(names, 0)
+        # the capture stamps of each camera's frames captured and processed
+        self.captured: dict[str, list[int]] = {n: [] for n in names}
+        self.processed: dict[str, list[int]] = {n: [] for n in names}
+        # a camera's frame lies this close to the stamp of the world frame it is in (and
+        # nearer to it than to the one before: within half a frame period)
+        fps = base.service.fps
+        half_period_ms = 500.0 / fps if fps > 0 else base.fusion.match_window_ms
+        self.window_ns = int(min(base.fusion.match_window_ms, half_period_ms) * 1e6)
         self.chain_ms: list[float] = []  # capture stamp → a camera's pose published
-        self.clock_from = 0  # world frames stamped before the cameras all ran are not scored
+        # frames stamped before this are the start-up's: not scored, counted apart
+        self.clock_from = sys.maxsize
 
     def attach(self, session: Any) -> None:
         from ovis.common.messages import (
             MessageError,
-            ObstacleFrame,
             TruthFrame,
             WorldFrame,
             decode,
@@ -221,15 +240,24 @@ class _Run:
             with contextlib.suppress(MessageError):
                 self.watch.add_world(decode(sample.payload.to_bytes(), WorldFrame), now)
 
+        # Zenoh calls one subscriber's callback at a time: the counts need no lock
+        # Each camera's truth holds the whole floor: it is read whole once per stamp, and
+        # of the rest, as of the obstacle frames, only the stamps (the summary's
+        # subscriber shares the cores with what it measures)
         def on_truth(sample: Any, name: str) -> None:
-            self.captured[name] += 1  # Zenoh calls one subscriber's callback at a time
             with contextlib.suppress(MessageError):
-                self.watch.add_truth(decode(sample.payload.to_bytes(), TruthFrame))
+                payload = sample.payload.to_bytes()
+                stamp = decode(payload, _Stamps).stamp_ns
+                self.captured[name].append(stamp if stamp is not None else time.time_ns())
+                if stamp is None or not self.watch.has_truth(stamp):
+                    self.watch.add_truth(decode(payload, TruthFrame))
 
         def on_obstacles(sample: Any, name: str) -> None:
-            self.processed[name] += 1
             with contextlib.suppress(MessageError):
-                frame = decode(sample.payload.to_bytes(), ObstacleFrame)
+                frame = decode(sample.payload.to_bytes(), _Stamps)
+                if frame.stamp_ns is None or frame.published_ns is None:
+                    return
+                self.processed[name].append(frame.stamp_ns)
                 if frame.stamp_ns >= self.clock_from:
                     self.chain_ms.append((frame.published_ns - frame.stamp_ns) / 1e6)
 
@@ -245,11 +273,19 @@ class _Run:
         from ovis.common.analysis.multicam import CameraRun, percentiles
 
         score, latency, scored = self.watch.score(self.clock_from)
-        fused, late = self.watch.fused(), self.watch.late()
+        fused, late = self.watch.fused(self.clock_from), self.watch.late(self.clock_from)
+        fused_ever = self.watch.fused()
         restarts = fleet.restarts()
-        cameras = {}
+        # a camera's frames from the first scored world frame on (each camera stamps its
+        # own frames: those of that world frame may be stamped a little before it)
+        first = self.watch.first_stamp(self.clock_from)
+        since = first - self.window_ns if first is not None else self.clock_from
+        cameras, startup = {}, {}
         for name in self.names:
-            captured, processed = self.captured[name], self.processed[name]
+            stamps = self.captured[name]
+            captured = sum(t >= since for t in stamps)
+            early = len(stamps) - captured
+            processed = sum(t >= since for t in self.processed[name])
             cameras[name] = CameraRun(
                 captured=captured,
                 processed=processed,
@@ -258,11 +294,15 @@ class _Run:
                 dropped=max(0, captured - fused.get(name, 0)),
                 restarts=sum(v for k, v in restarts.items() if k.startswith(f"{name}-")),
             )
+            early_fused = fused_ever.get(name, 0) - fused.get(name, 0)
+            startup[name] = {"captured": early, "dropped": max(0, early - early_fused)}
         return {
             "grid": self.grid,
             "seed": self.base.service.seed,
             "elapsed_s": round(elapsed_s, 2),
             "cameras": msgspec.to_builtins(cameras),
+            # the first STARTUP_S after every camera ran (chains warming up), apart
+            "startup": {"seconds": STARTUP_SETTLE_S, "cameras": startup},
             "world": {
                 "frames": self.watch.frames(),
                 "scored": scored,
@@ -384,6 +424,13 @@ def _print_summary(summary: dict[str, Any]) -> None:
         t.add_row(name, *(str(c[k]) for k in ("captured", "processed", "fused", "late",
                                               "dropped", "restarts")))  # fmt: skip
     con.print(t)
+    up = summary["startup"]
+    early = list(up["cameras"].values())
+    con.print(
+        f"start-up (the first {up['seconds']:g} s, not in the table): "
+        f"{sum(c['captured'] for c in early)} frames captured, "
+        f"{sum(c['dropped'] for c in early)} of them not in the world"
+    )
     w = summary["world"]
     con.print(
         f"world: {w['frames']} frames ({w['scored']} scored), {w['duplicates']} duplicates, "
