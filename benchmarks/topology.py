@@ -123,36 +123,8 @@ def empty_chains(frames: int, fps: float = 30.0) -> tuple[Stats, int]:
             seen.append(int.from_bytes(head[8:], "little"))
 
         session.declare_subscriber("bench/topology/world", on_world)
-        procs = [
-            subprocess.Popen(
-                [
-                    sys.executable,
-                    "-m",
-                    "benchmarks.topology",
-                    str(port),
-                    stage,
-                    str(camera),
-                    str(frames),
-                    str(fps),
-                ]
-            )
-            for camera in range(CAMERAS)
-            for stage in reversed(CHAIN)  # the receivers first
-        ]
-        procs.append(
-            subprocess.Popen(
-                [
-                    sys.executable,
-                    "-m",
-                    "benchmarks.topology",
-                    str(port),
-                    "fusion",
-                    "0",
-                    str(frames),
-                    str(fps),
-                ]
-            )
-        )
+        roles = [(stage, c) for c in range(CAMERAS) for stage in reversed(CHAIN)]  # receivers first
+        procs = [_spawn(port, stage, c, frames, fps) for stage, c in [*roles, ("fusion", 0)]]
         try:
             start = _start_when_listening(session, len(procs), procs)
             for p in procs:
@@ -162,6 +134,12 @@ def empty_chains(frames: int, fps: float = 30.0) -> tuple[Stats, int]:
                 if p.poll() is None:
                     p.kill()
     return stats(got), len(set(seen))
+
+
+def _spawn(port: int, stage: str, camera: int, frames: int, fps: float) -> subprocess.Popen[bytes]:
+    """One empty stage's process (this module's ``__main__``)."""
+    args = [str(port), stage, str(camera), str(frames), str(fps)]
+    return subprocess.Popen([sys.executable, "-m", "benchmarks.topology", *args])
 
 
 def _start_when_listening(

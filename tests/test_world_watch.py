@@ -39,8 +39,6 @@ def test_counts_from_the_window_start_leave_the_start_up_out() -> None:
     assert watch.fused(60 * MS) == {"n": 3, "s": 2}
     assert watch.late() == {"n": 0, "s": 3}
     assert watch.late(60 * MS) == {"n": 0, "s": 1}
-    assert watch.first_stamp(60 * MS) == 67 * MS
-    assert watch.first_stamp(200 * MS) is None
     # fusion restarted (its counts begin again): never a negative count
     watch.add_world(_world(9, 167, ["n", "s"], {"n": 0, "s": 0}), 182 * MS)
     assert watch.late(60 * MS) == {"n": 0, "s": 0}

@@ -226,11 +226,6 @@ class WorldWatch:
                           if w.stamp_ns >= since_ns])  # fmt: skip
         return percentiles(a)
 
-    def first_stamp(self, since_ns: int) -> int | None:
-        """The stamp of the first world frame stamped from ``since_ns`` on (None: none)."""
-        with self._lock:
-            return min((w.stamp_ns for w, _ in self._world if w.stamp_ns >= since_ns), default=None)
-
     def late(self, since_ns: int = 0) -> dict[str, int]:
         """Each camera's frames that came after their world frame left (fusion's newest
         count), less those counted by the last world frame stamped before ``since_ns``."""

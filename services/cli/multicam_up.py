@@ -215,16 +215,14 @@ class _Run:
         specs = grid_specs(nx, ny, base, base.service.seed)
         self.grid = f"{nx}x{ny}"
         self.watch = WorldWatch({s.name: s.camera for s in specs})
-        # the capture stamps of each camera's frames captured and processed
-        self.captured: dict[str, list[int]] = {n: [] for n in names}
-        self.processed: dict[str, list[int]] = {n: [] for n in names}
-        # a camera's frame lies this close to the stamp of the world frame it is in (and
-        # nearer to it than to the one before: within half a frame period)
-        fps = base.service.fps
-        half_period_ms = 500.0 / fps if fps > 0 else base.fusion.match_window_ms
-        self.window_ns = int(min(base.fusion.match_window_ms, half_period_ms) * 1e6)
+        # each camera's frames captured and processed: [in the start-up, after it] (the
+        # grid's cameras share their stamps, so a frame is the start-up's exactly when
+        # its world frame is)
+        self.captured = {n: [0, 0] for n in names}
+        self.processed = {n: [0, 0] for n in names}
         self.chain_ms: list[float] = []  # capture stamp → a camera's pose published
-        # frames stamped before this are the start-up's: not scored, counted apart
+        # frames stamped before this are the start-up's: not scored, counted apart (set,
+        # in the future, once every camera runs)
         self.clock_from = sys.maxsize
 
     def attach(self, session: Any) -> None:
@@ -240,16 +238,17 @@ class _Run:
             with contextlib.suppress(MessageError):
                 self.watch.add_world(decode(sample.payload.to_bytes(), WorldFrame), now)
 
-        # Zenoh calls one subscriber's callback at a time: the counts need no lock
-        # Each camera's truth holds the whole floor: it is read whole once per stamp, and
-        # of the rest, as of the obstacle frames, only the stamps (the summary's
-        # subscriber shares the cores with what it measures)
+        # Zenoh calls one subscriber's callback at a time: the counts need no lock. Each
+        # camera's truth holds the whole floor: it is read whole once per stamp; of the
+        # rest, and of the obstacle frames, only the stamps (the summary's subscriber
+        # shares the cores with what it measures)
         def on_truth(sample: Any, name: str) -> None:
             with contextlib.suppress(MessageError):
                 payload = sample.payload.to_bytes()
                 stamp = decode(payload, _Stamps).stamp_ns
-                self.captured[name].append(stamp if stamp is not None else time.time_ns())
-                if stamp is None or not self.watch.has_truth(stamp):
+                stamp = time.time_ns() if stamp is None else stamp
+                self.captured[name][stamp >= self.clock_from] += 1
+                if not self.watch.has_truth(stamp):
                     self.watch.add_truth(decode(payload, TruthFrame))
 
         def on_obstacles(sample: Any, name: str) -> None:
@@ -257,7 +256,7 @@ class _Run:
                 frame = decode(sample.payload.to_bytes(), _Stamps)
                 if frame.stamp_ns is None or frame.published_ns is None:
                     return
-                self.processed[name].append(frame.stamp_ns)
+                self.processed[name][frame.stamp_ns >= self.clock_from] += 1
                 if frame.stamp_ns >= self.clock_from:
                     self.chain_ms.append((frame.published_ns - frame.stamp_ns) / 1e6)
 
@@ -276,16 +275,9 @@ class _Run:
         fused, late = self.watch.fused(self.clock_from), self.watch.late(self.clock_from)
         fused_ever = self.watch.fused()
         restarts = fleet.restarts()
-        # a camera's frames from the first scored world frame on (each camera stamps its
-        # own frames: those of that world frame may be stamped a little before it)
-        first = self.watch.first_stamp(self.clock_from)
-        since = first - self.window_ns if first is not None else self.clock_from
         cameras, startup = {}, {}
         for name in self.names:
-            stamps = self.captured[name]
-            captured = sum(t >= since for t in stamps)
-            early = len(stamps) - captured
-            processed = sum(t >= since for t in self.processed[name])
+            (early, captured), (_, processed) = self.captured[name], self.processed[name]
             cameras[name] = CameraRun(
                 captured=captured,
                 processed=processed,
@@ -301,7 +293,7 @@ class _Run:
             "seed": self.base.service.seed,
             "elapsed_s": round(elapsed_s, 2),
             "cameras": msgspec.to_builtins(cameras),
-            # the first STARTUP_S after every camera ran (chains warming up), apart
+            # the first STARTUP_SETTLE_S after every camera ran (chains warming up)
             "startup": {"seconds": STARTUP_SETTLE_S, "cameras": startup},
             "world": {
                 "frames": self.watch.frames(),
