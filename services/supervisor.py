@@ -32,6 +32,8 @@ log = logging.getLogger("ovis.up")
 
 #: A spare is started this long after its stage (not while everything starts at once).
 SPARE_AFTER_S = 5.0
+#: On stopping, how long the stages get after the cameras stop for the frames in flight.
+DRAIN_S = 0.3
 
 
 def die_with_parent() -> None:
@@ -193,28 +195,40 @@ class Supervisor:
     def restarts(self) -> dict[str, int]:
         return {n: c.budget.restarts for n, c in self.children.items()}
 
-    def stop(self, timeout: float = 5.0) -> dict[str, int]:
-        """SIGTERM the stages, then the router; SIGKILL whatever outlives ``timeout``."""
+    def stop(self, timeout: float = 5.0, *, sources: Sequence[str] = ()) -> dict[str, int]:
+        """SIGTERM the ``sources`` (the cameras) and wait for them, give what they sent
+        :data:`DRAIN_S` to reach the stages (a recording then holds every frame
+        captured), then SIGTERM the other stages, then the router; SIGKILL whatever
+        outlives ``timeout``."""
         self.stopping = True
         codes: dict[str, int] = {}
-        stages = [n for n in self.children if n != "router"]
         for child in self.children.values():
             if child.spare is not None and child.spare.poll() is None:
                 child.spare.kill()  # only waiting: nothing to stop cleanly
                 child.spare.wait()
-        for group in (stages, [n for n in self.children if n == "router"]):
-            for name in group:
-                p = self.children[name].proc
-                if p is not None and p.poll() is None:
-                    p.send_signal(signal.SIGTERM)
-            deadline = time.monotonic() + timeout
-            for name in group:
-                p = self.children[name].proc
-                if p is None:
-                    continue
-                try:
-                    codes[name] = p.wait(max(0.1, deadline - time.monotonic()))
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    codes[name] = p.wait()
+        first = [n for n in self.children if n in sources]
+        stages = [n for n in self.children if n != "router" and n not in sources]
+        for group in (first, stages, [n for n in self.children if n == "router"]):
+            codes |= self._stop_group(group, timeout)
+            if group is first and first:
+                time.sleep(DRAIN_S)
+        return codes
+
+    def _stop_group(self, names: list[str], timeout: float) -> dict[str, int]:
+        """SIGTERM ``names`` at once and wait for them (SIGKILL after ``timeout``)."""
+        codes: dict[str, int] = {}
+        for name in names:
+            p = self.children[name].proc
+            if p is not None and p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + timeout
+        for name in names:
+            p = self.children[name].proc
+            if p is None:
+                continue
+            try:
+                codes[name] = p.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                codes[name] = p.wait()
         return codes

@@ -29,6 +29,7 @@ from ovis.common.calibration.file import calibration_from_config
 from ovis.common.calibration.store import CalibrationStore
 from ovis.common.config import load_config
 from ovis.common.messages import ENCODING, Frame, ObstacleFrame, decode, encode
+from ovis.common.recording.frames import PackedFrame
 from ovis.common.recording.session import SessionReader
 
 #: Real photos (CI has ../shared beside the clone; OVIS_SHARED_DATA names another place).
@@ -115,7 +116,14 @@ def test_the_recording_holds_every_topic_with_schemas_and_foxglove_views(session
     assert channels[f"{root}/calibration"] == ("msgpack", "ovis.CalibrationUpdate", "jsonschema")
     assert channels[f"/{root}/image"] == ("json", "foxglove.CompressedImage", "jsonschema")
     assert channels[f"/{root}/scene"] == ("json", "foxglove.SceneUpdate", "jsonschema")
-    # 10 s at 15 frames/s, every frame with its image, every obstacle message with a scene.
+    # 10 s at 15 frames/s, from the first frame, none missing (the camera stops before
+    # the recorder), every frame with its image, every obstacle message with a scene.
+    seqs = [
+        decode(m.data, PackedFrame).seq
+        for m in reader.bus_messages()
+        if m.topic == f"{root}/frames"
+    ]
+    assert seqs[0] <= 2 and seqs == list(range(seqs[0], seqs[-1] + 1)), seqs
     assert counts[f"{root}/frames"] >= RECORD_S * 15
     assert counts[f"/{root}/image"] == counts[f"{root}/frames"]
     assert counts[f"/{root}/scene"] == counts[f"{root}/obstacles"]

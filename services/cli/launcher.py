@@ -341,7 +341,7 @@ def up(
             statuses = live_view.poll_status(session)
             fleet.record(statuses)
     finally:
-        codes = fleet.stop()
+        codes = fleet.stop(sources=("capture",))  # what it captured is still processed
     summary = live_view.score.summary(
         statuses, codes, time.monotonic() - started, fleet.restarts(), fleet.totals()
     )

@@ -1,0 +1,50 @@
+"""The order `ovis up` stops its children in: the cameras first, then (after the frames
+in flight had time to arrive) the stages, then the router: a recording or a last
+obstacle message is not cut off by its own stage stopping before the frame came."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from ovis.services import supervisor
+
+#: A child that, on SIGTERM, writes when it got the signal and exits 0.
+CHILD = """
+import signal, sys, time
+out = sys.argv[1]
+def stop(*_):
+    open(out, "w").write(repr(time.monotonic()))
+    sys.exit(0)
+signal.signal(signal.SIGTERM, stop)
+open(out + ".up", "w").close()
+while True:
+    time.sleep(0.01)
+"""
+
+
+def test_cameras_stop_first_then_the_stages_then_the_router(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def spawn(self, child: supervisor.Child, *, spare: bool = False) -> subprocess.Popen[bytes]:
+        return subprocess.Popen([sys.executable, "-c", CHILD, str(tmp_path / child.name)])
+
+    monkeypatch.setattr(supervisor.Supervisor, "_spawn", spawn)
+    fleet = supervisor.Supervisor(tmp_path)
+    names = ("router", "preprocess", "recorder", "capture")
+    for name in names:
+        fleet.start(name, [])
+    deadline = time.monotonic() + 30
+    while not all((tmp_path / f"{n}.up").exists() for n in names):
+        assert time.monotonic() < deadline, "the children did not start"
+        time.sleep(0.05)
+    codes = fleet.stop(sources=("capture",))
+    assert codes == dict.fromkeys(("capture", "router", "preprocess", "recorder"), 0)
+    at = {n: float((tmp_path / n).read_text()) for n in names}
+    # The stages get the signal once the camera has gone and the drain time has passed.
+    assert min(at["preprocess"], at["recorder"]) - at["capture"] >= supervisor.DRAIN_S
+    assert at["router"] > max(at["preprocess"], at["recorder"])
