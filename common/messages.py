@@ -190,7 +190,8 @@ class BinaryFrame(_Msg, tag="binary", kw_only=True):
     markers: MarkerList | None = None
     markers_at_border: Annotated[int, msgspec.Meta(ge=0)] = 0
     stream: str = ""  # the capture's stream identity (Frame.stream)
-    #: the grey frame's 3×3 median, one byte per pixel, row-major: sent only when marked
+    #: the grey frame's 3×3 median (or the grey frame itself when the markers' cells are
+    #: too small for the median), one byte per pixel, row-major: sent only when marked
     #: robots are configured, for the label stage's marker search around the blobs
     median: bytes | None = None
 
@@ -207,7 +208,7 @@ class BinaryFrame(_Msg, tag="binary", kw_only=True):
             )
 
     def median_image(self) -> NDArray[np.uint8] | None:
-        """The 3×3 median as a read-only (rows, cols) array (no copy), or None."""
+        """``median`` as a read-only (rows, cols) array (no copy), or None."""
         if self.median is None:
             return None
         return np.frombuffer(self.median, dtype=np.uint8).reshape(self.rows, self.cols)

@@ -1,20 +1,31 @@
 """Preprocessing service: the paper's median step and binarization (§3) of each frame,
 with the current calibration's threshold and polarity; publishes packed binary frames
-on ``ovis/<arena>/binary`` (with marked robots, also the frame's 3×3 median, in which
-the label service searches their markers around the blobs)."""
+on ``ovis/<arena>/binary`` (with marked robots, also the frame's 3×3 median, or the
+frame itself for markers with cells too small for the median, in which the label
+service searches their markers around the blobs)."""
 
 from __future__ import annotations
 
 import time
 
+from ovis.common.calibration.file import Calibration
 from ovis.common.messages import Frame
 from ovis.common.pipeline.stages import binary_frame, clock_skew
 from ovis.common.vision.preprocess import ImageError, as_gray
+from ovis.common.world.marker_search import BlobMarkers
 from ovis.services.service import Service
 
 
 def main(service: Service) -> None:
-    service.follow_calibration()
+    markers = BlobMarkers()  # which image to send for the marker search, per calibration
+
+    def prepare(calib: Calibration) -> None:
+        """The calibration's marker sizes, worked out before its frames come."""
+        if calib.pose.robots:
+            markers.sizes(calib.version, calib.camera, calib.pose)
+
+    prepare(service.calibration)
+    service.follow_calibration(prepare)
     publish = service.publisher(service.topics.binary)
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
@@ -30,6 +41,6 @@ def main(service: Service) -> None:
             service.error("bad_frame", f"frame {frame.seq}: {exc}")
             return
         service.saw_frame(frame.seq, frame.stamp_ns, frame.stream)
-        service.publish_result(publish, binary_frame(frame, gray, calib))
+        service.publish_result(publish, binary_frame(frame, gray, calib, markers))
 
     service.serve(service.inbox(service.topics.frames), handle)

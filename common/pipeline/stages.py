@@ -69,15 +69,22 @@ def wrong_size(frame: _Sized, camera: CameraModel, kind: str) -> str | None:
     )
 
 
-def binary_frame(frame: Frame, gray: GrayImage, calib: Calibration) -> BinaryFrame:
+def binary_frame(
+    frame: Frame, gray: GrayImage, calib: Calibration, markers: BlobMarkers | None = None
+) -> BinaryFrame:
     """The preprocessing stage: the median step and binarization (§3) of ``gray`` (the
     frame's grey image) with the calibration's threshold and polarity, packed; with marked
-    robots configured, also the frame's 3×3 median, in which the label stage searches
-    their markers around the blobs (the smoothing step computes it anyway)."""
+    robots configured, also the image the label stage searches their markers in around
+    the blobs: the frame's 3×3 median (the smoothing step computes it anyway), or the
+    frame itself when the markers' cells are too small for it (``markers``'
+    :meth:`~BlobMarkers.search_image`; without ``markers``, the median)."""
     params = calib.image
     median3 = cv2.medianBlur(gray, 3) if calib.pose.robots else None
     smoothed = smooth(gray, params.median, median3=median3)
     binary = binarize(smoothed, params.threshold, params.polarity)
+    search = median3
+    if median3 is not None and markers is not None:
+        search = markers.search_image(gray, median3, calib.version, calib.camera, calib.pose)
     return BinaryFrame(
         seq=frame.seq,
         stamp_ns=frame.stamp_ns,
@@ -87,7 +94,7 @@ def binary_frame(frame: Frame, gray: GrayImage, calib: Calibration) -> BinaryFra
         threshold=params.threshold,
         calibration_version=calib.version,
         stream=frame.stream,
-        median=None if median3 is None else median3.tobytes(),
+        median=None if search is None else search.tobytes(),
     )
 
 
@@ -118,7 +125,8 @@ def blob_list(
     perimeter, compactness) and where back-projection puts them on the obstacles' and
     the robot's top planes (so that the pose stage needs none; a pinhole camera's read
     from ``tables``, kept by the caller between frames); with marked robots, the
-    markers ``find_markers`` finds in the frame's median around the blobs (as
+    markers ``find_markers`` finds around the blobs in the image the binary frame brings
+    (its ``median``, as
     :meth:`Detector.detect` does), unless the binary frame brings them decoded."""
     planes = (calib.pose.obstacle_height_cm, calib.pose.robot_height_cm)
     blobs, (floor, top) = measure_blobs_and_maps(

@@ -20,10 +20,21 @@ from numpy.typing import NDArray
 
 from ovis.common.config import MARKER_DICTIONARIES
 
-__all__ = ["BORDER_MARGIN_PX", "Markers", "find_markers", "marker_cells", "marker_detector"]
+__all__ = [
+    "BORDER_MARGIN_PX",
+    "MEDIAN_MIN_CELL_PX",
+    "Markers",
+    "find_markers",
+    "marker_cells",
+    "marker_detector",
+    "median_keeps_cells",
+]
 
 #: A marker with a corner nearer than this to the image border is reported as partial.
 BORDER_MARGIN_PX = 2.0
+#: The 3×3 median erodes a marker's cells narrower than this (px) until their bits read
+#: wrong (real photos: docs/robots.md, tests/test_markers_real.py).
+MEDIAN_MIN_CELL_PX = 5.5
 
 _OPENCV_NAMES = {
     "apriltag_36h11": "DICT_APRILTAG_36h11",
@@ -73,6 +84,21 @@ def marker_detector(
     return cv2.aruco.ArucoDetector(_dictionary(name), params)
 
 
+def median_keeps_cells(dictionary: str, side_px: tuple[float, float] | None) -> bool:
+    """Whether the markers' cells survive a 3×3 median: the smallest marker side expected
+    (``side_px``, pixels; None: unknown, taken as yes) over its cells, black border
+    included, is at least :data:`MEDIAN_MIN_CELL_PX`."""
+    if side_px is None:
+        return True
+    return side_px[0] / _cells(dictionary) >= MEDIAN_MIN_CELL_PX
+
+
+@cache
+def _cells(dictionary: str) -> int:
+    """Cells across a marker of ``dictionary``, black border included."""
+    return int(_dictionary(dictionary).markerSize) + 2
+
+
 #: Adaptive-threshold window (px) of the marker detector.
 _THRESHOLD_WINDOW = 15
 #: Marker outlines between these multiples of the expected sides are examined.
@@ -91,9 +117,10 @@ def find_markers(
 
     ``side_px``: the range of marker sides to look for (pixels); ``boxes``: (k, 4)
     ``row0, row1, col0, col1`` regions to search instead of the whole frame (e.g. around
-    the blobs that may carry a marker: much faster); ``median_done``: ``gray`` is already
-    the frame's 3×3 median (the paper's smoothing step makes it), so it is searched as
-    it is instead of being filtered again box by box.
+    the blobs that may carry a marker: much faster). Each region is searched in its 3×3
+    median unless the cells are too small for it (:func:`median_keeps_cells`) or
+    ``median_done``: ``gray`` is already what to search (the frame's median, which the
+    paper's smoothing step makes, or the frame itself for small cells).
     """
     if gray.dtype != np.uint8 or gray.ndim != 2:
         raise ValueError(f"expected a grey uint8 (H, W) image, got {gray.dtype} {gray.shape}")
@@ -102,6 +129,7 @@ def find_markers(
         boxes = [(0, rows, 0, cols)]
     elif not isinstance(boxes, list):
         boxes = np.asarray(boxes, dtype=np.int64).reshape(-1, 4).tolist()
+    median = not median_done and median_keeps_cells(dictionary, side_px)
     found_ids: list[int] = []
     found_xy: list[Any] = []  # OpenCV's corners, (1, 4, 2) each, x = col, y = row
     origin: list[tuple[int, int]] = []  # the crop's (row, col) in the frame, per marker
@@ -112,7 +140,7 @@ def find_markers(
         # a 3×3 median first: a dark speck touching a marker's edge (sensor pepper, dust)
         # otherwise bends its outline out of a quadrilateral and the marker is missed
         crop = gray[r0:r1, c0:c1]
-        if not median_done:
+        if median:
             crop = cv2.medianBlur(np.ascontiguousarray(crop), 3)
         detector = marker_detector(dictionary, side_px, max(r1 - r0, c1 - c0))
         corners, ids, _ = detector.detectMarkers(crop)

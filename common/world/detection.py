@@ -26,7 +26,12 @@ from ovis.common.vision.markers import Markers
 from ovis.common.vision.perimeter import perimeter
 from ovis.common.vision.preprocess import ImageError, as_gray, segment, smooth
 from ovis.common.vision.shape import compactness, orientation
-from ovis.common.world.marker_search import marker_side_px, markers_around, top_side_cm
+from ovis.common.world.marker_search import (
+    marker_search_image,
+    marker_side_px,
+    markers_around,
+    top_side_cm,
+)
 from ovis.common.world.planner import planner_inputs
 from ovis.common.world.plans import RobotPlan, robot_plans
 from ovis.common.world.pose import ROBOT_ID, Tracker, pick_robot
@@ -141,12 +146,13 @@ def binarize_frame(
 
 def median_and_binary(
     image: NDArray[np.uint8], params: ImageParams, camera: CameraModel
-) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
-    """The frame's 3×3 median (grey) and :func:`binarize_frame`'s binary image, from one
-    median filter: the paper's smoothing step and the marker search both start from it."""
+) -> tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[np.uint8]]:
+    """The frame as grey, its 3×3 median and :func:`binarize_frame`'s binary image, from
+    one median filter: the paper's smoothing step and the marker search both start from
+    it."""
     gray = _frame_gray(image, camera)
     median3 = cv2.medianBlur(gray, 3)
-    return median3, segment(smooth(gray, params.median, median3=median3), params)
+    return gray, median3, segment(smooth(gray, params.median, median3=median3), params)
 
 
 def _frame_gray(image: NDArray[np.uint8], camera: CameraModel) -> NDArray[np.uint8]:
@@ -338,9 +344,9 @@ class Detector:
         ``stamp_s`` is the frame's capture time (s); without it frames are taken to be
         the paper's Δt = 1 s apart. Obstacle velocities are in cm/s.
         """
-        median3 = None
+        gray = median3 = None
         if self.pose.robots:
-            median3, binary = median_and_binary(frame, self.image, self.camera)
+            gray, median3, binary = median_and_binary(frame, self.image, self.camera)
         else:
             binary = binarize_frame(frame, self.image, self.camera)
         planes = (self.pose.obstacle_height_cm, self.pose.robot_height_cm)
@@ -353,9 +359,11 @@ class Detector:
             tables=self.tables,
         )
         markers = None
-        if median3 is not None:
+        if gray is not None and median3 is not None:
             at_blobs = (self.top_side_cm, top.area_cm2)
-            markers = markers_around(median3, blobs, self.pose, self.marker_side_px, at_blobs)
+            side_px = self.marker_side_px
+            image = marker_search_image(gray, median3, self.pose, side_px)
+            markers = markers_around(image, blobs, self.pose, side_px, at_blobs)
         return self.from_blobs(
             blobs,
             floor=floor,

@@ -8,9 +8,10 @@ than a solid shape does (:data:`MAX_FILL`), and is at least as large as the smal
 marker. :func:`marker_side_px` gives the range of marker sides in pixels anywhere in the
 frame (through the camera, on each robot's marker plane), which also keeps the
 detector from examining outlines of other sizes. The search runs on the frame's 3×3
-median, which the paper's smoothing step computes anyway. The running pipeline does the
+median, which the paper's smoothing step computes anyway, unless the markers' cells are
+too small to survive it (:func:`marker_search_image`). The running pipeline does the
 same in the label service (:class:`BlobMarkers`), where the blobs are known: the
-preprocess service sends it the median with the binary frame.
+preprocess service sends it that image with the binary frame.
 """
 
 from __future__ import annotations
@@ -22,12 +23,13 @@ from numpy.typing import NDArray
 
 from ovis.common.camera.projection import pixel_footprint_cm2
 from ovis.common.config import CameraModel, PoseConfig
-from ovis.common.vision.markers import Markers, find_markers
+from ovis.common.vision.markers import Markers, find_markers, median_keeps_cells
 
 __all__ = [
     "MAX_FILL",
     "BlobMarkers",
     "marker_boxes",
+    "marker_search_image",
     "marker_side_px",
     "markers_around",
     "search_markers",
@@ -117,6 +119,19 @@ def marker_boxes(
     return boxes
 
 
+def marker_search_image(
+    gray: NDArray[np.uint8],
+    median3: NDArray[np.uint8],
+    pose: PoseConfig,
+    side_px: tuple[float, float],
+) -> NDArray[np.uint8]:
+    """The image to search the markers in: the frame's 3×3 median (rid of pepper specks
+    that bend a marker's outline), or the frame itself when the markers' cells are too
+    small to survive the median (:func:`~ovis.common.vision.markers.median_keeps_cells`;
+    e.g. 6×6 markers of 30 px on a real photo)."""
+    return median3 if median_keeps_cells(pose.marker_dictionary, side_px) else gray
+
+
 def search_markers(
     gray: NDArray[np.uint8],
     pose: PoseConfig,
@@ -126,8 +141,8 @@ def search_markers(
     median_done: bool = False,
 ) -> Markers:
     """The configured dictionary's markers in ``gray`` (in ``boxes``, else everywhere;
-    ``median_done``: ``gray`` is the frame's 3×3 median already); none when no robot is
-    configured."""
+    ``median_done``: ``gray`` is :func:`marker_search_image` already); none when no
+    robot is configured."""
     if not pose.robots:
         return Markers.none()
     return find_markers(
@@ -136,20 +151,20 @@ def search_markers(
 
 
 def markers_around(
-    median3: NDArray[np.uint8],
+    image: NDArray[np.uint8],
     blobs: tuple[NDArray[np.float64], ...],
     pose: PoseConfig,
     side_px: tuple[float, float],
     top: tuple[float, NDArray[np.float64]] | None = None,
 ) -> Markers:
-    """The robots' markers in a frame's 3×3 median, searched for only in
+    """The robots' markers in a frame's :func:`marker_search_image`, searched for only in
     :func:`marker_boxes` around ``blobs`` (a :class:`ovis.common.world.detection.Blobs`:
     row, col, area, perimeter, compactness, second moments). ``top``:
     :func:`top_side_cm` and each blob's pixel footprint on the robot plane (cm²), which
     size its box to the largest marker as seen at that blob instead of where the frame
     magnifies most."""
     boxes = marker_boxes(*blobs[:3], *blobs[5:], side_px, top)
-    return search_markers(median3, pose, side_px, boxes, median_done=True)
+    return search_markers(image, pose, side_px, boxes, median_done=True)
 
 
 class BlobMarkers:
@@ -163,19 +178,31 @@ class BlobMarkers:
 
     def __call__(
         self,
-        median3: NDArray[np.uint8],
+        image: NDArray[np.uint8],
         blobs: tuple[NDArray[np.float64], ...],
         version: int,
         camera: CameraModel,
         pose: PoseConfig,
         top_area_cm2: NDArray[np.float64] | None = None,
     ) -> Markers:
-        """The frame's markers (none when no robot is configured)."""
+        """The frame's markers in its :meth:`search_image` (none when no robot is
+        configured)."""
         if not pose.robots:
             return Markers.none()
         side_px, top_cm = self.sizes(version, camera, pose)
         top = None if top_area_cm2 is None else (top_cm, top_area_cm2)
-        return markers_around(median3, blobs, pose, side_px, top)
+        return markers_around(image, blobs, pose, side_px, top)
+
+    def search_image(
+        self,
+        gray: NDArray[np.uint8],
+        median3: NDArray[np.uint8],
+        version: int,
+        camera: CameraModel,
+        pose: PoseConfig,
+    ) -> NDArray[np.uint8]:
+        """:func:`marker_search_image` with calibration ``version``'s marker sizes."""
+        return marker_search_image(gray, median3, pose, self.sizes(version, camera, pose)[0])
 
     def sizes(
         self, version: int, camera: CameraModel, pose: PoseConfig
