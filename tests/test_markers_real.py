@@ -17,10 +17,14 @@ import math
 from pathlib import Path
 
 import cv2
+import msgspec
 import numpy as np
 import pytest
 
-from ovis.common.config import PinholeParams, PoseConfig, RobotSpec
+from ovis.common.calibration.file import calibration_from_config
+from ovis.common.config import PinholeParams, PoseConfig, RobotSpec, load_config
+from ovis.common.messages import BinaryFrame, Frame, decode, encode
+from ovis.common.pipeline.stages import binary_frame
 from ovis.common.vision.markers import find_markers, median_keeps_cells
 from ovis.common.world.marker_search import BlobMarkers, marker_side_px, markers_around
 from ovis.common.world.robots import RobotTracker, corner_pose
@@ -107,9 +111,12 @@ def test_cells_too_small_for_the_median_are_searched_in_the_photo_itself(photo) 
     assert set(found.ids.tolist()) == PHOTOS[name] and found.partial == 0
     in_median = find_markers(cv2.medianBlur(gray, 3), DICTIONARY, side_px=side_px, median_done=True)
     assert len(in_median.ids) < len(PHOTOS[name])  # what the median would have cost
-    # the running pipeline's search (in boxes round the blobs) sends the photo itself
-    searched = BlobMarkers().search_image(gray, cv2.medianBlur(gray, 3), 1, camera, _pose())
-    assert searched is gray
+    # the running pipeline: the preprocess stage sends the label stage the photo itself
+    calib = calibration_from_config(load_config())
+    calib = msgspec.structs.replace(calib, camera=camera, pose=_pose(), version=1)
+    frame = Frame.from_image(gray, seq=1, stamp_ns=1)
+    sent = decode(encode(binary_frame(frame, gray, calib, BlobMarkers())), BinaryFrame)
+    assert np.array_equal(sent.median_image(), gray)
 
 
 def test_boxes_around_the_markers_find_what_the_whole_photo_does(photo) -> None:
