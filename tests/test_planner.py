@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ovis.common.world.planner import planner_inputs, signed_angle_deg
+from ovis.common.world.planner import (
+    planner_inputs,
+    signed_angle_deg,
+    signed_angle_of,
+    wrap_angle_deg,
+)
 
 R_O1, R_O2 = 4.884, 5.272  # radii of the paper's two obstacles (Case 1)
 
@@ -44,6 +49,25 @@ def test_goal_reference_line_takes_precedence() -> None:
 def test_signed_angle_range() -> None:
     a = signed_angle_deg(0.0, np.radians([180.0, -180.0, 540.0, 181.0, -179.0]))
     np.testing.assert_allclose(a, [180.0, 180.0, 180.0, -179.0, -179.0])
+
+
+def test_one_pair_at_a_time_is_the_array_form_to_the_last_bit() -> None:
+    """The per-robot planner's scalar angle (plain Python, a few pairs a frame) equals
+    the array form exactly, at random angles and at the wrap's edges."""
+    rng = np.random.default_rng(5)
+    edges = np.radians([180.0, -180.0, 540.0, 0.0, 360.0, -360.0, 1e-17, -1e-17])
+    frm = np.concatenate([rng.uniform(-20.0, 20.0, 5000), np.zeros(edges.size)])
+    to = np.concatenate([rng.uniform(-20.0, 20.0, 5000), edges])
+    array = signed_angle_deg(frm, to)
+    one = [signed_angle_of(f, t) for f, t in zip(frm.tolist(), to.tolist(), strict=True)]
+    assert np.array_equal(array, one)
+    assert all(-180.0 < a <= 180.0 for a in one)
+    assert [wrap_angle_deg(a) for a in (-180.0, 540.0, -179.0, -541.0)] == [
+        180.0,
+        180.0,
+        -179.0,
+        179.0,
+    ]
 
 
 def test_bad_input() -> None:

@@ -32,6 +32,7 @@ from ovis.common.vision.markers import Markers, find_markers, marker_cells
 from ovis.common.vision.preprocess import as_gray
 from ovis.common.world.detection import Detector
 from ovis.common.world.marker_search import BlobMarkers
+from ovis.common.world.planner import planner_inputs
 from ovis.common.world.plans import robot_plans
 from ovis.common.world.robots import (
     RobotFilter,
@@ -163,10 +164,11 @@ def test_plane_table_reads_the_back_projection_between_pixels(preset: str) -> No
     assert not outside.any()  # off the frame: not valid
     # one point at a time (the tracker's few corners): the same reading, NaN off the frame
     edges = [(0.0, 0.0), (cam.rows - 1.0, cam.cols - 1.0), (cam.rows - 1.0, 0.5)]
-    for r, c in [*zip(row[:200].tolist(), col[:200].tolist(), strict=True), *edges]:
-        one, one_valid = table(np.array([r]), np.array([c]))
-        assert one_valid[0] and abs(table.point(r, c) - one[0]) < 1e-12
-    assert all(cmath.isnan(table.point(r, c)) for r, c in [(-0.5, 3.0), (3.0, cam.cols - 0.5)])
+    some = [*zip(row[:200].tolist(), col[:200].tolist(), strict=True), *edges]
+    many, many_valid = table(np.array([r for r, _ in some]), np.array([c for _, c in some]))
+    assert many_valid.all() and np.abs(np.array(table.points(some)) - many).max() < 1e-12
+    off = table.points([[-0.5, 3.0], [3.0, cam.cols - 0.5], [cam.rows - 0.9, cam.cols + 0.1]])
+    assert all(map(cmath.isnan, off))
 
 
 def test_plane_tables_give_the_pixel_jacobian_of_a_pinhole_camera() -> None:
@@ -341,6 +343,53 @@ def test_planner_inputs_per_robot_against_obstacles_and_robots() -> None:
     assert obstacle.angle_deg == pytest.approx(45.0)
     assert pb.goal_direction_deg == pytest.approx(90.0)  # the [pose] goal line
     assert pb.entries[1].heading_angle_deg == pytest.approx(0.0)  # robot 1 dead ahead
+
+
+def test_robot_plans_are_the_papers_planner_inputs_for_each_robot() -> None:
+    """Per robot, its entries are :func:`planner_inputs` against the obstacles and the
+    other robots (random scenes, goal points and goal lines), the heading angle that of
+    a goal line along the heading."""
+    rng = np.random.default_rng(11)
+    still = dict(vx_cm_s=0.0, vy_cm_s=0.0, yaw_rate_deg_s=0.0, age_s=0.0, z_cm=5.0)
+    for _ in range(40):
+        n, m = int(rng.integers(1, 5)), int(rng.integers(0, 8))
+        goal = rng.uniform(-100.0, 100.0, 2).tolist()
+        specs = [RobotSpec(**_robot(k + 1, k, goal_cm=goal if k == 0 else None)) for k in range(n)]
+        pose = PoseConfig(robots=specs, goal_angle_deg=float(rng.uniform(-180, 180)))
+        xyh = np.column_stack([rng.uniform(-100, 100, (n, 2)), rng.uniform(-179.9, 180.0, n)])
+        robots = [
+            RobotState(
+                id=k + 1,
+                name=f"r{k}",
+                marker_id=k,
+                radius_cm=float(rng.uniform(3, 12)),
+                x_cm=x,
+                y_cm=y,
+                heading_deg=h,
+                **still,
+            )
+            for k, (x, y, h) in enumerate(xyh.tolist())
+        ]
+        obstacles = np.column_stack([rng.uniform(-100, 100, (m, 2)), rng.uniform(1, 20, m)])
+        plans = robot_plans(robots, np.arange(m) + 10, obstacles, pose)
+        for k, (robot, plan) in enumerate(zip(robots, plans, strict=True)):
+            others = [r for r in robots if r is not robot]
+            seen = np.array([[r.x_cm, r.y_cm, r.radius_cm] for r in others]).reshape(-1, 3)
+            targets = np.concatenate([obstacles, seen])
+            xy = (robot.x_cm, robot.y_cm)
+            goal_xy = goal if k == 0 else None
+            goal_line = None if k == 0 else pose.goal_angle_deg
+            want = planner_inputs(xy, targets, goal_xy=goal_xy, goal_angle_deg=goal_line)
+            ahead = planner_inputs(xy, targets, goal_angle_deg=robot.heading_deg)
+            assert [e.target_id for e in plan.entries] == [
+                *range(10, 10 + m),
+                *(r.id for r in others),
+            ]
+            got = np.array([e.distance_cm for e in plan.entries])
+            np.testing.assert_allclose(got, want.distance_cm, rtol=0, atol=1e-12)
+            for field, reference in (("angle_deg", want), ("heading_angle_deg", ahead)):
+                got = np.array([getattr(e, field) for e in plan.entries], dtype=float)
+                np.testing.assert_allclose(got, reference.angle_deg, rtol=0, atol=1e-9)
 
 
 # ------------------------------------------------------------------ simulated arenas

@@ -80,20 +80,27 @@ class PlaneTable:
         inside = (fr >= 0.0) & (fr <= 1.0) & (fc >= 0.0) & (fc <= 1.0)
         return xy, inside & np.isfinite(xy)
 
-    def point(self, row: float, col: float) -> complex:
-        """:meth:`__call__` at one point, in plain Python (NaN where not valid): for a
-        few points (a handful of markers' corners) a dozen array calls cost more than
-        the arithmetic."""
-        if not (0.0 <= row <= self.rows - 1 and 0.0 <= col <= self.cols - 1):
-            return complex(math.nan, math.nan)
-        w = self.cols
-        r0, c0 = min(int(row), self.rows - 2), min(int(col), w - 2)
-        fr, fc = row - r0, col - c0
-        i = r0 * w + c0
+    def points(self, rc: list[list[float]]) -> list[complex]:
+        """:meth:`__call__` at a few points (row, col), in plain Python (NaN where not
+        valid): for a handful of points (a marker's corners) a dozen array calls cost
+        more than the arithmetic."""
         t = self._xy.item
-        a, b, lower_a, lower_b = t(i), t(i + 1), t(i + w), t(i + w + 1)
-        top = a + (b - a) * fc
-        return top + (lower_a + (lower_b - lower_a) * fc - top) * fr
+        w = self.cols
+        last_row, last_col = self.rows - 1, w - 1
+        out = []
+        for row, col in rc:
+            if not (0.0 <= row <= last_row and 0.0 <= col <= last_col):
+                out.append(complex(math.nan, math.nan))
+                continue
+            r0 = int(row) if row < last_row else last_row - 1
+            c0 = int(col) if col < last_col else last_col - 1
+            fr, fc = row - r0, col - c0
+            i = r0 * w + c0
+            a, b = t(i), t(i + 1)
+            top = a + (b - a) * fc
+            lower_a, lower_b = t(i + w), t(i + w + 1)
+            out.append(top + (lower_a + (lower_b - lower_a) * fc - top) * fr)
+        return out
 
 
 class PlaneTables:

@@ -99,22 +99,22 @@ def marker_boxes(
     ``top``: :func:`top_side_cm` and each blob's pixel footprint on the robot plane
     (cm²), which give the largest marker's side at each blob (else the largest anywhere
     in the frame, ``side_px[1]``)."""
-    # fill < MAX_FILL  ⇔  area² < (MAX_FILL·4π)²·det Σ; and the blob's spread along its
-    # wider image axis, _BOX_SIGMAS·√var, at least half the smallest marker side
-    var = np.maximum(mu_rr, mu_cc)
-    holed = area_px * area_px < (MAX_FILL * 4.0 * np.pi) ** 2 * (mu_rr * mu_cc - mu_rc * mu_rc)
-    pick = np.flatnonzero(holed & (var >= (0.5 * side_px[0] / _BOX_SIGMAS) ** 2))
-    if not pick.size:
-        return []
-    # the few picked blobs in plain Python (array calls would cost more than the work)
-    footprint = top[1] if top is not None else np.zeros_like(row)
-    picked = np.stack((row, col, var, footprint))[:, pick].tolist()
+    # a frame's ten or so blobs in plain Python (array calls would cost more than the
+    # work). fill < MAX_FILL  ⇔  area² < (MAX_FILL·4π)²·det Σ; and the blob's spread
+    # along its wider image axis, _BOX_SIGMAS·√var, at least half the smallest marker side
+    holed_below = (MAX_FILL * 4.0 * math.pi) ** 2
+    least_var = (0.5 * side_px[0] / _BOX_SIGMAS) ** 2
+    footprint = top[1].tolist() if top is not None else [0.0] * row.size
+    blobs = (row, col, area_px, mu_rr, mu_cc, mu_rc)
     boxes = []
-    for r, c, v, area in zip(*picked, strict=True):
+    for r, c, a, srr, scc, src, area in zip(*(b.tolist() for b in blobs), footprint, strict=True):
+        var = srr if srr >= scc else scc
+        if not (a * a < holed_below * (srr * scc - src * src) and var >= least_var):
+            continue
         largest = top[0] / math.sqrt(area) if top is not None and area > 0 else side_px[1]
         # the marker is centred on its robot: a box round the largest marker (half its
         # diagonal, plus room for the refinement) is enough, whatever the robot's size
-        h = min(_BOX_SIGMAS * math.sqrt(v), _MARKER_HALF * largest) + _BOX_PAD_PX
+        h = min(_BOX_SIGMAS * math.sqrt(var), _MARKER_HALF * largest) + _BOX_PAD_PX
         boxes.append((int(r - h), int(r + h + 1), int(c - h), int(c + h + 1)))
     return boxes
 

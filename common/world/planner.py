@@ -19,7 +19,13 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["PlannerInputs", "planner_inputs", "signed_angle_deg"]
+__all__ = [
+    "PlannerInputs",
+    "planner_inputs",
+    "signed_angle_deg",
+    "signed_angle_of",
+    "wrap_angle_deg",
+]
 
 
 class PlannerInputs(NamedTuple):
@@ -34,6 +40,18 @@ def signed_angle_deg(from_rad: ArrayLike, to_rad: ArrayLike) -> NDArray[np.float
     d = np.degrees(np.subtract(to_rad, from_rad, dtype=np.float64))
     wrapped = 180.0 - (180.0 - d) % 360.0  # maps to (−180, 180]
     return wrapped + np.where(wrapped == -180.0, 360.0, 0.0)  # (−180 only by rounding)
+
+
+def signed_angle_of(from_rad: float, to_rad: float) -> float:
+    """:func:`signed_angle_deg` of one pair, in plain Python (the same formula): for a
+    handful of pairs, array calls cost more than the arithmetic."""
+    return wrap_angle_deg(math.degrees(to_rad - from_rad))
+
+
+def wrap_angle_deg(angle: float) -> float:
+    """One angle (deg) wrapped to (−180, 180], as :func:`signed_angle_deg` wraps."""
+    wrapped = 180.0 - (180.0 - angle) % 360.0
+    return wrapped + 360.0 if wrapped == -180.0 else wrapped
 
 
 def planner_inputs(

@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.config import PoseConfig
-from ovis.common.world.planner import signed_angle_deg
+from ovis.common.world.planner import signed_angle_of
 from ovis.common.world.robots import RobotState
 
 __all__ = ["RobotPlan", "TargetEntry", "robot_plans"]
@@ -73,40 +73,40 @@ def robot_plans(
     pose: PoseConfig,
 ) -> list[RobotPlan]:
     """Planner inputs of each robot against the obstacles (ids, (n, 3) x, y, r in cm)
-    and the other robots, for all robots at once (the paper's formulas, as
+    and the other robots (the paper's formulas, as
     :func:`ovis.common.world.planner.planner_inputs`)."""
     if not robots:
         return []
-    obstacles_xyr = np.asarray(obstacles_xyr, dtype=np.float64).reshape(-1, 3)
     goal = _goal_directions(robots, pose)
-    me = np.array([[r.x_cm, r.y_cm, r.radius_cm] for r in robots])
-    targets = np.concatenate([obstacles_xyr, me])
+    # a handful of robots and targets a frame: plain Python per (robot, target) pair
+    # costs less than the array calls would
+    obstacles = np.asarray(obstacles_xyr, dtype=np.float64).reshape(-1, 3).tolist()
+    targets = [*obstacles, *([r.x_cm, r.y_cm, r.radius_cm] for r in robots)]
     ids = [*np.asarray(obstacle_ids).tolist(), *(r.id for r in robots)]
-    m = len(obstacles_xyr)
-    kinds = ["obstacle"] * m + ["robot"] * len(robots)
-    dx = targets[None, :, 0] - me[:, 0, None]
-    dy = targets[None, :, 1] - me[:, 1, None]
-    distance = (np.hypot(dx, dy) - targets[None, :, 2]).tolist()
-    # both references at once: (robots, [heading, goal direction], targets)
-    refs = np.radians([[[r.heading_deg], [g]] for r, g in zip(robots, goal, strict=True)])
-    relative, to_goal = zip(
-        *signed_angle_deg(refs, np.arctan2(dy, dx)[:, None, :]).tolist(), strict=True
-    )
+    m = len(obstacles)
     plans = []
     for k, robot in enumerate(robots):
+        x, y, heading = robot.x_cm, robot.y_cm, math.radians(robot.heading_deg)
         has_goal = not math.isnan(goal[k])
-        d, g, h = distance[k], to_goal[k], relative[k]
-        entries = [
-            TargetEntry(
-                target_id=ids[c],
-                target_kind=kinds[c],  # type: ignore[arg-type]
-                distance_cm=d[c],
-                angle_deg=g[c] if has_goal else None,
-                heading_angle_deg=h[c],
+        to_goal = math.radians(goal[k])
+        entries = []
+        for c, (tx, ty, radius) in enumerate(targets):
+            if c == m + k:  # not itself
+                continue
+            dx, dy = tx - x, ty - y
+            direction = math.atan2(dy, dx)
+            entries.append(
+                TargetEntry(
+                    target_id=ids[c],
+                    target_kind="obstacle" if c < m else "robot",
+                    distance_cm=math.hypot(dx, dy) - radius,
+                    angle_deg=signed_angle_of(to_goal, direction) if has_goal else None,
+                    heading_angle_deg=signed_angle_of(heading, direction),
+                )
             )
-            for c in range(len(ids))
-            if c != m + k  # not itself
-        ]
-        direction = goal[k] if has_goal else None
-        plans.append(RobotPlan(robot_id=robot.id, goal_direction_deg=direction, entries=entries))
+        plans.append(
+            RobotPlan(
+                robot_id=robot.id, goal_direction_deg=goal[k] if has_goal else None, entries=entries
+            )
+        )
     return plans

@@ -16,7 +16,9 @@ so each is a 1-D filter with ``F = [[1, Δt], [0, 1]]``, process noise of a whit
 acceleration a (``Q = σ_a²·[[Δt⁴/4, Δt³/2], [Δt³/2, Δt²]]``, σ_a = ``filter.accel_cm_s2``
 or ``filter.yaw_accel_deg_s2``) and a measurement of the first element with σ =
 ``filter.position_sigma_cm`` / ``filter.heading_sigma_deg``. The heading innovation is
-wrapped to (−180, 180] and θ kept there. A robot not seen is predicted forward; its
+wrapped to (−180, 180] and θ kept there. The rows (x, vx) and (y, vy) have the same
+noises and are measured together, so their covariances stay equal: one is kept for
+both. A robot not seen is predicted forward; its
 ``age_s`` is the time since its last sighting, and after ``pose.robot_timeout_s`` it is
 dropped (a later sighting starts a new filter).
 """
@@ -36,6 +38,7 @@ from ovis.common.camera.plane_table import PlaneTable
 from ovis.common.camera.projection import back_project
 from ovis.common.config import CameraModel, PoseConfig, RobotSpec
 from ovis.common.vision.markers import Markers
+from ovis.common.world.planner import wrap_angle_deg
 
 __all__ = [
     "MarkerPoses",
@@ -143,31 +146,26 @@ def corner_pose(
         return None
     forward = up + (1j if cross > 0.0 else -1j) * across
     centre = (tl + tr + br + bl) / 4.0
-    return centre.real, centre.imag, _wrap(math.degrees(math.atan2(forward.imag, forward.real)))
-
-
-def _wrap(angle: float) -> float:
-    """One angle (deg) wrapped to (−180, 180]."""
-    wrapped = 180.0 - (180.0 - angle) % 360.0
-    return wrapped + 360.0 if wrapped <= -180.0 else wrapped
+    heading = math.degrees(math.atan2(forward.imag, forward.real))
+    return centre.real, centre.imag, wrap_angle_deg(heading)
 
 
 @dataclass
 class RobotFilter:
     """Constant-velocity Kalman filter of one robot (see the module docstring).
 
-    Rows k = 0, 1, 2 are (x, vx), (y, vy), (θ, ω): ``value``/``rate`` hold the state,
-    ``p00, p01, p11`` each row's 2×2 covariance (plain floats: for three 2-state rows,
-    scalar arithmetic beats numpy's small-array calls here; see benchmarks/robots.py).
+    ``value``/``rate`` hold (x, y, θ) and (vx, vy, ω); ``position`` the 2×2 covariance
+    ``[p00, p01, p11]`` of the rows (x, vx) and (y, vy) (equal: one for both),
+    ``heading`` that of (θ, ω). Plain floats: for these few 2-state rows, scalar
+    arithmetic costs less than numpy's small-array calls.
     """
 
-    accel: tuple[float, float, float]  # σ of the white acceleration per row
-    sigma: tuple[float, float, float]  # σ of one measurement per row
+    accel: tuple[float, float]  # σ² of the white acceleration: position, heading rows
+    noise: tuple[float, float]  # σ² of one measurement: position, heading
     value: list[float]
     rate: list[float]
-    p00: list[float]
-    p01: list[float]
-    p11: list[float]
+    position: list[float]
+    heading: list[float]
     stamp_s: float
     seen_s: float
 
@@ -176,12 +174,11 @@ class RobotFilter:
         cls, pose: PoseConfig, x: float, y: float, heading: float, stamp_s: float
     ) -> RobotFilter:
         f = pose.filter
-        sigma = (f.position_sigma_cm, f.position_sigma_cm, f.heading_sigma_deg)
-        accel = (f.accel_cm_s2, f.accel_cm_s2, f.yaw_accel_deg_s2)
-        p11 = [_V0_SIGMA**2, _V0_SIGMA**2, _W0_SIGMA**2]
+        noise = (f.position_sigma_cm**2, f.heading_sigma_deg**2)
+        accel = (f.accel_cm_s2**2, f.yaw_accel_deg_s2**2)
         return cls(
-            accel, sigma, [x, y, _wrap(heading)], [0.0, 0.0, 0.0],
-            [v * v for v in sigma], [0.0, 0.0, 0.0], p11, stamp_s, stamp_s,
+            accel, noise, [x, y, wrap_angle_deg(heading)], [0.0, 0.0, 0.0],
+            [noise[0], 0.0, _V0_SIGMA**2], [noise[1], 0.0, _W0_SIGMA**2], stamp_s, stamp_s,
         )  # fmt: skip
 
     @property
@@ -194,33 +191,47 @@ class RobotFilter:
         dt = stamp_s - self.stamp_s
         if dt <= 0.0:
             return
-        q00, q01, q11 = dt**4 / 4.0, dt**3 / 2.0, dt * dt
-        for k in range(3):
-            a2 = self.accel[k] ** 2
-            self.value[k] += self.rate[k] * dt
-            p01, p11 = self.p01[k], self.p11[k]
-            self.p00[k] += 2.0 * dt * p01 + dt * dt * p11 + a2 * q00
-            self.p01[k] = p01 + dt * p11 + a2 * q01
-            self.p11[k] = p11 + a2 * q11
-        self.value[2] = _wrap(self.value[2])
+        value, rate = self.value, self.rate
+        value[0] += rate[0] * dt
+        value[1] += rate[1] * dt
+        value[2] = wrap_angle_deg(value[2] + rate[2] * dt)
+        q = (dt**4 / 4.0, dt**3 / 2.0, dt * dt)
+        self.position = _predicted(self.position, dt, self.accel[0], q)
+        self.heading = _predicted(self.heading, dt, self.accel[1], q)
         self.stamp_s = stamp_s
 
     def update(self, x: float, y: float, heading: float) -> None:
         """Fold in one marker measurement taken at the current stamp."""
-        for k, z in enumerate((x, y, heading)):
-            innovation = z - self.value[k]
-            if k == 2:
-                innovation = _wrap(innovation)
-            p00, p01 = self.p00[k], self.p01[k]
-            s = p00 + self.sigma[k] ** 2
-            k0, k1 = p00 / s, p01 / s
-            self.value[k] += k0 * innovation
-            self.rate[k] += k1 * innovation
-            self.p00[k] = (1.0 - k0) * p00
-            self.p01[k] = (1.0 - k0) * p01
-            self.p11[k] -= k1 * p01
-        self.value[2] = _wrap(self.value[2])
+        value, rate = self.value, self.rate
+        p00, p01, p11 = self.position
+        s = p00 + self.noise[0]
+        k0, k1 = p00 / s, p01 / s
+        dx, dy = x - value[0], y - value[1]
+        value[0] += k0 * dx
+        value[1] += k0 * dy
+        rate[0] += k1 * dx
+        rate[1] += k1 * dy
+        self.position = [(1.0 - k0) * p00, (1.0 - k0) * p01, p11 - k1 * p01]
+        p00, p01, p11 = self.heading
+        s = p00 + self.noise[1]
+        k0, k1 = p00 / s, p01 / s
+        turn = wrap_angle_deg(heading - value[2])
+        value[2] = wrap_angle_deg(value[2] + k0 * turn)
+        rate[2] += k1 * turn
+        self.heading = [(1.0 - k0) * p00, (1.0 - k0) * p01, p11 - k1 * p01]
         self.seen_s = self.stamp_s
+
+
+def _predicted(
+    p: list[float], dt: float, accel: float, q: tuple[float, float, float]
+) -> list[float]:
+    """One row's covariance ``[p00, p01, p11]`` moved on by ``dt``: F·P·Fᵀ + σ_a²·Q."""
+    p00, p01, p11 = p
+    return [
+        p00 + 2.0 * dt * p01 + dt * dt * p11 + accel * q[0],
+        p01 + dt * p11 + accel * q[1],
+        p11 + accel * q[2],
+    ]
 
 
 @dataclass
@@ -316,8 +327,7 @@ class RobotTracker:
         table = self._tables.get(height_cm)
         if table is None:
             table = self._tables[height_cm] = PlaneTable(camera, height_cm)
-        tl, tr, br, bl = (table.point(r, c) for r, c in corners)
-        return corner_pose(tl, tr, br, bl)
+        return corner_pose(*table.points(corners))
 
     def _nearer(
         self, robot_id: int, a: tuple[float, float, float], b: tuple[float, float, float]
@@ -338,7 +348,7 @@ def _state(robot: RobotSpec, f: RobotFilter, age: float) -> RobotState:
         x_cm=x,
         y_cm=y,
         z_cm=robot.marker_height_cm,
-        heading_deg=_wrap(heading),
+        heading_deg=wrap_angle_deg(heading),
         vx_cm_s=vx,
         vy_cm_s=vy,
         yaw_rate_deg_s=yaw_rate,
