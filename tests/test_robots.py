@@ -32,7 +32,7 @@ from ovis.common.vision.markers import Markers, find_markers, marker_cells
 from ovis.common.vision.preprocess import as_gray
 from ovis.common.world.detection import Detector
 from ovis.common.world.marker_search import BlobMarkers
-from ovis.common.world.planner import planner_inputs
+from ovis.common.world.planner import planner_inputs, wrap_deg
 from ovis.common.world.plans import robot_plans
 from ovis.common.world.robots import (
     RobotFilter,
@@ -41,7 +41,6 @@ from ovis.common.world.robots import (
     corner_pose,
     marker_poses,
     poses_of,
-    wrap_deg,
 )
 
 
@@ -289,6 +288,51 @@ def test_filter_learns_a_constant_velocity_and_wraps_the_heading() -> None:
     assert abs(f.state[2, 1] - 90.0) < 0.5  # through +180 → −180 without a jump
     assert -180.0 < f.state[2, 0] <= 180.0
     assert abs(wrap_deg(f.state[2, 0] - (170.0 + 90.0 * 59 / 30))) < 0.05
+
+
+def test_filter_is_the_textbook_kalman_filter_of_each_row() -> None:
+    """x, y and θ each follow the matrix form (F, Q, H = [1, 0]) run on the same
+    irregular stamps and noisy measurements, the shared x/y covariance included."""
+    pose = PoseConfig()
+    cfg = pose.filter
+    rng = np.random.default_rng(21)
+    stamps = np.cumsum(rng.uniform(0.02, 0.08, 80))
+    z = np.column_stack(
+        [
+            40.0 * stamps + rng.normal(0, 0.3, stamps.size),
+            -15.0 * stamps + rng.normal(0, 0.3, stamps.size),
+            wrap_deg(100.0 + 60.0 * stamps + rng.normal(0, 0.5, stamps.size)),
+        ]
+    )
+    f = RobotFilter.start(pose, *z[0], float(stamps[0]))
+    rows = [
+        (cfg.position_sigma_cm, cfg.accel_cm_s2, 200.0),
+        (cfg.position_sigma_cm, cfg.accel_cm_s2, 200.0),
+        (cfg.heading_sigma_deg, cfg.yaw_accel_deg_s2, 360.0),
+    ]
+    xs = [np.array([z[0, k], 0.0]) for k in range(3)]
+    ps = [np.diag([sigma**2, v0**2]) for sigma, _, v0 in rows]
+    h = np.array([[1.0, 0.0]])
+    for i in range(1, stamps.size):
+        dt = stamps[i] - stamps[i - 1]
+        f.predict(float(stamps[i]))
+        f.update(*z[i].tolist())
+        fm = np.array([[1.0, dt], [0.0, 1.0]])
+        for k, (sigma, accel, _) in enumerate(rows):
+            q = accel**2 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
+            x, p = fm @ xs[k], fm @ ps[k] @ fm.T + q
+            innovation = z[i, k] - x[0]
+            if k == 2:
+                innovation = float(wrap_deg(innovation))
+            gain = p @ h.T / (p[0, 0] + sigma**2)
+            xs[k], ps[k] = x + gain[:, 0] * innovation, (np.eye(2) - gain @ h) @ p
+        got = f.state
+        for k in range(2):
+            np.testing.assert_allclose(got[k], xs[k], rtol=1e-9, atol=1e-9)
+        assert abs(float(wrap_deg(got[2, 0] - xs[2][0]))) < 1e-9
+        assert abs(got[2, 1] - xs[2][1]) < 1e-9
+    np.testing.assert_allclose(f.position, ps[0][[0, 0, 1], [0, 1, 1]], rtol=1e-9)
+    np.testing.assert_allclose(f.heading, ps[2][[0, 0, 1], [0, 1, 1]], rtol=1e-9)
 
 
 def _markers(ids, corners) -> Markers:

@@ -13,7 +13,7 @@ from zenoh_helpers import wait_for
 
 from ovis.common.config import dump_toml, load_config
 from ovis.common.sim.scenes import marked_scene
-from ovis.common.world.robots import wrap_deg
+from ovis.common.world.planner import wrap_deg
 
 STAGES = ("capture", "preprocess", "label", "pose")
 

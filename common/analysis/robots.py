@@ -25,7 +25,7 @@ from ovis.common.config import OvisConfig
 from ovis.common.sim.arena import Arena
 from ovis.common.sim.scenes import marked_scene
 from ovis.common.world.detection import Detector
-from ovis.common.world.robots import wrap_deg
+from ovis.common.world.planner import wrap_deg
 
 __all__ = ["MarkedAccuracy", "evaluate_marked"]
 

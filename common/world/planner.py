@@ -25,6 +25,7 @@ __all__ = [
     "signed_angle_deg",
     "signed_angle_of",
     "wrap_angle_deg",
+    "wrap_deg",
 ]
 
 
@@ -37,9 +38,7 @@ class PlannerInputs(NamedTuple):
 
 def signed_angle_deg(from_rad: ArrayLike, to_rad: ArrayLike) -> NDArray[np.float64]:
     """Signed angle from one direction to another, degrees in (−180, 180], CCW positive."""
-    d = np.degrees(np.subtract(to_rad, from_rad, dtype=np.float64))
-    wrapped = 180.0 - (180.0 - d) % 360.0  # maps to (−180, 180]
-    return wrapped + np.where(wrapped == -180.0, 360.0, 0.0)  # (−180 only by rounding)
+    return wrap_deg(np.degrees(np.subtract(to_rad, from_rad, dtype=np.float64)))
 
 
 def signed_angle_of(from_rad: float, to_rad: float) -> float:
@@ -48,10 +47,16 @@ def signed_angle_of(from_rad: float, to_rad: float) -> float:
     return wrap_angle_deg(math.degrees(to_rad - from_rad))
 
 
+def wrap_deg(angle: ArrayLike) -> NDArray[np.float64]:
+    """Angles in degrees wrapped to (−180, 180]."""
+    wrapped = 180.0 - (180.0 - np.asarray(angle, dtype=np.float64)) % 360.0
+    return np.where(wrapped == -180.0, 180.0, wrapped)  # (−180 only by rounding)
+
+
 def wrap_angle_deg(angle: float) -> float:
-    """One angle (deg) wrapped to (−180, 180], as :func:`signed_angle_deg` wraps."""
+    """One angle (deg) wrapped to (−180, 180]: :func:`wrap_deg` in plain Python."""
     wrapped = 180.0 - (180.0 - angle) % 360.0
-    return wrapped + 360.0 if wrapped == -180.0 else wrapped
+    return 180.0 if wrapped == -180.0 else wrapped
 
 
 def planner_inputs(

@@ -49,7 +49,6 @@ __all__ = [
     "corner_pose",
     "marker_poses",
     "poses_of",
-    "wrap_deg",
 ]
 
 Finite = Annotated[float, msgspec.Meta(ge=-1e12, le=1e12)]
@@ -87,12 +86,6 @@ class UnknownMarker(msgspec.Struct, kw_only=True):
     col: Finite
     x_cm: Finite
     y_cm: Finite
-
-
-def wrap_deg(angle: NDArray[np.float64] | float) -> NDArray[np.float64]:
-    """Angles in degrees wrapped to (−180, 180]."""
-    wrapped = 180.0 - (180.0 - np.asarray(angle, dtype=np.float64)) % 360.0
-    return np.where(wrapped <= -180.0, wrapped + 360.0, wrapped)
 
 
 class MarkerPoses(NamedTuple):
@@ -160,8 +153,8 @@ class RobotFilter:
     arithmetic costs less than numpy's small-array calls.
     """
 
-    accel: tuple[float, float]  # σ² of the white acceleration: position, heading rows
-    noise: tuple[float, float]  # σ² of one measurement: position, heading
+    accel_var: tuple[float, float]  # σ_a² of the white acceleration: position, heading
+    noise_var: tuple[float, float]  # σ² of one measurement: position, heading
     value: list[float]
     rate: list[float]
     position: list[float]
@@ -196,42 +189,45 @@ class RobotFilter:
         value[1] += rate[1] * dt
         value[2] = wrap_angle_deg(value[2] + rate[2] * dt)
         q = (dt**4 / 4.0, dt**3 / 2.0, dt * dt)
-        self.position = _predicted(self.position, dt, self.accel[0], q)
-        self.heading = _predicted(self.heading, dt, self.accel[1], q)
+        self.position = _predicted(self.position, dt, self.accel_var[0], q)
+        self.heading = _predicted(self.heading, dt, self.accel_var[1], q)
         self.stamp_s = stamp_s
 
     def update(self, x: float, y: float, heading: float) -> None:
         """Fold in one marker measurement taken at the current stamp."""
         value, rate = self.value, self.rate
-        p00, p01, p11 = self.position
-        s = p00 + self.noise[0]
-        k0, k1 = p00 / s, p01 / s
+        (k0, k1), self.position = _corrected(self.position, self.noise_var[0])
         dx, dy = x - value[0], y - value[1]
         value[0] += k0 * dx
         value[1] += k0 * dy
         rate[0] += k1 * dx
         rate[1] += k1 * dy
-        self.position = [(1.0 - k0) * p00, (1.0 - k0) * p01, p11 - k1 * p01]
-        p00, p01, p11 = self.heading
-        s = p00 + self.noise[1]
-        k0, k1 = p00 / s, p01 / s
+        (k0, k1), self.heading = _corrected(self.heading, self.noise_var[1])
         turn = wrap_angle_deg(heading - value[2])
         value[2] = wrap_angle_deg(value[2] + k0 * turn)
         rate[2] += k1 * turn
-        self.heading = [(1.0 - k0) * p00, (1.0 - k0) * p01, p11 - k1 * p01]
         self.seen_s = self.stamp_s
 
 
 def _predicted(
-    p: list[float], dt: float, accel: float, q: tuple[float, float, float]
+    p: list[float], dt: float, accel_var: float, q: tuple[float, float, float]
 ) -> list[float]:
     """One row's covariance ``[p00, p01, p11]`` moved on by ``dt``: F·P·Fᵀ + σ_a²·Q."""
     p00, p01, p11 = p
     return [
-        p00 + 2.0 * dt * p01 + dt * dt * p11 + accel * q[0],
-        p01 + dt * p11 + accel * q[1],
-        p11 + accel * q[2],
+        p00 + 2.0 * dt * p01 + dt * dt * p11 + accel_var * q[0],
+        p01 + dt * p11 + accel_var * q[1],
+        p11 + accel_var * q[2],
     ]
+
+
+def _corrected(p: list[float], noise_var: float) -> tuple[tuple[float, float], list[float]]:
+    """One row's Kalman gain (k0, k1) for a measurement of its first element with
+    variance ``noise_var``, and its covariance ``[p00, p01, p11]`` after it."""
+    p00, p01, p11 = p
+    s = p00 + noise_var
+    k0, k1 = p00 / s, p01 / s
+    return (k0, k1), [(1.0 - k0) * p00, (1.0 - k0) * p01, p11 - k1 * p01]
 
 
 @dataclass
