@@ -126,3 +126,57 @@ def test_the_rule_catches_a_wrong_import(tmp_path: Path, monkeypatch: pytest.Mon
     found = violations(bad)
     assert len(found) == 3, found
     assert "common never imports services" in found[2]
+
+
+CLI = COMMON.parent / "services" / "cli"
+CLI_PACKAGE = "ovis.services.cli"
+
+
+def cli_imports(path: Path) -> list[tuple[int, str, str]]:
+    """(line, module, name) of every ``from ovis.services.cli.X import name`` in a file."""
+    found: list[tuple[int, str, str]] = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith(CLI_PACKAGE + "."):
+            module = node.module.removeprefix(CLI_PACKAGE + ".")
+            found += [(node.lineno, module, alias.name) for alias in node.names]
+    return found
+
+
+def cli_problems(folder: Path) -> list[str]:
+    """Command modules that import another's private names, or import each other
+    (directly or round a longer loop): shared options live in ``options.py``."""
+    graph: dict[str, set[str]] = {}
+    bad: list[str] = []
+    for path in sorted(folder.glob("*.py")):
+        graph[path.stem] = set()
+        for line, module, name in cli_imports(path):
+            graph[path.stem].add(module)
+            if name.startswith("_"):
+                bad.append(f"{path.name}:{line} imports the private {module}.{name}")
+
+    def reaches(start: str, goal: str, seen: set[str]) -> bool:
+        for nxt in graph.get(start, set()) - seen:
+            if nxt == goal or reaches(nxt, goal, seen | {nxt}):
+                return True
+        return False
+
+    bad += [f"{m} is in an import loop" for m in sorted(graph) if reaches(m, m, set())]
+    return bad
+
+
+def test_command_modules_share_options_and_never_import_each_other() -> None:
+    assert cli_problems(CLI) == []
+
+
+def test_the_command_rule_catches_private_names_and_loops(tmp_path: Path) -> None:
+    (tmp_path / "a.py").write_text(f"from {CLI_PACKAGE}.b import _config\n")
+    (tmp_path / "b.py").write_text(f"def f():\n    from {CLI_PACKAGE}.c import run\n")
+    (tmp_path / "c.py").write_text(f"from {CLI_PACKAGE}.a import thing\n")
+    (tmp_path / "d.py").write_text(f"from {CLI_PACKAGE}.options import JsonOpt\n")
+    found = cli_problems(tmp_path)
+    assert found == [
+        "a.py:1 imports the private b._config",
+        "a is in an import loop",
+        "b is in an import loop",
+        "c is in an import loop",
+    ]

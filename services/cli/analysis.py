@@ -11,6 +11,7 @@ import typer
 
 from ovis.common.config import resolve_config
 from ovis.services.cli.errors import UserError
+from ovis.services.cli.options import OfflineConfigOpt, PaperPresetOpt, SummaryJsonOpt
 from ovis.services.cli.ui import calibrate_with_progress, console, emit_json, progress, table
 
 __all__ = ["register"]
@@ -31,16 +32,6 @@ def _resolve(config: Path | None, preset: str):
     return cfg
 
 
-ConfigOpt = Annotated[
-    Path | None,
-    typer.Option(
-        "--config", "-c", help="TOML configuration (default: the preset).", dir_okay=False
-    ),
-]
-PresetOpt = Annotated[str, typer.Option(help="'default' (640x480) or 'paper' (192x192).")]
-SummaryJsonOpt = Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")]
-
-
 def study(
     out: Annotated[Path, typer.Option(help="Folder for study.csv, study.md, study.png.")] = Path(
         "ovis-study"
@@ -52,8 +43,8 @@ def study(
     quick: Annotated[
         bool, typer.Option("--quick", help="A smaller grid (about a quarter of the work).")
     ] = False,
-    preset: PresetOpt = "default",
-    config: ConfigOpt = None,
+    preset: PaperPresetOpt = "default",
+    config: OfflineConfigOpt = None,
     json: SummaryJsonOpt = False,
 ) -> None:
     """Reproduce the paper's parametric study of the GA (§5.1, Figure 7), with spread.
@@ -121,8 +112,8 @@ def compare(
     starts: Annotated[
         int, typer.Option(min=1, max=1000, help="Random starts per arena for the local methods.")
     ] = 5,
-    preset: PresetOpt = "default",
-    config: ConfigOpt = None,
+    preset: PaperPresetOpt = "default",
+    config: OfflineConfigOpt = None,
     json: SummaryJsonOpt = False,
 ) -> None:
     """GA alone, GA + least-squares polish, and Levenberg-Marquardt from random starts.
@@ -172,10 +163,8 @@ def demo(
     ] = Path("ovis-demo"),
     frames: Annotated[int, typer.Option(min=1, max=10000, help="Frames to detect on.")] = 30,
     seed: Annotated[int, typer.Option(min=0, help="Arena seed.")] = 0,
-    preset: PresetOpt = "default",
-    config: Annotated[
-        Path | None, typer.Option("--config", "-c", help="TOML configuration.", dir_okay=False)
-    ] = None,
+    preset: PaperPresetOpt = "default",
+    config: OfflineConfigOpt = None,
 ) -> None:
     """Simulate an arena, calibrate on its first frame, then track robot and obstacles.
 

@@ -12,6 +12,7 @@ import numpy as np
 import typer
 
 from ovis.services.cli.errors import UserError
+from ovis.services.cli.options import JsonOpt
 
 __all__ = ["register"]
 
@@ -29,7 +30,6 @@ MarkerOpt = Annotated[
     float | None,
     typer.Option("--marker-cm", help="ChArUco only: side of a marker (cm).", min=1e-6),
 ]
-JsonOpt = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")]
 
 
 def board_spec(board: str | None, square_cm: float, marker_cm: float | None):
@@ -154,7 +154,7 @@ def intrinsics(
         calibrate_intrinsics,
         detect_views,
     )
-    from ovis.services.cli.offline import read_image
+    from ovis.common.vision.imageio import read_image
     from ovis.services.cli.ui import emit_json
 
     spec = board_spec(board, square_cm, marker_cm)
@@ -310,8 +310,9 @@ def calibrate_known_lens(
         solve_floor_pose,
     )
     from ovis.common.camera.intrinsics import IntrinsicsFileError, read_intrinsics
+    from ovis.common.config import resolve_config
+    from ovis.common.vision.imageio import read_image
     from ovis.common.vision.preprocess import as_gray
-    from ovis.services.cli.offline import read_image, resolve_config
     from ovis.services.cli.ui import emit_json
 
     if intrinsics is None:
@@ -556,8 +557,8 @@ def detect_without_calibration(images: list[Path], flags: dict, *, json: bool, o
     from rich.table import Table
 
     from ovis.common.config import ImageParams
+    from ovis.common.vision.imageio import read_image
     from ovis.common.world.pixels import default_min_area_px, detect_pixels
-    from ovis.services.cli.offline import read_image
     from ovis.services.cli.ui import emit_json
 
     size_filter, max_size = flags.pop("size_filter"), flags.pop("max_size")

@@ -10,6 +10,7 @@ import msgspec
 import typer
 
 from ovis.services.cli.errors import UserError
+from ovis.services.cli.options import SummaryJsonOpt
 
 __all__ = ["register"]
 
@@ -31,7 +32,7 @@ def simulate(
     kill: Annotated[
         str | None, typer.Option(help="A camera (e.g. cam11) that stops half-way.")
     ] = None,
-    json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    json: SummaryJsonOpt = False,
 ) -> None:
     """Fuse a simulated arena seen by a grid of cameras and score the world against
     the ground truth: per camera frames captured/processed/dropped; duplicates,

@@ -8,7 +8,8 @@ from typing import Annotated
 import typer
 
 from ovis.services.cli.errors import UserError
-from ovis.services.cli.ui import JsonOpt, console, emit_json
+from ovis.services.cli.options import JsonOpt
+from ovis.services.cli.ui import console, emit_json
 
 __all__ = ["export", "register"]
 

@@ -9,59 +9,31 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import msgspec
 import typer
 
 from ovis.services.cli.errors import UserError
-from ovis.services.cli.ui import JsonOpt
+from ovis.services.cli.options import (
+    DEFAULT_ENDPOINT,
+    STARTUP_S,
+    ArenaOpt,
+    ConfigOpt,
+    ConnectOpt,
+    JsonOpt,
+    SummaryJsonOpt,
+    arena_topics,
+    config_with_options,
+    stop_on_signals,
+)
 
 __all__ = ["register"]
 
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator", "fusion")
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 #: Stages of the frame path that `ovis up` keeps a spare process ready for: a killed one
 #: is replaced without an interpreter start (the cost: one idle process each).
 STANDBY = ("preprocess", "label", "pose")
-#: `ovis up` starts the capture once the other stages are alive, or after this long.
-STARTUP_S = 30.0
-
-ConfigOpt = Annotated[
-    Path | None,
-    typer.Option("--config", "-c", help="TOML configuration (ovis config show).", dir_okay=False),
-]
-ConnectOpt = Annotated[
-    list[str] | None,
-    typer.Option(help=f"Zenoh endpoint to connect to (repeatable); default {DEFAULT_ENDPOINT}."),
-]
-ArenaOpt = Annotated[
-    str | None, typer.Option(help="Arena name: key expressions are rooted at ovis/<arena>/.")
-]
-
-
-def _config(config: Path | None, **options: Any):
-    """The configuration with command-line options laid over it (and validated)."""
-    from ovis.common.config import with_options
-
-    return with_options(config, **options)
-
-
-def _stop_on_signals() -> threading.Event:
-    """An event that Ctrl-C or SIGTERM sets: the command then stops cleanly."""
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    return stop
-
-
-def _topics(cfg):
-    from ovis.common.messages import Topics
-
-    try:
-        return Topics(cfg.service.arena)
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
 
 
 def router(
@@ -83,11 +55,11 @@ def router(
     from ovis.common.config import router_zenoh
     from ovis.services.bus import open_session
 
-    cfg = _config(config, mode="router")  # a bad file has been refused here
+    cfg = config_with_options(config, mode="router")  # a bad file has been refused here
     zc = router_zenoh(
         cfg, config, listen=listen, connect=connect, default_endpoint=DEFAULT_ENDPOINT
     )
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     with open_session(zc) as session:
         where = ", ".join(zc.listen) or f"the endpoints of {zc.config_file}"
         meshed = f"; meshed with {', '.join(zc.connect)}" if zc.connect else ""
@@ -147,7 +119,7 @@ def run(
 
     if stage not in STAGES:
         raise UserError(f"unknown stage {stage!r}; choose one of {', '.join(STAGES)}")
-    cfg = _config(
+    cfg = config_with_options(
         config,
         connect=connect,
         arena=arena,
@@ -157,7 +129,7 @@ def run(
         points=points,
         cpus=_cpus(cpus),
     )
-    _topics(cfg)
+    arena_topics(cfg)
     module = importlib.import_module(f"ovis.services.{stage}")
     if standby:
         os.environ["OVIS_STANDBY"] = "1"
@@ -182,7 +154,7 @@ def up(
         str | None, typer.Option(help="Calibrator state folder (default ovis-state).")
     ] = None,
     live: Annotated[bool, typer.Option(help="Live view of what is detected.")] = True,
-    json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    json: SummaryJsonOpt = False,
     max_restarts: Annotated[
         int, typer.Option(min=0, help="Restarts allowed per process within a minute.")
     ] = 5,
@@ -248,7 +220,7 @@ def up(
                           seed=seed, fps=fps, max_restarts=max_restarts, pin=pin)  # fmt: skip
     from ovis.services.cli.watching import LiveView, summary_table
 
-    cfg = _config(
+    cfg = config_with_options(
         config,
         connect=[listen],
         arena=arena,
@@ -257,7 +229,7 @@ def up(
         state_dir=state_dir,
         seed=seed,
     )
-    topics = _topics(cfg)
+    topics = arena_topics(cfg)
     cpus = _cpus(pin) or []
     from ovis.services.cli.recording import prepare_recorded_source
 
@@ -280,7 +252,7 @@ def up(
     from ovis.services.supervisor import Supervisor
 
     fleet = Supervisor(log_dir, max_restarts=max_restarts)
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     out = sys.stderr if json else sys.stdout
     print(
         f"ovis up: arena {topics.arena}, router {listen}, frame path on cores "
@@ -417,10 +389,10 @@ def watch(
     from ovis.services.cli.watching import format_health, format_obstacles
     from ovis.services.inbox import Inbox
 
-    cfg = _config(config, connect=connect, arena=arena)
-    topics = _topics(cfg)
+    cfg = config_with_options(config, connect=connect, arena=arena)
+    topics = arena_topics(cfg)
     box = Inbox(depth=64)
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     seen = 0
     deadline = time.monotonic() + duration if duration is not None else None
     with open_session(cfg.zenoh) as session:
@@ -468,8 +440,8 @@ def recalibrate(
     from ovis.common.messages import CalibrateReply, CalibrateRequest, decode, encode
     from ovis.services.bus import open_session
 
-    cfg = _config(config, connect=connect, arena=arena)
-    topics = _topics(cfg)
+    cfg = config_with_options(config, connect=connect, arena=arena)
+    topics = arena_topics(cfg)
     request = encode(CalibrateRequest(frame_seq=frame, seed=seed, cancel=cancel))
     with open_session(cfg.zenoh, wait=False) as session:
         replies = list(session.get(topics.calibrate, payload=request, timeout=timeout))
@@ -514,8 +486,8 @@ def status(
     from ovis.services.bus import open_session
     from ovis.services.cli.watching import collect_status, status_table
 
-    cfg = _config(config, connect=connect, arena=arena)
-    topics = _topics(cfg)
+    cfg = config_with_options(config, connect=connect, arena=arena)
+    topics = arena_topics(cfg)
     with open_session(cfg.zenoh, wait=False) as session:
         report = collect_status(session, topics)
     if json:

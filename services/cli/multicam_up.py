@@ -323,7 +323,7 @@ class _Run:
 
 def _wait_alive(fleet: Any, session: Any, topics: Any, names: list[str], stop: Any) -> set[str]:
     """Wait until fusion and every chain's downstream stages listen (or 30 s)."""
-    from ovis.services.cli.launcher import STARTUP_S
+    from ovis.services.cli.options import STARTUP_S
     from ovis.services.cli.watching import alive_services
 
     deadline = time.monotonic() + STARTUP_S

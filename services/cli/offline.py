@@ -13,8 +13,8 @@ import typer
 from ovis.common.config import resolve_config
 from ovis.common.vision.imageio import read_image
 from ovis.services.cli.errors import UserError
+from ovis.services.cli.options import JsonOpt, OfflineConfigOpt, PresetOpt
 from ovis.services.cli.ui import (
-    JsonOpt,
     calibrate_with_progress,
     console,
     emit_json,
@@ -38,28 +38,11 @@ def _numbers(text: str, n: int, what: str) -> tuple[float, ...]:
     return values
 
 
-ConfigOpt = Annotated[
-    Path | None,
-    typer.Option(
-        "--config",
-        "-c",
-        help="TOML configuration (may name a preset and override any of its fields).",
-        dir_okay=False,
-    ),
-]
-PresetOpt = Annotated[
-    str | None,
-    typer.Option(
-        help="Built-in preset when no --config is given: 'default', 'paper' or 'pinhole'."
-    ),
-]
-
-
 def simulate(
     out: Annotated[Path, typer.Option(help="Folder to write the frames and ground truth to.")],
     frames: Annotated[int, typer.Option(min=1, max=100000, help="Number of frames.")] = 10,
     seed: Annotated[int, typer.Option(min=0, help="Random seed: same seed, same arena.")] = 0,
-    config: ConfigOpt = None,
+    config: OfflineConfigOpt = None,
     preset: PresetOpt = None,
     json: JsonOpt = False,
     robots: Annotated[
@@ -160,7 +143,7 @@ def calibrate(
     force: Annotated[
         bool, typer.Option(help="Save a calibration flagged implausible (exit 0).")
     ] = False,
-    config: ConfigOpt = None,
+    config: OfflineConfigOpt = None,
     preset: PresetOpt = None,
     seed: Annotated[int | None, typer.Option(min=0, help="GA seed (default: config).")] = None,
     population: Annotated[int | None, typer.Option(min=2, help="GA population size.")] = None,
@@ -518,7 +501,7 @@ def config_show(
     preset: Annotated[
         str, typer.Option(help="Built-in preset: 'default', 'paper' or 'pinhole'.")
     ] = "default",
-    config: ConfigOpt = None,
+    config: OfflineConfigOpt = None,
 ) -> None:
     """Print a complete, editable TOML configuration.
 

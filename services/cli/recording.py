@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import signal
 import sys
 import threading
 import time
@@ -13,7 +12,14 @@ from typing import Annotated, Any
 import typer
 
 from ovis.services.cli.errors import UserError
-from ovis.services.cli.launcher import ArenaOpt, ConfigOpt, ConnectOpt, _config, _topics
+from ovis.services.cli.options import (
+    ArenaOpt,
+    ConfigOpt,
+    ConnectOpt,
+    arena_topics,
+    config_with_options,
+    stop_on_signals,
+)
 
 __all__ = ["prepare_recorded_source", "register"]
 
@@ -22,13 +28,6 @@ PROGRESS_S = 1.0
 
 def _mb(n: int) -> str:
     return f"{n / 1e6:.1f} MB"
-
-
-def _stop_on_signals() -> threading.Event:
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    return stop
 
 
 class _Progress:
@@ -146,8 +145,8 @@ def record(
         gate = FrameGate(frames)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    cfg = _config(config, connect=connect, arena=arena)
-    bus = _topics(cfg)
+    cfg = config_with_options(config, connect=connect, arena=arena)
+    bus = arena_topics(cfg)
     keys = topic_keys(bus, topics)
     import zenoh
 
@@ -156,7 +155,7 @@ def record(
             zenoh.KeyExpr(k)
     except zenoh.ZError as exc:
         raise UserError(f"--topics: not a Zenoh key expression: {exc}") from None
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     meta = {"arena": bus.arena, "topics": " ".join(keys), "frames": gate.spec}
     with open_session(cfg.zenoh, wait=False) as session:
         try:
@@ -275,8 +274,8 @@ def replay(
         SessionReader(session_file)  # not a session: say so before connecting
     except ValueError as exc:  # RecordingError too
         raise UserError(str(exc)) from None
-    cfg = _config(config, connect=connect)
-    stop = _stop_on_signals()
+    cfg = config_with_options(config, connect=connect)
+    stop = stop_on_signals()
     with open_session(cfg.zenoh, wait=False) as session:
         try:
             player = Replayer(

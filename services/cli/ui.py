@@ -6,14 +6,11 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable, Collection, Iterable, Iterator
 from contextlib import contextmanager
-from typing import Annotated, Any
+from typing import Any
 
 import msgspec
-import typer
 
-__all__ = ["JsonOpt", "calibrate_with_progress", "console", "emit_json", "progress", "table"]
-
-JsonOpt = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")]
+__all__ = ["calibrate_with_progress", "console", "emit_json", "progress", "table"]
 
 
 def console():

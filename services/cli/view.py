@@ -6,12 +6,12 @@ from __future__ import annotations
 import logging
 import os
 import sys
-from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from ovis.services.cli.errors import UserError
+from ovis.services.cli.options import ConfigOpt, ConnectOpt
 
 __all__ = ["DEFAULT_LISTEN", "register", "view"]
 
@@ -34,16 +34,8 @@ def view(
             "configured arena, and every arena found alive on the bus."
         ),
     ] = None,
-    connect: Annotated[
-        list[str] | None,
-        typer.Option(help="Zenoh endpoint to connect to (repeatable); default tcp/127.0.0.1:7447."),
-    ] = None,
-    config: Annotated[
-        Path | None,
-        typer.Option(
-            "--config", "-c", help="TOML configuration ([zenoh], [service] arena).", dir_okay=False
-        ),
-    ] = None,
+    connect: ConnectOpt = None,
+    config: ConfigOpt = None,
     max_fps: Annotated[
         float, typer.Option(help="Pictures per second sent to each browser, at most (≤ 30).")
     ] = 10.0,
@@ -94,13 +86,13 @@ def view(
     from ovis.common.messages import Topics
     from ovis.common.view.settings import parse_listen, view_settings
     from ovis.services.bus import open_session
-    from ovis.services.cli.launcher import _config
+    from ovis.services.cli.options import config_with_options
     from ovis.services.view.feed import Bus
     from ovis.services.view.server import bind, serve, url_of
 
     try:
         host, port = parse_listen(listen)
-        cfg = _config(config, connect=connect)
+        cfg = config_with_options(config, connect=connect)
         arenas = list(arena or [cfg.service.arena])
         for name in arenas:
             Topics(name)  # a bad name is refused here
