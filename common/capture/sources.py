@@ -3,9 +3,10 @@ video file, a camera (OpenCV index or device path) or a network stream (RTSP/HTT
 
 Every source returns uint8 frames (grey or BGR) one at a time; a source that cannot be
 opened raises :class:`SourceError` with what to check, and the capture service retries.
-A camera, stream or non-looping video that stops delivering (unplugged, network lost,
-file gone) raises :class:`SourceError` once and reconnects on a later read, when the
-device is back.
+A camera, stream or video file that stops delivering (unplugged, network lost, file
+gone) raises :class:`SourceError` once and reconnects on a later read, when it is back.
+A folder or video that ends with looping off raises :class:`SourceEndedError`: it is
+lost for good.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ __all__ = [
     "FrameSource",
     "GridSource",
     "SimSource",
+    "SourceEndedError",
     "SourceError",
     "StreamSource",
     "VideoSource",
@@ -44,6 +46,11 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".pp
 
 class SourceError(RuntimeError):
     """A source that cannot deliver frames (missing camera, unreadable file, ended)."""
+
+
+class SourceEndedError(SourceError):
+    """A folder or video that ended with looping off: it has nothing more to give. The
+    text starts with "ended"."""
 
 
 class FrameSource(Protocol):
@@ -164,7 +171,7 @@ class FolderSource:
     def read(self) -> tuple[NDArray[np.uint8], FrameTruth | None]:
         if self.index >= len(self.files):
             if not self.loop:
-                raise SourceError(f"{self.description}: all images sent")
+                raise SourceEndedError(f"ended: {self.description}: all images sent (loop is off)")
             self.index = 0
         path = self.files[self.index]
         self.index += 1
@@ -195,8 +202,12 @@ class _CaptureSource:
         self.cap: cv2.VideoCapture | None = None
         self._open()
 
+    def _capture(self) -> cv2.VideoCapture:
+        """A new ``VideoCapture`` of the target."""
+        return cv2.VideoCapture(self.target)
+
     def _open(self) -> None:
-        cap = cv2.VideoCapture(self.target)
+        cap = self._capture()
         if not cap.isOpened():
             cap.release()
             raise SourceError(self._cannot_open())
@@ -217,11 +228,14 @@ class _CaptureSource:
             ok, image = self.cap.read()
         if not ok or image is None:
             self.close()
-            raise SourceError(
-                f"{self.description} delivered no frame (ended, unplugged or disconnected); "
-                "reconnecting"
-            )
+            raise self._no_frame()
         return to_uint8(image), None
+
+    def _no_frame(self) -> SourceError:
+        """Why a read gave no frame."""
+        return SourceError(
+            f"{self.description} delivered no frame (unplugged or disconnected); reconnecting"
+        )
 
     def close(self) -> None:
         if self.cap is not None:
@@ -234,6 +248,11 @@ class VideoSource(_CaptureSource):
 
     def __init__(self, path: Path, loop: bool = True) -> None:
         super().__init__(str(path), f"video {path}", loop)
+
+    def _no_frame(self) -> SourceError:
+        if not self.loop and Path(str(self.target)).is_file():
+            return SourceEndedError(f"ended: {self.description}: all frames sent (loop is off)")
+        return SourceError(f"{self.description} delivered no frame (file gone?); reconnecting")
 
 
 class CameraSource(_CaptureSource):
@@ -288,8 +307,8 @@ def open_source(
     loop: bool | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> FrameSource:
-    """Open ``spec``: "sim", "grid:NxM:camIJ", "camera:N", a device path, a folder, or a
-    video file.
+    """Open ``spec``: "sim", "grid:NxM:camIJ", "camera:N", a device path, a stream URL
+    (``rtsp://``, ``rtsps://``, ``http://``, ``https://``), a folder, or a video file.
 
     ``loop`` (default ``config.service.loop``): replay a folder or video when it ends;
     ``progress(done, total)``: called while a simulated grid camera prerenders."""
