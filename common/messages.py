@@ -43,6 +43,8 @@ __all__ = [
     "ObstacleFrame",
     "PlaneMap",
     "ServiceStatus",
+    "SourceGap",
+    "SourceState",
     "StreamHealth",
     "Topics",
     "TruthFrame",
@@ -351,16 +353,41 @@ class ObstacleFrame(_Msg, tag="obstacles", kw_only=True):
 class StreamHealth(_Msg, tag="health", kw_only=True):
     """Published by the pose service on ``ovis/<arena>/health`` every status period,
     whether frames flow or not, so that a consumer can tell "no obstacles" (an
-    ObstacleFrame with an empty list) from "no data" (``state`` "stalled")."""
+    ObstacleFrame with an empty list) from "no data" (``state`` "stalled", or "source
+    lost" when the capture says its source failed, with its reason)."""
 
-    state: Literal["waiting", "ok", "stalled", "degraded", "failing"]
+    state: Literal["waiting", "ok", "stalled", "degraded", "failing", "source lost"]
     published_ns: Stamp
     last_seq: int = -1
     seconds_since_frame: float | None = None  # by the publisher's clock, since receipt
     last_frame_age_ms: float | None = None  # capture → publication of the last frame
     frames_dropped: int = 0
     calibration_version: int = 0
-    reason: str = ""  # why "degraded" or "failing"
+    reason: str = ""  # why "degraded", "failing" or "source lost"
+
+
+class SourceGap(msgspec.Struct, kw_only=True):
+    """A time the capture's source delivered no frame: from ``start_ns`` (the failure),
+    ``seconds`` long (so far, while ``ongoing``), and why (the first error)."""
+
+    start_ns: Stamp
+    seconds: NonNeg
+    reason: str
+    ongoing: bool = False
+
+
+class SourceState(_Msg, tag="source", kw_only=True):
+    """Published by the capture on ``ovis/<arena>/source`` when its source fails or
+    delivers again, and repeated while it is lost: ``state`` "source lost" with the
+    ``reason`` (the latest error; it starts with "ended" for a folder or video that
+    ended with looping off, lost for good), since ``lost_ns``."""
+
+    state: Literal["ok", "source lost"]
+    published_ns: Stamp
+    reason: str = ""
+    lost_ns: Stamp | None = None
+    ended: bool = False  # lost for good: no more attempts
+    gaps: Annotated[int, msgspec.Meta(ge=0)] = 0  # losses so far, this one included
 
 
 class WorldObject(msgspec.Struct, kw_only=True):
@@ -464,6 +491,9 @@ class ServiceStatus(_Msg, tag="status", kw_only=True):
     calibration_epoch: str = ""  # the calibrator's store id of the calibration in use
     seq_jumps: int = 0  # sequence jumps beyond the plausible gap (not counted as dropped)
     stream_restarts: int = 0  # times the capture's stream identity changed
+    source_gaps: int = 0  # capture: times its source was lost (the current loss included)
+    source_gap_s: float = 0.0  # capture: seconds without its source, in total
+    gaps: list[SourceGap] = []  # capture: the latest losses, oldest first
 
 
 Message = (
@@ -478,6 +508,7 @@ Message = (
     | ServiceStatus
     | StreamHealth
     | WorldFrame
+    | SourceState
 )
 
 _ENCODER = msgspec.msgpack.Encoder()
@@ -548,6 +579,7 @@ class Topics:
         self.obstacles = f"{root}/obstacles"
         self.truth = f"{root}/truth"
         self.health = f"{root}/health"
+        self.source = f"{root}/source"
         self.calibration = f"{root}/calibration"
         self.calibrate = f"{root}/calibrate"
         self.status_all = f"{root}/status/*"

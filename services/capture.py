@@ -1,20 +1,46 @@
 """Capture service: frames from the configured source, stamped with a sequence number,
 the capture time and the stream's identity (random, new at each start), published on
 ``ovis/<arena>/frames`` (and, for the simulated arena, the ground truth on
-``ovis/<arena>/truth``). A source that fails is retried."""
+``ovis/<arena>/truth``).
+
+A source that fails is reopened after waits that grow while it stays away
+(:mod:`ovis.common.capture.backoff`); a folder or video that ended with looping off is
+lost for good. Each loss is recorded (:mod:`ovis.common.pipeline.gaps`), said at once
+and then every ``SOURCE_REPEAT_S`` on ``ovis/<arena>/source`` (the pose stage folds it
+into the stream's health), and shown in the status: state "source lost", the reason,
+the losses so far."""
 
 from __future__ import annotations
 
 import secrets
+import threading
 import time
 
-from ovis.common.capture.sources import FrameSource, SourceError, open_source
+import zenoh
+
+from ovis.common.capture.backoff import Backoff
+from ovis.common.capture.sources import FrameSource, SourceEndedError, SourceError, open_source
 from ovis.common.messages import Frame, TruthFrame
+from ovis.common.pipeline.gaps import SourceGaps
+from ovis.common.pipeline.health import SOURCE_REPEAT_S
 from ovis.common.pipeline.pacing import Pacer
 from ovis.services.replay import capture_from_recording, is_recording
 from ovis.services.service import Service
 
-RETRY_S = 2.0
+
+def announce_source(service: Service, gaps: SourceGaps, changed: threading.Event) -> None:
+    """Publish the source's state on ``ovis/<arena>/source`` when ``changed`` is set,
+    and every ``SOURCE_REPEAT_S`` while the source is lost, until the service stops."""
+    publish = service.publisher(service.topics.source, drop=False)
+    while not service.stop.is_set():
+        changed.wait(SOURCE_REPEAT_S)
+        if not (changed.is_set() or gaps.lost):
+            continue
+        changed.clear()
+        try:
+            publish(gaps.message(time.time_ns()))
+        except zenoh.ZError:  # the session is closing
+            return
 
 
 def main(service: Service) -> None:
@@ -29,11 +55,22 @@ def main(service: Service) -> None:
     seq = 0
     stream = secrets.token_hex(8)  # sequence numbers start again with a new stream
     service.log.info("stream %s", stream)
+    gaps, backoff, changed = SourceGaps(), Backoff(), threading.Event()
+    service.amend_status = lambda status: gaps.amend(status, time.time_ns())
+    threading.Thread(
+        target=announce_source, args=(service, gaps, changed), name="source", daemon=True
+    ).start()
 
     def prerendering(done: int, total: int) -> None:
         service.state = f"prerendering {done}/{total}"
         if done == total or done % max(1, total // 4) == 0:
             service.log.info("prerendered %d/%d frames", done, total)
+
+    def lost(exc: SourceError, then: str) -> None:
+        if gaps.lose(str(exc), time.time_ns(), ended=isinstance(exc, SourceEndedError)):
+            service.log.warning("source lost: %s", exc)
+        changed.set()
+        service.error("source", f"{exc}; {then}")
 
     service.ready()
     try:
@@ -44,15 +81,19 @@ def main(service: Service) -> None:
                     service.log.info("capturing from %s", source.description)
                     service.state = "ok"
                 image, truth = source.read()
+            except SourceEndedError as exc:  # nothing more will come: idle until stopped
+                lost(exc, "lost for good")
+                service.stop.wait()
+                break
             except SourceError as exc:
-                again = "retrying" if source is None else "reopening"
-                service.state = "source unavailable"
-                service.error("source", f"{exc}; {again} in {RETRY_S:g} s")
+                wait = backoff.next_wait()
+                lost(exc, f"next attempt in {wait:g} s")
                 if source is not None:
                     source.close()
                     source = None
-                service.stop.wait(RETRY_S)
+                service.stop.wait(wait)
                 continue
+            backoff.reset()
             # a simulated camera on a shared trigger says when it exposed its frame
             stamp = truth.stamp_ns if truth is not None and truth.stamp_ns else time.time_ns()
             frame = Frame.from_image(
@@ -69,6 +110,10 @@ def main(service: Service) -> None:
             service.saw_frame(seq, stamp, stream)
             service.sent()
             seq += 1
+            back = gaps.delivered(time.time_ns())
+            if back is not None:
+                changed.set()
+                service.log.info("source back after %.1f s (lost: %s)", back.seconds, back.reason)
             service.stop.wait(pacer.delay())
     finally:
         if source is not None:

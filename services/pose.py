@@ -1,16 +1,19 @@
 """Pose service: blobs → robot and obstacles on the floor, identities across frames,
 velocities and the motion planner's inputs (paper §5.2); publishes one
 :class:`ObstacleFrame` per frame on the obstacle topic ``ovis/<arena>/obstacles``, and
-the stream's health on ``ovis/<arena>/health`` every status period."""
+the stream's health on ``ovis/<arena>/health`` every status period, and at once when the
+capture says its source was lost or is back (``ovis/<arena>/source``)."""
 
 from __future__ import annotations
 
 import threading
 import time
 
+import zenoh
+
 from ovis.common.calibration.file import Calibration
-from ovis.common.messages import BlobList
-from ovis.common.pipeline.health import SERVICE_STATE, StreamWatch
+from ovis.common.messages import BlobList, SourceState
+from ovis.common.pipeline.health import SERVICE_STATE, SourceWatch, StreamWatch
 from ovis.common.pipeline.stages import obstacle_frame
 from ovis.common.world.detection import Detector
 from ovis.services.service import Service
@@ -43,15 +46,37 @@ def main(service: Service) -> None:
     threading.Thread(target=service.serve, args=(inbox, handle), daemon=True).start()
     publish_health = service.publisher(service.topics.health, drop=False)
     watch = StreamWatch(service.config.service.frame_timeout_s)
+    source = SourceWatch()
+    news = threading.Event()  # the source was lost or is back: publish the health now
+
+    def on_source(sample: zenoh.Sample) -> None:
+        msg = service.decode(sample.payload.to_bytes(), SourceState, "source")
+        if msg is not None and source.hear(msg, time.monotonic()):
+            news.set()
+
+    service.session.declare_subscriber(service.topics.source, on_source)
+    threading.Thread(target=lambda: (service.stop.wait(), news.set()), daemon=True).start()
     counters = service.counters
     said: str | None = None  # the verdict last logged
-    while not service.stop.wait(service.config.service.status_period_s):
+    while not service.stop.is_set():
+        news.wait(service.config.service.status_period_s)
+        news.clear()
+        if service.stop.is_set():
+            break
         status = service.status()
         dropped = status.dropped
         since = counters.seconds_since_frame()
-        if watch.update(since):
-            log = service.log.warning if watch.state == "stalled" else service.log.info
-            log("frames %s (last seq %s, %.1f s ago)", watch.state, counters.last_seq, since or 0.0)
+        if watch.update(since, source.lost(time.monotonic())):
+            log = service.log.info if watch.state in ("ok", "waiting") else service.log.warning
+            if watch.state == "source lost":
+                log("source lost: %s", watch.reason)
+            else:
+                log(
+                    "frames %s (last seq %s, %.1f s ago)",
+                    watch.state,
+                    counters.last_seq,
+                    since or 0.0,
+                )
             service.state = SERVICE_STATE[watch.state]
         if status.state != said and status.state in ("degraded", "failing", "ok"):
             if said is not None or status.state != "ok":  # a change of the verdict

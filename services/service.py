@@ -70,6 +70,8 @@ class Service:
         self._calibration_listeners: list[Callable[[Calibration], None]] = []
         self.follower: CalibrationFollower | None = None  # set by follow_calibration()
         self._token: zenoh.LivelinessToken | None = None  # declared by ready()
+        #: what a stage adds to its status (the capture: its source's losses)
+        self.amend_status: Callable[[ServiceStatus], ServiceStatus] | None = None
         self._status_q = session.declare_queryable(self.topics.status(name), self._on_status)
 
     # --- inputs -------------------------------------------------------------------
@@ -221,7 +223,7 @@ class Service:
 
     # --- status -------------------------------------------------------------------
     def status(self) -> ServiceStatus:
-        return self.counters.status(
+        status = self.counters.status(
             self.name,
             started_ns=self.started_ns,
             state=self.state,
@@ -230,6 +232,7 @@ class Service:
             calibration_epoch=self.calibration.epoch,
             problem=self.follower.problem() if self.follower is not None else None,
         )
+        return status if self.amend_status is None else self.amend_status(status)
 
     def _on_status(self, query: zenoh.Query) -> None:
         try:

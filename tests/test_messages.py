@@ -41,6 +41,8 @@ from ovis.common.messages import (
     ObstacleFrame,
     PlaneMap,
     ServiceStatus,
+    SourceGap,
+    SourceState,
     StreamHealth,
     Topics,
     TruthFrame,
@@ -65,6 +67,7 @@ MESSAGE_TYPES = [
     ServiceStatus,
     StreamHealth,
     WorldFrame,
+    SourceState,
 ]
 
 
@@ -180,6 +183,7 @@ def _mask() -> np.ndarray:
 
 def sample_messages() -> dict[str, Any]:
     mask = _mask()
+    starting = ServiceStatus(service="capture", pid=1, host="h", started_ns=0, state="starting")
     return {
         "frame-gray": Frame.from_image(_gray(), seq=0, stamp_ns=1, source="camera:0"),
         "frame-bgr": Frame.from_image(_bgr(), seq=2**63, stamp_ns=2**64 - 1),
@@ -263,9 +267,7 @@ def sample_messages() -> dict[str, Any]:
             last_frame_age_s=0.033,
             rss_mb=87.5,
         ),
-        "status-starting": ServiceStatus(
-            service="capture", pid=1, host="h", started_ns=0, state="starting"
-        ),
+        "status-starting": starting,
         "health-stalled": StreamHealth(
             state="stalled",
             published_ns=1_700_000_000_000_000_000,
@@ -276,6 +278,33 @@ def sample_messages() -> dict[str, Any]:
             calibration_version=2,
         ),
         "health-waiting": StreamHealth(state="waiting", published_ns=1),
+        "health-source-lost": StreamHealth(
+            state="source lost",
+            published_ns=1_700_000_000_000_000_000,
+            last_seq=41,
+            seconds_since_frame=1.2,
+            reason="stream http://cam/stream delivered no frame for 1 s or closed",
+        ),
+        "status-source-lost": msgspec.structs.replace(
+            starting,
+            state="source lost",
+            reason="cannot open camera 0",
+            source_gaps=2,
+            source_gap_s=7.25,
+            gaps=[
+                SourceGap(start_ns=10, seconds=3.0, reason="camera 0 delivered no frame"),
+                SourceGap(start_ns=90, seconds=4.25, reason="cannot open camera 0", ongoing=True),
+            ],
+        ),
+        "source-lost": SourceState(
+            state="source lost",
+            published_ns=1_700_000_000_000_000_000,
+            reason="ended: folder photos (14 images): all images sent (loop is off)",
+            lost_ns=1_699_999_999_000_000_000,
+            ended=True,
+            gaps=1,
+        ),
+        "source-ok": SourceState(state="ok", published_ns=5, gaps=3),
         "world": WorldFrame(
             seq=3,
             stamp_ns=1_700_000_000_000_000_000,
@@ -587,6 +616,13 @@ REFUSALS = [
     ),
     ("status", _set("errors", [1]), "Expected `object`, got `array` - at `$.errors`"),
     ("status", _set("started_ns", -1), "Expected `int` >= 0 - at `$.started_ns`"),
+    (
+        "status-source-lost",
+        _set("gaps[1].seconds", -4.0),
+        "Expected `float` >= 0.0 - at `$.gaps[1].seconds`",
+    ),
+    ("source-lost", _set("state", "lost"), "Invalid enum value 'lost' - at `$.state`"),
+    ("source-ok", _set("gaps", -1), "Expected `int` >= 0 - at `$.gaps`"),
 ]
 
 
@@ -860,6 +896,7 @@ def test_topics_of_an_arena() -> None:
     assert t.calibrate == "ovis/lab-2/calibrate"
     assert t.status("pose") == "ovis/lab-2/status/pose"
     assert t.alive("pose") == "ovis/lab-2/alive/pose"
+    assert t.source == "ovis/lab-2/source"
     assert t.status_all == "ovis/lab-2/status/*"
     assert t.alive_all == "ovis/lab-2/alive/*"
 

@@ -1,20 +1,28 @@
 """Sources that go away and come back: a real video file removed and put back, read by the
-source object and by the capture service (a real process on a real router)."""
+source object; and a video that ends with looping off, lost for good, as the capture
+service (a real process on a real router) and the stream's health say."""
 
 from __future__ import annotations
 
-import threading
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-from zenoh_helpers import client, free_port, ovis_cmd, spawn, stop, wait_for
+from zenoh_helpers import alive, client, free_port, ovis_cmd, spawn, stop, wait_for
 
-from ovis.common.capture.sources import SourceError, StreamSource, open_source
+from ovis.common.capture.sources import SourceEndedError, SourceError, StreamSource, open_source
 from ovis.common.config import config_from_dict, load_config
-from ovis.common.messages import Frame, Topics, decode
+from ovis.common.messages import (
+    Frame,
+    ServiceStatus,
+    SourceState,
+    StreamHealth,
+    Topics,
+    decode,
+)
+from ovis.services.cli.watching import query_statuses
 
 
 def write_video(path: Path, frames: int = 12) -> None:
@@ -31,8 +39,9 @@ def test_video_source_reconnects_when_the_file_comes_back(tmp_path: Path) -> Non
     src = open_source(str(video), load_config(), loop=False)
     assert [src.read()[0].shape for _ in range(12)] == [(120, 160, 3)] * 12
     video.rename(away)  # "unplugged"
-    with pytest.raises(SourceError, match=r"delivered no frame .* reconnecting"):
+    with pytest.raises(SourceError, match=r"delivered no frame .* reconnecting") as gone:
         src.read()
+    assert not isinstance(gone.value, SourceEndedError)  # not ended: gone, maybe back
     with pytest.raises(SourceError, match="cannot open video"):
         src.read()
     away.rename(video)  # back
@@ -61,43 +70,55 @@ def test_camera_settings_are_validated() -> None:
         config_from_dict({"service": {"camera_width": 0}})
 
 
-def test_capture_service_resumes_after_the_video_comes_back(tmp_path: Path) -> None:
-    video, away = tmp_path / "cam.avi", tmp_path / "away.avi"
+def test_a_video_that_ends_with_loop_off_is_lost_for_good_and_says_so(tmp_path: Path) -> None:
+    """The capture (a real process) sends the video's frames once, then says "source
+    lost" with the reason "ended: …" in its status, on its source topic and, through the
+    pose stage, in the stream's health; it does not start the video again."""
+    video = tmp_path / "cam.avi"
     write_video(video, frames=8)
     cfg = tmp_path / "cfg.toml"
-    cfg.write_text(f'[service]\nsource = "{video}"\nloop = false\nfps = 20.0\n')
+    cfg.write_text(f'[service]\nsource = "{video}"\nloop = false\nfps = 4.0\n')
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")
-    capture = spawn(
-        ovis_cmd("run", "capture", "--connect", endpoint, "--config", str(cfg)),
-        tmp_path / "capture.log",
-    )
-    seen: list[tuple[float, int]] = []
-    lock = threading.Lock()
-
-    def on_frame(sample) -> None:
-        f = decode(sample.payload.to_bytes(), Frame)
-        with lock:
-            seen.append((time.monotonic(), f.seq))
-
+    procs = []
+    topics = Topics("default")
+    seen: list[int] = []
+    said: list[SourceState] = []
+    health: list[StreamHealth] = []
     try:
         with client(endpoint) as session:
-            session.declare_subscriber(Topics("default").frames, on_frame)
-            wait_for(lambda: len(seen) >= 5, 30, "frames from the video")
-            video.rename(away)  # unplugged: the reader hits the end, cannot reopen
-            time.sleep(4.0)
-            with lock:
-                gone_at, before = time.monotonic(), len(seen)
-            time.sleep(2.5)
-            with lock:
-                assert len(seen) == before  # nothing while it is away
-            away.rename(video)  # plugged back
-            wait_for(lambda: len(seen) >= before + 5, 30, "frames after the video is back")
-            with lock:
-                after = [s for t, s in seen if t > gone_at]
-            assert after == sorted(after) and after[0] > max(s for t, s in seen if t <= gone_at)
-            assert capture.poll() is None
+            session.declare_subscriber(
+                topics.frames, lambda s: seen.append(decode(s.payload.to_bytes(), Frame).seq)
+            )
+            session.declare_subscriber(
+                topics.source, lambda s: said.append(decode(s.payload.to_bytes(), SourceState))
+            )
+            session.declare_subscriber(
+                topics.health, lambda s: health.append(decode(s.payload.to_bytes(), StreamHealth))
+            )
+            for stage in ("pose", "capture"):  # the capture last: its frames are all seen
+                procs.append(
+                    spawn(
+                        ovis_cmd("run", stage, "--connect", endpoint, "--config", str(cfg)),
+                        tmp_path / f"{stage}.log",
+                    )
+                )
+                wait_for(lambda stage=stage: stage in alive(session), 30, f"{stage} alive")
+
+            def ended() -> ServiceStatus | None:
+                st = query_statuses(session, topics).get("capture")
+                return st if st is not None and st.state == "source lost" else None
+
+            st = wait_for(ended, 30, "the capture to say its video ended")
+            assert st.reason == f"ended: video {video}: all frames sent (loop is off)"
+            assert (st.frames_out, st.source_gaps, st.gaps[0].ongoing) == (8, 1, True)
+            wait_for(lambda: any(h.state == "source lost" for h in health), 5, "the health")
+            time.sleep(2.0)
+            assert seen and seen == list(range(seen[0], 8))  # once, not replayed
+            assert said and all(m.ended and m.reason == st.reason for m in said)
+            assert [h.reason for h in health if h.state == "source lost"][-1] == st.reason
+            assert "capture" in alive(session) and all(p.poll() is None for p in procs)
     finally:
-        stop([capture, router])
+        stop([*procs, router])
     log = (tmp_path / "capture.log").read_text()
-    assert "Traceback" not in log and "reconnecting" in log and "existing video file" in log
+    assert "Traceback" not in log and "source lost: ended: video" in log

@@ -5,6 +5,7 @@ garbage on every input topic. No mocks: real router, real processes, real images
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import threading
@@ -233,19 +234,21 @@ def test_capture_with_a_missing_camera_keeps_retrying(tmp_path: Path) -> None:
                     if (
                         r.service == "capture"
                         and r.status
-                        and r.status.errors.get("source", 0) >= 2
+                        and r.status.errors.get("source", 0) >= 3
                     ):
                         return r.status
                 return None
 
-            st = wait_for(retried, 20, "capture to report the missing camera twice")
-            assert st.state == "source unavailable" and "check that it is connected" in (
-                st.last_error
-            )
+            st = wait_for(retried, 20, "capture to report the missing camera three times")
+            assert st.state == "source lost" and "check that it is connected" in st.reason
+            assert st.source_gaps == 1 and st.gaps[0].ongoing  # one loss, from the start
             assert capture.poll() is None  # still running, still retrying
     finally:
         stop([capture, router])
-    assert "Traceback" not in (tmp_path / "capture.log").read_text()
+    log = (tmp_path / "capture.log").read_text()
+    assert "Traceback" not in log
+    waits = re.findall(r"next attempt in ([\d.]+) s", log)
+    assert waits[:3] == ["0.5", "1", "2"]  # waits that double
 
 
 def test_calibrator_waits_for_the_truth_that_trails_its_frame(tmp_path: Path) -> None:

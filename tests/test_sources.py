@@ -13,6 +13,7 @@ from ovis.common.capture.sources import (
     CameraSource,
     FolderSource,
     SimSource,
+    SourceEndedError,
     SourceError,
     VideoSource,
     open_source,
@@ -44,7 +45,7 @@ def test_folder_source_sorts_loops_and_stops(tmp_path: Path) -> None:
     once = FolderSource(tmp_path, loop=False)
     for _ in range(3):
         once.read()
-    with pytest.raises(SourceError, match="all images sent"):
+    with pytest.raises(SourceEndedError, match=r"^ended: folder .* all images sent"):
         once.read()
     empty = tmp_path / "empty"
     empty.mkdir()
@@ -65,6 +66,10 @@ def test_video_source_reads_and_loops(tmp_path: Path) -> None:
     src.close()
     assert means[0] == pytest.approx(40, abs=6) and means[2] == pytest.approx(200, abs=6)
     assert means[3] == pytest.approx(40, abs=6)  # looped
+    once = VideoSource(path, loop=False)
+    assert [once.read()[0].shape for _ in range(3)] == [(48, 64, 3)] * 3
+    with pytest.raises(SourceEndedError, match=r"^ended: video .* all frames sent"):
+        once.read()
 
 
 def test_missing_camera_says_what_to_check() -> None:

@@ -13,7 +13,7 @@ import msgspec
 import numpy as np
 
 from ovis.common.analysis.evaluation import TrackingScore
-from ovis.common.messages import ObstacleFrame, ServiceStatus, TruthFrame
+from ovis.common.messages import ObstacleFrame, ServiceStatus, SourceGap, TruthFrame
 
 __all__ = ["UNSCORED_SHARE", "LiveScore", "RunSummary", "position_error_flag"]
 
@@ -52,10 +52,14 @@ class RunSummary(msgspec.Struct):
     restarts: dict[str, int] = {}
     #: frames with ground truth seen (the simulator's); 0: nothing to match against
     truth_frames: int = 0
-    #: services whose last status was not "ok": "degraded: why" / "failing: why"
+    #: services whose last status was "degraded", "failing" or "source lost", and why
     health: dict[str, str] = {}
     #: why the position error is not the whole story (objects missed or spurious), or ""
     position_error_flag: str = ""
+    #: times the capture's source was lost, the seconds without it, and the latest losses
+    source_gaps: int = 0
+    source_gap_s: float = 0.0
+    gaps: list[SourceGap] = []
 
 
 #: The position error is flagged when the objects missed plus spurious exceed this share
@@ -129,6 +133,7 @@ class LiveScore:
         versions = [s.calibration_version for s in statuses.values()]
         counts: dict[str, Counts] = {**statuses, **(totals or {})}
         captured = counts.get("capture")
+        source = statuses.get("capture")  # its source's losses
         return RunSummary(
             duration_s=round(duration, 2),
             frames_captured=captured.frames_out if captured else 0,
@@ -152,9 +157,12 @@ class LiveScore:
             health={
                 n: f"{s.state}: {s.reason}"
                 for n, s in statuses.items()
-                if s.state in ("degraded", "failing")
+                if s.state in ("degraded", "failing", "source lost")
             },
             position_error_flag=position_error_flag(score.matched, score.missed, score.spurious),
+            source_gaps=source.source_gaps if source else 0,
+            source_gap_s=source.source_gap_s if source else 0.0,
+            gaps=source.gaps if source else [],
         )
 
 

@@ -1,17 +1,20 @@
 """Frame sources for the capture service: the simulated arena, a folder of images, a
-video file, a camera (OpenCV index or device path) or a network stream (RTSP/HTTP URL).
+video file, a camera (OpenCV index or device path) or a network stream (RTSP or MJPEG
+over HTTP, through OpenCV's FFmpeg backend).
 
 Every source returns uint8 frames (grey or BGR) one at a time; a source that cannot be
 opened raises :class:`SourceError` with what to check, and the capture service retries.
-A camera, stream or non-looping video that stops delivering (unplugged, network lost,
-file gone) raises :class:`SourceError` once and reconnects on a later read, when the
-device is back.
+A camera, stream or video file that stops delivering (unplugged, network lost, file
+gone) raises :class:`SourceError` once and reconnects on a later read, when it is back;
+a stream that hangs is given up after :data:`STREAM_READ_TIMEOUT_S`. A folder or video
+that ends with looping off raises :class:`SourceEndedError`: it is lost for good.
 """
 
 from __future__ import annotations
 
 import os
 import time
+import urllib.parse
 from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
@@ -27,11 +30,14 @@ from ovis.common.vision.imageio import to_uint8
 
 __all__ = [
     "IMAGE_SUFFIXES",
+    "STREAM_OPEN_TIMEOUT_S",
+    "STREAM_READ_TIMEOUT_S",
     "CameraSource",
     "FolderSource",
     "FrameSource",
     "GridSource",
     "SimSource",
+    "SourceEndedError",
     "SourceError",
     "StreamSource",
     "VideoSource",
@@ -42,8 +48,19 @@ __all__ = [
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 
 
+#: Seconds a network stream may take to answer when it is opened …
+STREAM_OPEN_TIMEOUT_S = 3.0
+#: … and to deliver each frame, before it counts as lost.
+STREAM_READ_TIMEOUT_S = 1.0
+
+
 class SourceError(RuntimeError):
     """A source that cannot deliver frames (missing camera, unreadable file, ended)."""
+
+
+class SourceEndedError(SourceError):
+    """A folder or video that ended with looping off: it has nothing more to give. The
+    text starts with "ended"."""
 
 
 class FrameSource(Protocol):
@@ -164,7 +181,7 @@ class FolderSource:
     def read(self) -> tuple[NDArray[np.uint8], FrameTruth | None]:
         if self.index >= len(self.files):
             if not self.loop:
-                raise SourceError(f"{self.description}: all images sent")
+                raise SourceEndedError(f"ended: {self.description}: all images sent (loop is off)")
             self.index = 0
         path = self.files[self.index]
         self.index += 1
@@ -195,8 +212,12 @@ class _CaptureSource:
         self.cap: cv2.VideoCapture | None = None
         self._open()
 
+    def _capture(self) -> cv2.VideoCapture:
+        """A new ``VideoCapture`` of the target."""
+        return cv2.VideoCapture(self.target)
+
     def _open(self) -> None:
-        cap = cv2.VideoCapture(self.target)
+        cap = self._capture()
         if not cap.isOpened():
             cap.release()
             raise SourceError(self._cannot_open())
@@ -217,11 +238,14 @@ class _CaptureSource:
             ok, image = self.cap.read()
         if not ok or image is None:
             self.close()
-            raise SourceError(
-                f"{self.description} delivered no frame (ended, unplugged or disconnected); "
-                "reconnecting"
-            )
+            raise self._no_frame()
         return to_uint8(image), None
+
+    def _no_frame(self) -> SourceError:
+        """Why a read gave no frame."""
+        return SourceError(
+            f"{self.description} delivered no frame (unplugged or disconnected); reconnecting"
+        )
 
     def close(self) -> None:
         if self.cap is not None:
@@ -234,6 +258,11 @@ class VideoSource(_CaptureSource):
 
     def __init__(self, path: Path, loop: bool = True) -> None:
         super().__init__(str(path), f"video {path}", loop)
+
+    def _no_frame(self) -> SourceError:
+        if not self.loop and Path(str(self.target)).is_file():
+            return SourceEndedError(f"ended: {self.description}: all frames sent (loop is off)")
+        return SourceError(f"{self.description} delivered no frame (file gone?); reconnecting")
 
 
 class CameraSource(_CaptureSource):
@@ -251,16 +280,44 @@ class CameraSource(_CaptureSource):
 
 
 class StreamSource(_CaptureSource):
-    """A network stream (RTSP, HTTP/HTTPS MJPEG, …) opened by OpenCV (FFmpeg)."""
+    """A network stream (RTSP, MJPEG over HTTP/HTTPS, …) read by OpenCV's FFmpeg
+    backend, which gives up on a stream that does not answer within
+    :data:`STREAM_OPEN_TIMEOUT_S` or stops delivering for :data:`STREAM_READ_TIMEOUT_S`.
+    A password in the URL is kept out of the description (logs, status, health)."""
 
     def __init__(self, url: str, settings: dict[int, float] | None = None) -> None:
-        super().__init__(url, f"stream {url}", loop=False, settings=settings)
+        super().__init__(url, f"stream {without_password(url)}", loop=False, settings=settings)
+
+    def _capture(self) -> cv2.VideoCapture:
+        timeouts = [
+            cv2.CAP_PROP_OPEN_TIMEOUT_MSEC,
+            round(STREAM_OPEN_TIMEOUT_S * 1000),
+            cv2.CAP_PROP_READ_TIMEOUT_MSEC,
+            round(STREAM_READ_TIMEOUT_S * 1000),
+        ]
+        return cv2.VideoCapture(str(self.target), cv2.CAP_FFMPEG, timeouts)
 
     def _cannot_open(self) -> str:
         return (
-            f"cannot open stream {self.target}: check the URL, that the camera is on the "
-            "network and that this build of OpenCV has FFmpeg"
+            f"cannot open {self.description}: check the URL, that the camera is on the "
+            "network and answers within "
+            f"{STREAM_OPEN_TIMEOUT_S:g} s, and that this build of OpenCV has FFmpeg"
         )
+
+    def _no_frame(self) -> SourceError:
+        return SourceError(
+            f"{self.description} delivered no frame for {STREAM_READ_TIMEOUT_S:g} s or "
+            "closed (camera off, network down); reconnecting"
+        )
+
+
+def without_password(url: str) -> str:
+    """``url`` with the password of its ``user:password@`` part replaced by ``***``."""
+    parts = urllib.parse.urlsplit(url)
+    if parts.password is None:
+        return url
+    host = parts.netloc.rsplit("@", 1)[1]
+    return urllib.parse.urlunsplit(parts._replace(netloc=f"{parts.username}:***@{host}"))
 
 
 STREAM_SCHEMES = ("rtsp://", "rtsps://", "http://", "https://")
@@ -288,8 +345,8 @@ def open_source(
     loop: bool | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> FrameSource:
-    """Open ``spec``: "sim", "grid:NxM:camIJ", "camera:N", a device path, a folder, or a
-    video file.
+    """Open ``spec``: "sim", "grid:NxM:camIJ", "camera:N", a device path, a stream URL
+    (``rtsp://``, ``rtsps://``, ``http://``, ``https://``), a folder, or a video file.
 
     ``loop`` (default ``config.service.loop``): replay a folder or video when it ends;
     ``progress(done, total)``: called while a simulated grid camera prerenders."""

@@ -1,7 +1,8 @@
 """Health that tells the truth. A stage's own verdict (:func:`stage_verdict`): input that
 yields no output, or fails mostly, makes it "failing" or "degraded" with the reason.
 And the stream's health, as the pose stage publishes it on ``ovis/<arena>/health``:
-"waiting" (no frame yet), "ok" (a frame within the timeout), "stalled", or the pose
+"waiting" (no frame yet), "ok" (a frame within the timeout), "stalled", "source lost"
+(the capture says its source failed, and why: :class:`SourceWatch`), or the pose
 stage's own "degraded"/"failing", so that a consumer can tell "no obstacles" from "no
 data" and from "wrong data"."""
 
@@ -10,7 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterable
 
-from ovis.common.messages import StreamHealth
+from ovis.common.messages import SourceState, StreamHealth
 
 __all__ = [
     "DEGRADED_FRACTION",
@@ -18,6 +19,9 @@ __all__ = [
     "HEALTH_WINDOW_S",
     "MIN_INPUTS",
     "SERVICE_STATE",
+    "SOURCE_FRESH_S",
+    "SOURCE_REPEAT_S",
+    "SourceWatch",
     "StreamWatch",
     "Verdict",
     "stage_verdict",
@@ -58,15 +62,52 @@ def stage_verdict(
 
 
 #: The service's state (in its status) for each stream state.
-SERVICE_STATE = {"ok": "ok", "stalled": "no frames", "waiting": "waiting"}
+SERVICE_STATE = {
+    "ok": "ok",
+    "stalled": "no frames",
+    "waiting": "waiting",
+    "source lost": "source lost",
+}
+
+#: The capture repeats its ``source`` message this often, seconds, while its source is
+#: lost (and sends one at once whenever the source fails or delivers again).
+SOURCE_REPEAT_S = 0.5
+#: A "source lost" heard longer ago than this, seconds, no longer counts: the capture
+#: that said it has gone quiet, and the frames' own state rules.
+SOURCE_FRESH_S = 4 * SOURCE_REPEAT_S
+
+
+class SourceWatch:
+    """The capture's latest word on its source (its :class:`SourceState` messages), as
+    a stage downstream hears it."""
+
+    def __init__(self, fresh_s: float = SOURCE_FRESH_S) -> None:
+        self.fresh_s = fresh_s
+        self._heard: tuple[SourceState, float] | None = None
+
+    def hear(self, msg: SourceState, now: float) -> bool:
+        """Take a message heard at ``now`` (monotonic seconds); True when it changes
+        what :meth:`lost` says."""
+        before = self.lost(now)
+        self._heard = (msg, now)
+        return self.lost(now) != before
+
+    def lost(self, now: float) -> str | None:
+        """Why the source is lost, or None: not lost, or not said within ``fresh_s``."""
+        heard = self._heard
+        if heard is None or heard[0].state != "source lost" or now - heard[1] > self.fresh_s:
+            return None
+        return heard[0].reason or "the capture gave no reason"
 
 
 class StreamWatch:
-    """Follows the time since the last frame; says when the stream's state changes."""
+    """Follows the time since the last frame and whether the source is lost; says when
+    the stream's state changes."""
 
     def __init__(self, timeout_s: float) -> None:
         self.timeout_s = timeout_s
         self.state = "waiting"
+        self.reason = ""  # why the source is lost
 
     def classify(self, seconds_since_frame: float | None) -> str:
         """The stream's state ``seconds_since_frame`` after the last frame (None: none yet)."""
@@ -74,10 +115,13 @@ class StreamWatch:
             return "waiting"
         return "ok" if seconds_since_frame <= self.timeout_s else "stalled"
 
-    def update(self, seconds_since_frame: float | None) -> bool:
-        """Take the time since the last frame; True when the state changed."""
-        state = self.classify(seconds_since_frame)
-        changed, self.state = state != self.state, state
+    def update(self, seconds_since_frame: float | None, source_lost: str | None = None) -> bool:
+        """Take the time since the last frame and why the source is lost (None: it is
+        not); True when the state or that reason changed."""
+        state = "source lost" if source_lost is not None else self.classify(seconds_since_frame)
+        reason = source_lost or ""
+        changed = (state, reason) != (self.state, self.reason)
+        self.state, self.reason = state, reason
         return changed
 
     def message(
@@ -92,7 +136,7 @@ class StreamWatch:
     ) -> StreamHealth:
         """The health message for the current state; a stage that receives frames but
         is not "ok" itself (``verdict``) says that instead of "ok"."""
-        state, reason = self.state, ""
+        state, reason = self.state, self.reason
         if state == "ok" and verdict[0] in ("degraded", "failing"):
             state, reason = verdict  # a service state ("waiting for input", …) is no verdict
         return StreamHealth(

@@ -28,6 +28,7 @@ __all__ = [
     "LiveView",
     "RunSummary",
     "collect_status",
+    "format_gaps",
     "format_health",
     "format_obstacles",
     "query_statuses",
@@ -60,9 +61,11 @@ def format_obstacles(msg: ObstacleFrame) -> str:
 
 
 def format_health(msg: StreamHealth) -> str:
-    """A health message that is not "ok", as one line: no data, and since when."""
+    """A health message that is not "ok", as one line: no data, why, and since when."""
     since = msg.seconds_since_frame
     ago = f"the last frame ({msg.last_seq}) came {since:.1f} s ago" if since else "no frame yet"
+    if msg.state == "source lost":
+        return f"NO DATA: source lost ({msg.reason}); {ago}"
     return f"NO DATA: frames {msg.state}; {ago}"
 
 
@@ -134,7 +137,7 @@ def status_table(report: list[ServiceReport], topics: Topics):
             continue
         errors = ", ".join(f"{k} {v}" for k, v in s.errors.items()) or "0"
         state = s.state
-        if s.state in ("degraded", "failing"):
+        if s.state in ("degraded", "failing", "source lost"):
             state = f"[red]{s.state}[/]: {s.reason}"
         t.add_row(
             r.service,
@@ -250,4 +253,22 @@ def summary_table(s: RunSummary):
     t.add_row("restarts", ", ".join(f"{k} {v}" for k, v in s.restarts.items()) or "0")
     health = "\n".join(f"[red]{k} {v}[/]" for k, v in s.health.items())
     t.add_row("health", health or "ok")
+    t.add_row("source lost", format_gaps(s))
     return t
+
+
+def format_gaps(s: RunSummary, shown: int = 5) -> str:
+    """The source's losses of a run: how many, for how long, and why (the latest
+    ``shown``), as table markup."""
+    from rich.markup import escape
+
+    if not s.source_gaps:
+        return "never"
+    times = "once" if s.source_gaps == 1 else f"{s.source_gaps} times"
+    lines = [f"[red]{times}, {s.source_gap_s:.1f} s in total[/]"]
+    if s.source_gaps > shown:
+        lines.append(f"… {s.source_gaps - shown} earlier")
+    for gap in s.gaps[-shown:]:
+        still = " (still lost)" if gap.ongoing else ""
+        lines.append(f"{gap.seconds:.1f} s{still}: {escape(gap.reason)}")
+    return "\n".join(lines)
