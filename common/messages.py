@@ -42,6 +42,7 @@ __all__ = [
     "MessageError",
     "ObstacleFrame",
     "PlaneMap",
+    "ReplayMark",
     "ServiceStatus",
     "StreamHealth",
     "Topics",
@@ -353,7 +354,7 @@ class StreamHealth(_Msg, tag="health", kw_only=True):
     whether frames flow or not, so that a consumer can tell "no obstacles" (an
     ObstacleFrame with an empty list) from "no data" (``state`` "stalled")."""
 
-    state: Literal["waiting", "ok", "stalled", "degraded", "failing"]
+    state: Literal["waiting", "ok", "stalled", "degraded", "failing", "source lost"]
     published_ns: Stamp
     last_seq: int = -1
     seconds_since_frame: float | None = None  # by the publisher's clock, since receipt
@@ -464,6 +465,16 @@ class ServiceStatus(_Msg, tag="status", kw_only=True):
     calibration_epoch: str = ""  # the calibrator's store id of the calibration in use
     seq_jumps: int = 0  # sequence jumps beyond the plausible gap (not counted as dropped)
     stream_restarts: int = 0  # times the capture's stream identity changed
+
+
+class ReplayMark(msgspec.Struct, kw_only=True, forbid_unknown_fields=False):
+    """Rides as the Zenoh *attachment* of every message that ``ovis replay`` (and ``ovis up
+    --source SESSION.mcap``) publishes, so that a consumer can tell a replay from a live
+    camera while the payload stays bit-exact as recorded. Not a payload of its own."""
+
+    recording: Annotated[str, msgspec.Meta(max_length=256)]  # the session file's name
+    recorded_ns: Stamp  # the message's log time in the recording (its own clock)
+    start_ns: Stamp  # the log time of the first message replayed from the recording
 
 
 Message = (
