@@ -42,6 +42,7 @@ __all__ = [
     "MessageError",
     "ObstacleFrame",
     "PlaneMap",
+    "ReplayMark",
     "ServiceStatus",
     "SourceGap",
     "SourceState",
@@ -494,6 +495,16 @@ class ServiceStatus(_Msg, tag="status", kw_only=True):
     source_gaps: int = 0  # capture: times its source was lost (the current loss included)
     source_gap_s: float = 0.0  # capture: seconds without its source, in total
     gaps: list[SourceGap] = []  # capture: the latest losses, oldest first
+
+
+class ReplayMark(msgspec.Struct, kw_only=True, forbid_unknown_fields=False):
+    """Rides as the Zenoh *attachment* of every message that ``ovis replay`` (and ``ovis up
+    --source SESSION.mcap``) publishes, so that a consumer can tell a replay from a live
+    camera while the payload stays bit-exact as recorded. Not a payload of its own."""
+
+    recording: Annotated[str, msgspec.Meta(max_length=256)]  # the session file's name
+    recorded_ns: Stamp  # the message's log time in the recording (its own clock)
+    start_ns: Stamp  # the log time of the first message replayed from the recording
 
 
 Message = (

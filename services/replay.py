@@ -10,9 +10,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import msgspec
 import zenoh
 
-from ovis.common.messages import ENCODING, FrameHeader, MessageError, decode
+from ovis.common.messages import ENCODING, FrameHeader, MessageError, ReplayMark, decode
 from ovis.common.pipeline.stages import MAX_CLOCK_SKEW_S
 from ovis.common.recording.pacing import Pacer, Restamp
 from ovis.common.recording.session import RecordingError, SessionReader
@@ -115,6 +116,7 @@ class Replayer:
         while not self.stop.is_set():
             reader = SessionReader(self.path)
             sent_this_pass = 0
+            start_ns: int | None = None
             pacer.restart()
             for rec in reader.bus_messages():
                 if not self._wanted(rec.topic):
@@ -134,7 +136,8 @@ class Replayer:
                 elif suffix == "truth":
                     payload = restamp.truth(payload)
                 key = rebase(rec.topic, self.arena)
-                self._publisher(key).put(payload)
+                start_ns = rec.log_ns if start_ns is None else start_ns
+                self._publisher(key).put(payload, attachment=self._mark(rec.log_ns, start_ns))
                 r.messages += 1
                 sent_this_pass += 1
                 r.by_topic[key] = r.by_topic.get(key, 0) + 1
@@ -144,6 +147,11 @@ class Replayer:
                 break
             restamp.next_pass()
         return r
+
+    def _mark(self, recorded_ns: int, start_ns: int) -> bytes:
+        """The attachment that says "replayed from this recording, logged then"."""
+        mark = ReplayMark(recording=self.path.name, recorded_ns=recorded_ns, start_ns=start_ns)
+        return msgspec.msgpack.encode(mark)
 
     def _shift(self, payload: bytes) -> int:
         """How far to move the stamps (``--stamps``), decided on the first frame."""

@@ -4,12 +4,22 @@ stage turns red, recalibration works with the operator token and only with it; a
 garbage on the WebSocket, 20 clients at once and a view of an arena where no stage
 runs leave the view serving with a clear state on the page.
 
-One running system (router, five stages, two views) is shared by the whole module.
+And an honest page: frames that stop (a capture frozen with SIGSTOP) show "stalled"
+with growing seconds and a picture marked stale; a page whose view server stops greys
+its health to "unknown"; `ovis replay` of a session of the shared real photos is
+labelled "replay of NAME" with the recording's own time and no latency, with its
+marked robots labelled on the picture and its calibration's control points only on the
+frame it was made on; a "source lost" stream shows its reason; the map has a grid and a
+scale bar.
+
+One running system (router, five stages, two views) is shared by the whole module; the
+honest-page tests add a view, a capture and a replay of their own on its router.
 """
 
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import math
 import os
@@ -19,11 +29,29 @@ import subprocess
 import threading
 import time
 import urllib.request
+from datetime import UTC, datetime
 from pathlib import Path
+from types import SimpleNamespace
 
+import cv2
+import msgspec
 import pytest
 from pipeline_helpers import Recorder
+from real_photos import photo_paths
 from zenoh_helpers import client, free_port, ovis_cmd, pids_with, spawn, stop, wait_for
+
+from ovis.common.calibration.file import Calibration
+from ovis.common.camera.projection import project
+from ovis.common.messages import (
+    CalibrationUpdate,
+    Frame,
+    ObstacleFrame,
+    StreamHealth,
+    encode,
+)
+from ovis.common.recording.session import SessionWriter
+from ovis.common.view.grid import map_grid_step
+from ovis.common.world.robots import RobotState
 
 CHROMIUM = Path("/usr/bin/chromium")
 ARGS = [
@@ -207,9 +235,30 @@ def test_counts_pictures_and_health_update(system) -> None:
         page.uncheck("#show-binary")
         page.wait_for_selector("#picture[data-kind=camera]", timeout=5000)
         page.wait_for_timeout(500)
-        DOCS_IMAGE.parent.mkdir(parents=True, exist_ok=True)
-        page.screenshot(path=str(DOCS_IMAGE), full_page=True)
-    assert DOCS_IMAGE.stat().st_size > 20000
+        shot = system.tmp / "view.png"
+        page.screenshot(path=str(shot), full_page=True)
+        # Robots are labelled on the picture; the calibration's control points are not
+        # drawn on these live frames (the calibration was made on an earlier one).
+        log = page.evaluate("() => window.ovisView.pictureLog.filter(p => p.kind === 'camera')")
+    assert log and all(p["robots"] and p["robots"][0]["label"] == "R0" for p in log), log[-3:]
+    assert all(p["robots"][0]["arrow"] for p in log)
+    assert all(p["points"] == 0 and p["calibration_frame"] != p["seq"] for p in log)
+    assert {p["calibration_frame"] for p in log} - {None}, "the calibration names its frame"
+    assert shot.stat().st_size > 20000
+    if os.environ.get("OVIS_UPDATE_DOCS_IMAGES") == "1":
+        save_small_png(shot, DOCS_IMAGE)
+
+
+def save_small_png(shot: Path, out: Path, colours: int = 128) -> None:
+    """The screenshot with its colours reduced to a palette (a small file for the docs;
+    the octree keeps the few pixels of the status colours)."""
+    image = pytest.importorskip("PIL.Image")
+    with image.open(shot) as im:
+        small = im.convert("RGB").quantize(
+            colours, method=image.Quantize.FASTOCTREE, dither=image.Dither.NONE
+        )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    small.save(out, optimize=True)
 
 
 def test_recalibrate_from_the_page_with_the_token(system) -> None:
@@ -347,3 +396,354 @@ def test_a_killed_stage_turns_red_within_3_s(system) -> None:
         assert "label" in page.inner_text("#notice")
         # `ovis up` restarts it; the page turns green again.
         page.wait_for_selector("#stages tr[data-stage=label][data-alive=true]", timeout=30000)
+
+
+# --- an honest page ---------------------------------------------------------------------
+STALL_ARENA, REPLAY_ARENA, LOST_ARENA = "stall", "replayed", "lost"
+SQUARE_CM = 2.5
+#: The replayed frames were captured this long before the replay (the issue saw 264.7 s).
+RECORDED_AGO_S = 300.0
+FRAME_PERIOD_S = 0.4
+#: The calibration was made on this frame of the recording (the first photo, sent last).
+CALIBRATION_FRAME = 13
+#: Marked robots of the recorded obstacle messages: id, name, floor x, y (cm), heading.
+ROBOTS = [(1, "alpha", 6.25, -3.75, 0.0), (2, "", 13.75, -8.75, 90.0)]
+
+
+@pytest.fixture(scope="module")
+def honest(system, tmp_path_factory: pytest.TempPathFactory):
+    """A view of three arenas of the system's router: one where a simulated capture runs
+    (to be frozen), one for a replay, one whose stream is lost."""
+    tmp = tmp_path_factory.mktemp("honest")
+    h = SimpleNamespace(tmp=tmp, url=f"http://127.0.0.1:{free_port()}/")
+    view = spawn(
+        ovis_cmd(
+            "view",
+            "--connect",
+            system.endpoint,
+            "--listen",
+            h.url.removeprefix("http://").rstrip("/"),
+            *("--arena", STALL_ARENA, "--arena", REPLAY_ARENA, "--arena", LOST_ARENA),
+        ),
+        tmp / "view.log",
+    )
+    h.capture = spawn(
+        ovis_cmd(
+            "run",
+            "capture",
+            *("--connect", system.endpoint, "--arena", STALL_ARENA),
+            *("--source", "sim", "--fps", "10"),
+        ),
+        tmp / "capture.log",
+    )
+    try:
+        wait_for(lambda: _answers(h.url), 30, "the honest view")
+        yield h
+    finally:
+        if h.capture.poll() is None:
+            os.kill(h.capture.pid, signal.SIGCONT)
+        stop([h.capture, view])
+    assert "Traceback" not in (tmp / "view.log").read_text()
+
+
+def watch(page, arena: str) -> None:
+    """Show ``arena`` on the page and wait until the view says it shows it."""
+    page.wait_for_selector("#stages tr[data-stage=capture]", timeout=15000)
+    if page.evaluate("() => window.ovisView.arena") != arena:
+        page.select_option("#arena-select", arena)
+    page.wait_for_function(f"() => window.ovisView.arena === {arena!r}", timeout=10000)
+    page.wait_for_function(
+        f"() => window.ovisView.health && window.ovisView.health.arena === {arena!r}",
+        timeout=10000,
+    )
+
+
+def since_s(page, selector: str) -> float:
+    return float(page.get_attribute(selector, "data-since-s"))
+
+
+def test_frames_that_stop_show_stalled_with_growing_seconds_and_a_stale_picture(
+    system, honest
+) -> None:
+    with page_of(system, honest.url) as page:
+        watch(page, STALL_ARENA)
+        page.wait_for_selector("#picture-fresh[data-state=live]", timeout=15000)
+        text = page.inner_text("#picture-fresh")
+        age = re.search(r"age (-?\d+) ms", text)
+        assert age and 0 <= int(age[1]) < 1000, text  # now − the capture stamp
+        assert page.get_attribute("#picture-box", "data-stale") == "false"
+        assert page.is_hidden("#picture-stale")
+        os.kill(honest.capture.pid, signal.SIGSTOP)  # a hung camera: alive, no frames
+        t0 = time.monotonic()
+        try:
+            page.wait_for_selector("#picture-fresh[data-state=stalled]", timeout=6000)
+            took = time.monotonic() - t0
+            first = since_s(page, "#picture-fresh")
+            page.wait_for_timeout(2200)  # no message needed: the page counts on its own
+            second = since_s(page, "#picture-fresh")
+            text = page.inner_text("#picture-fresh")
+            stale = page.inner_text("#picture-stale")
+            grey = page.evaluate(
+                "() => getComputedStyle(document.getElementById('picture')).filter"
+            )
+            rows = page.locator("#stages tr[data-stage=capture][data-alive=true]").count()
+        finally:
+            os.kill(honest.capture.pid, signal.SIGCONT)
+        print(f"\nstalled on the page {took:.1f} s after the frames stopped: {text!r}, {stale!r}")
+        assert took < 2.0 + 3.0, took  # the 2 s threshold, a health period, the page's tick
+        assert 2.0 <= first < 5.0 and 1.5 < second - first < 3.5, (first, second)
+        m = re.search(r"stalled · no frame for (\d+(?:\.\d)?) s", text)
+        assert m and float(m[1]) == pytest.approx(second, abs=1.1), text
+        assert re.fullmatch(r"STALE \d+ s", stale) and int(stale.split()[1]) >= 4, stale
+        assert page.get_attribute("#picture-box", "data-stale") == "true"
+        assert "grayscale(1)" in grey, grey
+        assert rows == 1  # the frozen capture is still alive: only the frames tell
+        # Frames again: live, the stale mark gone.
+        page.wait_for_selector("#picture-fresh[data-state=live]", timeout=15000)
+        assert page.get_attribute("#picture-box", "data-stale") == "false"
+        assert page.is_hidden("#picture-stale")
+
+
+def test_a_page_whose_view_server_stops_greys_its_health_to_unknown(system, tmp_path) -> None:
+    url = f"http://127.0.0.1:{free_port()}/"
+    args = ovis_cmd(
+        "view",
+        *("--connect", system.endpoint, "--listen", url.removeprefix("http://").rstrip("/")),
+        *("--arena", "default"),
+    )
+    server = spawn(args, tmp_path / "view.log")
+    try:
+        wait_for(lambda: _answers(url), 30, "the view")
+        with page_of(system, url) as page:
+            page.wait_for_selector("#stages tr[data-alive=true]", timeout=15000)
+            page.wait_for_selector("#stream[data-state=ok]", timeout=15000)
+            page.wait_for_selector("#picture-fresh[data-state=live]", timeout=15000)
+            t0 = time.monotonic()
+            stop([server])
+            page.wait_for_selector("#stream[data-state=unknown]", timeout=3000)
+            took = time.monotonic() - t0
+            assert page.inner_text("#stream") == "unknown"
+            assert page.locator("#stages tr[data-alive=true]").count() == 0
+            assert page.locator("#stages tr[data-alive=unknown]").count() == 5
+            border = page.evaluate(
+                "() => getComputedStyle(document.querySelector('#stages tr td')).borderLeftColor"
+            )
+            r, g, b = (int(v) for v in re.findall(r"\d+", border)[:3])
+            assert abs(r - g) < 30 and abs(g - b) < 30, border  # grey, not green
+            assert page.get_attribute("#connection", "data-state") == "closed"
+            assert "reconnecting" in page.inner_text("#connection")
+            assert "lost the connection" in page.inner_text("#notice")
+            assert page.inner_text("#picture-stale") == "DISCONNECTED"
+            assert page.get_attribute("#picture-fresh", "data-state") == "unknown"
+            assert page.get_attribute("#map", "data-stale") == "true"
+            assert page.inner_text("#latency-p50") == "–"
+            print(f"\nunknown on the page {took:.2f} s after the view server stopped")
+            # The server again: the page reconnects and turns green.
+            server = spawn(args, tmp_path / "view2.log")
+            page.wait_for_selector("#stream[data-state=ok]", timeout=20000)
+            page.wait_for_selector("#stages tr[data-alive=true]", timeout=5000)
+            assert page.get_attribute("#connection", "data-state") == "open"
+    finally:
+        stop([server])
+
+
+def test_a_lost_source_shows_its_reason_not_green(system, honest) -> None:
+    reason = "camera:0 stopped answering (read failed 3 times); retrying in 4 s"
+    done = threading.Event()
+
+    def pose_says_lost(session) -> None:
+        while not done.wait(0.5):
+            msg = StreamHealth(state="source lost", published_ns=time.time_ns(), reason=reason)
+            session.put(f"ovis/{LOST_ARENA}/health", encode(msg))
+
+    with client(system.endpoint) as session, page_of(system, honest.url) as page:
+        threading.Thread(target=pose_says_lost, args=(session,), daemon=True).start()
+        try:
+            watch(page, LOST_ARENA)
+            page.wait_for_selector('#stream[data-state="source lost"]', timeout=10000)
+            assert page.inner_text("#stream-reason") == f": {reason}"
+            colour = page.evaluate(
+                "() => getComputedStyle(document.getElementById('stream')).color"
+            )
+            r, g, _ = (int(v) for v in re.findall(r"\d+", colour)[:3])
+            assert r > 150 and g < 80, colour
+            assert f"SOURCE LOST: {reason}" in page.inner_text("#notice")
+            # The messages stop: the pose stage's last word is no longer the state.
+            done.set()
+            page.wait_for_selector("#stream[data-state=unknown]", timeout=8000)
+            assert "no health message from the pose stage" in page.inner_text("#stream-reason")
+        finally:
+            done.set()
+
+
+def test_the_map_has_a_grid_and_a_scale_bar(system) -> None:
+    with page_of(system, system.url) as page:
+        page.wait_for_selector("#scale-bar", timeout=15000)
+        page.wait_for_selector("#map [data-kind=robot]", timeout=15000)
+        step = float(page.get_attribute("#grid-layer", "data-step-cm"))
+        health = page.evaluate("() => window.ovisView.health")
+        assert step == map_grid_step([tuple(p) for p in health["footprint"]]), step
+        assert step in (5.0, 10.0, 20.0, 50.0), step
+        lines = page.evaluate(
+            """() => [...document.querySelectorAll('#grid-layer line')].map(l =>
+              [l.dataset.xCm ?? null, l.dataset.yCm ?? null])"""
+        )
+        xs = sorted(float(x) for x, _ in lines if x is not None)
+        ys = sorted(float(y) for _, y in lines if y is not None)
+        assert 3 <= len(xs) <= 14 and 3 <= len(ys) <= 14, (xs, ys)
+        for v in xs + ys:
+            assert v / step == pytest.approx(round(v / step)), v
+        assert all(b - a == pytest.approx(step) for a, b in itertools.pairwise(xs))
+        labels = page.evaluate(
+            """() => [...document.querySelectorAll('#grid-layer text')].map(t =>
+              [t.dataset.xCm ?? t.dataset.yCm, t.textContent])"""
+        )
+        assert all(float(at) == float(text) for at, text in labels), labels
+        assert len(labels) >= len(xs) + len(ys) - 1, labels  # all but one in the corner
+        assert page.text_content("#scale-bar text") == f"{step:g} cm"
+        # The bar is one step long on the screen, at the map's own cm-to-pixel scale.
+        bar, robot = page.evaluate(
+            """() => { const m = document.getElementById('map');
+              const k = m.getScreenCTM().a;  // screen pixels per cm
+              const l = document.querySelector('#scale-bar line.scale');
+              const r = document.querySelector('#map [data-kind=robot] circle');
+              return [l.getBoundingClientRect().width / k,
+                      r.getBoundingClientRect().width / k / 2 - Number(r.getAttribute('r'))]; }"""
+        )
+        assert bar == pytest.approx(step, rel=0.02), bar
+        assert robot == pytest.approx(0.0, abs=0.1 * step)
+
+
+def recorded_session(path: Path, tmp: Path) -> SimpleNamespace:
+    """A session as `ovis record` writes one: the shared real photos as frames captured
+    RECORDED_AGO_S ago, obstacle messages with marked robots, and the calibration (made
+    with `ovis intrinsics` and `ovis calibrate --board` on the first photo, which the
+    recording holds as its frame CALIBRATION_FRAME)."""
+    photos = photo_paths()
+    lens, out = tmp / "CAM.yaml", tmp / "calib.json"
+    for args in (
+        ["intrinsics", *map(str, photos[1:]), "--board", "chessboard:9x6", "--out", str(lens)],
+        [
+            "calibrate",
+            str(photos[0]),
+            *("--intrinsics", str(lens), "--board", "chessboard:9x6"),
+            *("--square-cm", str(SQUARE_CM), "--out", str(out)),
+        ],
+    ):
+        done = subprocess.run(ovis_cmd(*args), capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, done.stderr
+    calib = msgspec.json.decode(out.read_bytes(), type=Calibration)
+    calib = msgspec.structs.replace(calib, version=1, source_image=f"frame {CALIBRATION_FRAME}")
+    t0 = time.time_ns() - int(RECORDED_AGO_S * 1e9)
+    still = dict(z_cm=0.0, vx_cm_s=0.0, vy_cm_s=0.0, yaw_rate_deg_s=0.0, age_s=0.0)
+    robots = [
+        RobotState(id=i, name=n, marker_id=i, x_cm=x, y_cm=y, heading_deg=h, radius_cm=2.0, **still)
+        for i, n, x, y, h in ROBOTS
+    ]
+    logs = []
+    writer = SessionWriter(path)
+    writer.bus("ovis/rec/calibration", encode(CalibrationUpdate(calibration=calib)), t0, t0)
+    for seq in range(len(photos)):
+        image = cv2.imread(str(photos[(seq + 1) % len(photos)]), cv2.IMREAD_GRAYSCALE)
+        stamp = t0 + int((seq + 1) * FRAME_PERIOD_S * 1e9)
+        frame = Frame.from_image(image, seq=seq, stamp_ns=stamp, source=str(photos[0].parent))
+        writer.frame("ovis/rec/frames", encode(frame), stamp + 2_000_000, stamp)
+        obstacles = ObstacleFrame(
+            seq=seq,
+            stamp_ns=stamp,
+            published_ns=stamp + 20_000_000,
+            frame_age_ms=20.0,
+            calibration_version=1,
+            robot=None,
+            obstacles=[],
+            planner=[],
+            arena="rec",
+            robots=robots,
+        )
+        writer.bus("ovis/rec/obstacles", encode(obstacles), stamp + 21_000_000, stamp)
+        logs.append(stamp + 2_000_000)
+    writer.close()
+    return SimpleNamespace(calibration=calib, start_ns=t0, frame_logs=logs)
+
+
+def test_a_replay_is_labelled_with_its_recording_and_own_time_not_a_latency(
+    system, honest, tmp_path
+) -> None:
+    session = tmp_path / "arena-tuesday.mcap"
+    rec = recorded_session(session, tmp_path)
+    with page_of(system, honest.url) as page:
+        watch(page, REPLAY_ARENA)
+        replay = subprocess.Popen(
+            ovis_cmd("replay", str(session), "--connect", system.endpoint, "--arena", REPLAY_ARENA),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        try:
+            page.wait_for_selector("#picture-fresh[data-state=replay]", timeout=20000)
+            page.wait_for_selector("#map-fresh[data-state=replay]", timeout=5000)
+            page.wait_for_timeout(1000)
+            text = page.inner_text("#picture-fresh")
+            map_text = page.inner_text("#map-fresh")
+            latency = page.inner_text("#latency-p50")
+            notice = page.inner_text("#notice")
+            out, _ = replay.communicate(timeout=60)
+        finally:
+            if replay.poll() is None:
+                replay.kill()
+                replay.wait()
+        assert replay.returncode == 0, out
+        print(f"\nduring the replay: {text!r}; map {map_text!r}; latency {latency!r}")
+        m = re.fullmatch(
+            r"replay of arena-tuesday\.mcap · recorded (\S+ \S+) UTC · (\d+\.\d) s into the "
+            r"recording",
+            text,
+        )
+        assert m, text
+        shown = datetime.fromisoformat(m[1]).replace(tzinfo=UTC).timestamp()
+        assert any(abs(shown - log / 1e9) < 0.1 for log in rec.frame_logs), m[1]
+        into = float(m[2])
+        assert any(abs(into - (log - rec.start_ns) / 1e9) < 0.1 for log in rec.frame_logs), into
+        assert map_text.startswith("replay of arena-tuesday.mcap · recorded ")
+        assert latency == "– (a replay: not live)", latency  # not 300 000 ms
+        assert "REPLAY of arena-tuesday.mcap" in notice
+        assert "age" not in text + map_text and "live" not in text + map_text
+        # The replay has ended: stalled, still saying what was replayed.
+        page.wait_for_selector("#picture-fresh[data-state=stalled]", timeout=8000)
+        assert re.match(
+            r"stalled · no frame for \d+(\.\d)? s · replay of arena-tuesday\.mcap, last recorded ",
+            page.inner_text("#picture-fresh"),
+        )
+        assert page.get_attribute("#picture-box", "data-stale") == "true"
+        log = page.evaluate("() => window.ovisView.pictureLog")
+        state = page.evaluate("() => window.ovisView.health.summary")
+        marks = page.evaluate(
+            """() => { const img = document.getElementById('picture');
+              const c = document.createElement('canvas');
+              c.width = img.naturalWidth; c.height = img.naturalHeight;
+              const g = c.getContext('2d'); g.drawImage(img, 0, 0);
+              const d = g.getImageData(0, 0, c.width, c.height).data;
+              return window.ovisView.pictureLog.at(-1).robots.map(r => {
+                let best = -999;  // the greenest pixel of the robot's cross (grey photo: 0)
+                for (let y = Math.round(r.y) - 5; y <= Math.round(r.y) + 5; y++)
+                  for (let x = Math.round(r.x) - 5; x <= Math.round(r.x) + 5; x++) {
+                    const i = 4 * (y * c.width + x);
+                    best = Math.max(best, d[i + 1] - Math.max(d[i], d[i + 2]));
+                  }
+                return [r.label, best]; }); }"""
+        )
+    assert state["latency_p50_ms"] is None and state["replay"] == "arena-tuesday.mcap"
+    # Control points only on the calibration's own frame (the first photo, frame 13).
+    seqs = {p["seq"]: p["points"] for p in log}
+    assert seqs.get(CALIBRATION_FRAME) == len(rec.calibration.points) == 54, seqs
+    others = {s: n for s, n in seqs.items() if s != CALIBRATION_FRAME}
+    assert len(others) >= 5 and set(others.values()) == {0}, seqs
+    # Every marked robot labelled (id, name) with its heading arrow where the
+    # calibration projects it.
+    last = log[-1]
+    assert [r["label"] for r in last["robots"]] == ["R1 alpha", "R2"]
+    cam = rec.calibration.camera
+    for drawn, (_, _, x, y, _) in zip(last["robots"], ROBOTS, strict=True):
+        p = project(x, y, 0.0, cam)
+        assert drawn["arrow"]
+        assert (drawn["x"], drawn["y"]) == pytest.approx((float(p.col), float(p.row)), abs=0.01)
+    assert all(green > 40 for _, green in marks), marks

@@ -14,13 +14,36 @@ import msgspec
 import numpy as np
 import pytest
 
-from ovis.common.calibration.file import calibration_from_config
+from ovis.common.calibration.file import PointResidual, calibration_from_config
 from ovis.common.camera.projection import project
 from ovis.common.config import load_config
-from ovis.common.messages import BinaryFrame, BlobList, ServiceStatus, StreamHealth
+from ovis.common.messages import BinaryFrame, BlobList, ReplayMark, ServiceStatus, StreamHealth
 from ovis.common.sim.arena import Arena
-from ovis.common.view.health import LatencyWindow, summarize, summarize_calibration
-from ovis.common.view.picture import ROBOT, binary_image, downscale, draw_overlay, to_jpeg
+from ovis.common.view import picture
+from ovis.common.view.freshness import (
+    STALL_S,
+    Freshness,
+    Seen,
+    freshness,
+    read_replay_mark,
+    replay_of_result,
+)
+from ovis.common.view.grid import MAX_LINES, grid_step_cm, map_grid_step
+from ovis.common.view.health import (
+    HEALTH_STALE_S,
+    LatencyWindow,
+    summarize,
+    summarize_calibration,
+)
+from ovis.common.view.picture import (
+    POINT,
+    ROBOT,
+    binary_image,
+    downscale,
+    draw_overlay,
+    object_marks,
+    to_jpeg,
+)
 from ovis.common.view.scene import camera_footprint, scene_objects
 from ovis.common.view.settings import parse_listen, view_settings
 from ovis.common.world.detection import Detector, binarize_frame, measure_blobs
@@ -116,7 +139,12 @@ def test_overlay_marks_the_robot_and_its_heading(scene) -> None:
     robot = next(o for o in det.objects if o.kind == "robot")
     objects = scene_objects({"robot": msgspec.to_builtins(robot), "obstacles": []})
     small, scale = downscale(image, 320)
-    out = draw_overlay(small, scale, objects=objects, blobs=blobs, camera=config.camera)
+    marks = object_marks(objects, config.camera)
+    assert [m.label for m in marks] == ["R0"] and (marks[0].row, marks[0].col) == (
+        robot.row,
+        robot.col,
+    )
+    out = draw_overlay(small, scale, marks=marks, blobs=blobs)
     assert out.shape == (*small.shape, 3)
     changed = np.any(out != cv2.cvtColor(small, cv2.COLOR_GRAY2BGR), axis=2)
     assert changed.sum() > 100
@@ -251,3 +279,196 @@ def test_a_slow_browser_gets_the_newest_update_not_a_queue() -> None:
     assert list(viewer.slots) == ["picture", "health"]
     assert viewer.slots["health"] == "health 999" and viewer.replaced == 2 * 999
     assert viewer.wake.is_set()
+
+
+# --- how current the page is ----------------------------------------------------------
+T0 = 1_790_000_000_000_000_000  # a capture stamp, ns since the epoch
+
+
+def test_a_live_frame_ages_by_the_wall_clock_and_stalls_after_2_s() -> None:
+    seen = Seen(seq=5, stamp_ns=T0, received_ns=T0 + 30_000_000, received_s=100.0)
+    f = freshness(seen, T0 + 530_000_000, 100.5)
+    assert (f.state, f.seq, f.stale) == ("live", 5, False)
+    assert f.age_s == pytest.approx(0.53) and f.since_s == pytest.approx(0.5)
+    assert freshness(seen, T0 + 2_030_000_000, 100.0 + STALL_S).state == "live"
+    # Nothing newer for 12 s: stalled, and the seconds keep growing with the clock.
+    f = freshness(seen, T0 + 12_030_000_000, 112.0)
+    assert (f.state, f.stale) == ("stalled", True)
+    assert f.since_s == pytest.approx(12.0) and f.age_s == pytest.approx(12.03)
+    assert freshness(seen, T0 + 20_030_000_000, 120.0).since_s == pytest.approx(20.0)
+
+
+def test_waiting_counts_from_when_the_view_started_looking() -> None:
+    f = freshness(None, T0, 50.0, looking_since_s=42.0)
+    assert (f.state, f.since_s, f.seq, f.stale) == ("waiting", 8.0, None, False)
+    assert freshness(None, T0, 50.0).since_s is None
+
+
+def test_frames_that_arrive_264_s_old_are_late_not_live() -> None:
+    """The issue's replay without a mark: stamps 264 745 ms before they arrived."""
+    seen = Seen(seq=1, stamp_ns=T0, received_ns=T0 + 264_745_000_000, received_s=10.0)
+    f = freshness(seen, T0 + 264_845_000_000, 10.1)
+    assert (f.state, f.stale) == ("late", True) and f.age_s == pytest.approx(264.845)
+
+
+def test_a_replay_is_labelled_with_its_recording_and_own_time_not_an_age() -> None:
+    mark = ReplayMark(recording="run.mcap", recorded_ns=T0 + 12_300_000_000, start_ns=T0)
+    assert read_replay_mark(msgspec.msgpack.encode(mark)) == mark
+    assert read_replay_mark(None) is None and read_replay_mark(b"") is None
+    for bad in (b"\xc1garbage", msgspec.msgpack.encode({"recording": "x"})):
+        with pytest.raises(ValueError, match="not a replay mark"):
+            read_replay_mark(bad)
+    received = T0 + 264_745_000_000
+    seen = Seen(seq=3, stamp_ns=T0, received_ns=received, received_s=5.0, replay=mark)
+    f = freshness(seen, received + 200_000_000, 5.2)
+    assert (f.state, f.age_s, f.stale, f.recording) == ("replay", None, False, "run.mcap")
+    assert f.recorded_ns == T0 + 12_300_000_000 and f.into_s == pytest.approx(12.3)
+    # The replay ends: stalled, still saying which recording and where it stopped.
+    f = freshness(seen, received + 4_000_000_000, 9.0)
+    assert (f.state, f.stale, f.recording) == ("stalled", True, "run.mcap")
+    assert f.since_s == pytest.approx(4.0) and f.age_s is None
+
+
+def test_obstacles_made_from_replayed_frames_are_a_replay_too() -> None:
+    """`ovis up --source SESSION.mcap`: the pose stage's results carry no mark, their
+    frames do."""
+    mark = ReplayMark(recording="run.mcap", recorded_ns=T0, start_ns=T0)
+    frame = Seen(seq=8, stamp_ns=T0, received_ns=T0 + 10, received_s=3.0, replay=mark)
+    live = Seen(seq=8, stamp_ns=T0, received_ns=T0 + 10, received_s=3.0)
+    assert replay_of_result(frame, None, T0, 3.1) == mark
+    assert replay_of_result(live, frame, T0, 3.1) is None  # its own frame was live
+    # Its frame is gone (or another stream's): the newest frame's while it is current.
+    assert replay_of_result(None, frame, T0 + 5, 3.0 + STALL_S) == mark
+    assert replay_of_result(live, frame, T0 + 5, 3.1) == mark
+    assert replay_of_result(None, frame, T0, 3.0 + STALL_S + 0.1) is None
+    assert replay_of_result(None, None, T0, 3.1) is None
+
+
+def test_health_of_a_replay_has_no_latency_and_a_silent_pose_is_unknown() -> None:
+    w = LatencyWindow()
+    w.add(264745.0)
+    replay = Freshness(state="replay", seq=3, recording="run.mcap", recorded_ns=T0, into_s=1.0)
+    s = summarize(
+        "a",
+        {"pose"},
+        {},
+        w,
+        StreamHealth(state="ok", published_ns=1),
+        None,
+        stream_age_s=0.5,
+        fresh={"camera": replay},
+    )
+    assert s.replay == "run.mcap" and s.latency_p50_ms is None and s.latency_samples == 0
+    assert s.stream == "ok" and s.fresh["camera"].state == "replay"
+    live = summarize("a", {"pose"}, {}, w, StreamHealth(state="ok", published_ns=1), None)
+    assert live.replay == "" and live.latency_p50_ms == 264745.0
+    lost = StreamHealth(state="source lost", published_ns=1, reason="camera:0 stopped answering")
+    s = summarize("a", {"pose"}, {}, w, lost, None, stream_age_s=1.0)
+    assert (s.stream, s.stream_reason) == ("source lost", "camera:0 stopped answering")
+    s = summarize("a", {"pose"}, {}, w, lost, None, stream_age_s=HEALTH_STALE_S + 2)
+    assert s.stream == "unknown" and "no health message from the pose stage for 5 s" in (
+        s.stream_reason
+    )
+
+
+# --- the map's grid, the picture's labels and control points -----------------------------
+@pytest.mark.parametrize(
+    ("extent", "step"),
+    [
+        (100.0, 10.0),
+        (95.0, 10.0),
+        (101.0, 20.0),
+        (30.0, 5.0),
+        (250.0, 50.0),
+        (1234.0, 200.0),
+        (0.7, 0.1),
+        (10.0, 1.0),
+    ],
+)
+def test_grid_step_is_1_2_5_with_at_most_10_lines(extent: float, step: float) -> None:
+    got = grid_step_cm(extent)
+    assert got == pytest.approx(step)
+    assert extent / got <= MAX_LINES + 1e-9
+    assert extent / got > MAX_LINES / 2.5 - 1e-9  # the next smaller step would be too many
+
+
+def test_map_grid_step_comes_from_what_the_map_shows() -> None:
+    assert map_grid_step([]) is None and map_grid_step([(float("nan"), 1.0)]) is None
+    # A 150 × 100 cm footprint and 10 cm around it: 170 cm across, lines every 20 cm.
+    assert map_grid_step([(0.0, 0.0), (150.0, 100.0)]) == 20.0
+    for bad in (0.0, -3.0, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="extent"):
+            grid_step_cm(bad)
+
+
+def test_marked_robots_are_labelled_where_the_calibration_projects_them(scene) -> None:
+    config, *_ = scene
+    cam = config.camera
+    message = {
+        "robots": [
+            {
+                "id": 4,
+                "name": "alpha",
+                "x_cm": 60.0,
+                "y_cm": 90.0,
+                "z_cm": 10.0,
+                "heading_deg": 0.0,
+            },
+            {"id": 7, "x_cm": 100.0, "y_cm": 60.0, "z_cm": 10.0, "heading_deg": 90.0},
+        ],
+        "obstacles": [{"id": 2, "x_cm": 80.0, "y_cm": 70.0, "row": 100.5, "col": 200.25}],
+    }
+    marks = object_marks(scene_objects(message), cam)
+    assert [m.label for m in marks] == ["R4 alpha", "R7", "O2"]
+    for m, (x, y, h) in zip(marks, [(60.0, 90.0, 0.0), (100.0, 60.0, 90.0)], strict=False):
+        p = project(x, y, 10.0, cam)
+        assert (m.row, m.col) == pytest.approx((float(p.row), float(p.col)), abs=1e-9)
+        ahead = project(
+            x + 8 * math.cos(math.radians(h)), y + 8 * math.sin(math.radians(h)), 10.0, cam
+        )
+        assert m.tip == pytest.approx((float(ahead.row), float(ahead.col)), abs=1e-9)
+    assert (marks[2].row, marks[2].col, marks[2].tip) == (100.5, 200.25, None)
+    # Without a calibration a robot that has no pixel cannot be placed; a measured one can.
+    assert [m.label for m in object_marks(scene_objects(message), None)] == ["O2"]
+    small, scale = downscale(np.zeros((480, 640), np.uint8), 320)
+    out = draw_overlay(small, scale, marks=marks)
+    r, c = round(marks[1].row * scale), round(marks[1].col * scale)
+    patch = out[r - 2 : r + 3, c - 2 : c + 3].reshape(-1, 3).astype(int)
+    assert np.min(np.abs(patch - np.array(ROBOT)).sum(axis=1)) < 60
+
+
+def test_control_points_only_on_the_calibrations_own_frame() -> None:
+    frame_of, points_of = picture.calibration_frame, picture.control_points
+    config = load_config()
+    base = calibration_from_config(config)
+    assert frame_of(base) is None  # version 0: the configuration, not a calibration
+    points = []
+    for k, (x, y) in enumerate([(20.0, 30.0), (120.0, 40.0), (70.0, 110.0)]):
+        p = project(x, y, 0.0, config.camera)
+        row, col = float(p.row), float(p.col)
+        points.append(
+            PointResidual(
+                name=f"P{k}",
+                x_cm=x,
+                y_cm=y,
+                z_cm=0.0,
+                detected_row=row + 0.5,
+                detected_col=col,
+                predicted_row=row,
+                predicted_col=col,
+                dipe_px=0.5,
+                dipe_mm=None,
+            )
+        )
+    calib = msgspec.structs.replace(base, version=2, source_image="frame 9", points=points)
+    assert frame_of(calib) == 9
+    assert frame_of(msgspec.structs.replace(calib, source_image="board.jpg")) is None
+    assert frame_of(msgspec.structs.replace(calib, source_image="frame 9b")) is None
+    assert points_of(calib, 9) == points
+    assert points_of(calib, 10) == [] and points_of(None, 9) == []
+    # Drawn: magenta at the projected point's circle on frame 9's picture.
+    out = draw_overlay(np.zeros((480, 640), np.uint8), 1.0, points=points_of(calib, 9))
+    magenta = np.abs(out.astype(int) - np.array(POINT)).sum(axis=2) < 120
+    assert magenta.sum() > 3 * 20, magenta.sum()
+    blank = draw_overlay(np.zeros((480, 640), np.uint8), 1.0, points=points_of(calib, 8))
+    assert not blank.any()

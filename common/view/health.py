@@ -1,5 +1,7 @@
 """The health panel: every stage alive or not with its rates, drops and errors, the
-capture → obstacle latency percentiles, the stream's state and the last calibration
+capture → obstacle latency percentiles (none for a replay: its stamps are not now's),
+the stream's state with its reason (the pose stage's, "unknown" once its health
+messages stop), how current the frames and obstacles are, and the last calibration
 (DIPE px and mm, eq. 14; held-out error; age)."""
 
 from __future__ import annotations
@@ -14,8 +16,10 @@ import numpy as np
 
 from ovis.common.calibration.file import Calibration
 from ovis.common.messages import ServiceStatus, StreamHealth
+from ovis.common.view.freshness import Freshness
 
 __all__ = [
+    "HEALTH_STALE_S",
     "STAGES",
     "CalibrationSummary",
     "HealthSummary",
@@ -27,6 +31,9 @@ __all__ = [
 
 #: The stages of an arena, in frame order, then the calibrator.
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
+#: Seconds after which the pose stage's last health message (it sends one every status
+#: period) no longer tells the stream's state: it is then "unknown".
+HEALTH_STALE_S = 3.0
 
 
 class StageHealth(msgspec.Struct, kw_only=True):
@@ -67,11 +74,18 @@ class HealthSummary(msgspec.Struct, kw_only=True):
 
     arena: str
     stages: list[StageHealth]
-    stream: str  # "waiting", "ok", "stalled", or "no pose service" (no health message)
+    #: the pose stage's "waiting", "ok", "stalled", "source lost", "degraded", "failing";
+    #: "no pose service" (no health message yet) or "unknown" (they stopped coming)
+    stream: str
     latency_p50_ms: float | None = None
     latency_p99_ms: float | None = None
     latency_samples: int = 0
     calibration: CalibrationSummary | None = None
+    stream_reason: str = ""
+    #: how current the newest camera frame, binarised frame and obstacle message are
+    fresh: dict[str, Freshness] = {}
+    #: the recording the frames are replayed from ("": live); no latency is measured then
+    replay: str = ""
 
 
 class LatencyWindow:
@@ -149,6 +163,16 @@ def _stage(name: str, alive: bool, st: ServiceStatus | None) -> StageHealth:
     )
 
 
+def _stream(stream: StreamHealth | None, age_s: float | None) -> tuple[str, str]:
+    """The stream's state and reason from the pose stage's last health message, received
+    ``age_s`` ago."""
+    if stream is None:
+        return "no pose service", ""
+    if age_s is not None and age_s > HEALTH_STALE_S:
+        return "unknown", f"no health message from the pose stage for {age_s:.0f} s"
+    return stream.state, stream.reason
+
+
 def summarize(
     arena: str,
     alive: Iterable[str],
@@ -156,17 +180,26 @@ def summarize(
     latency: LatencyWindow,
     stream: StreamHealth | None,
     calibration: Calibration | None,
+    *,
+    stream_age_s: float | None = None,
+    fresh: Mapping[str, Freshness] | None = None,
 ) -> HealthSummary:
     """The health of one arena: the five stages (and any other service that is alive
-    or answered), latency over the window, the stream's state and the calibration. A
-    stage that is not alive shows no status, even if an old one is known."""
+    or answered), latency over the window (none while the frames are a replay), the
+    stream's state (received ``stream_age_s`` ago), how current each kind of item is,
+    and the calibration. A stage that is not alive shows no status, even if an old one
+    is known."""
     alive = set(alive)
+    fresh = dict(fresh or {})
+    replay = next((f.recording for f in fresh.values() if f.recording), "")
     names = list(STAGES) + sorted((alive | set(statuses)) - set(STAGES))
-    p50, p99, n = latency.percentiles()
+    p50, p99, n = (None, None, 0) if replay else latency.percentiles()
+    state, reason = _stream(stream, stream_age_s)
     return HealthSummary(
         arena=arena,
         stages=[_stage(n_, n_ in alive, statuses.get(n_)) for n_ in names],
-        stream=stream.state if stream is not None else "no pose service",
+        stream=state,
+        stream_reason=reason,
         latency_p50_ms=p50,
         latency_p99_ms=p99,
         latency_samples=n,
@@ -175,4 +208,6 @@ def summarize(
             if calibration is not None and calibration.version > 0
             else None
         ),
+        fresh=fresh,
+        replay=replay,
     )

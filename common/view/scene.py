@@ -18,7 +18,7 @@ import numpy as np
 from ovis.common.camera.projection import back_project
 from ovis.common.config import CameraModel
 
-__all__ = ["SceneObject", "camera_footprint", "scene_objects"]
+__all__ = ["SceneObject", "camera_footprint", "object_label", "scene_objects"]
 
 
 class SceneObject(msgspec.Struct, kw_only=True):
@@ -35,6 +35,13 @@ class SceneObject(msgspec.Struct, kw_only=True):
     row: float | None = None
     col: float | None = None
     name: str = ""
+
+
+def object_label(obj: SceneObject) -> str:
+    """How the page names an object: "R4" (a robot; "R4 alpha" with a name) or "O3"."""
+    if obj.kind == "robot":
+        return f"R{obj.id} {obj.name}" if obj.name else f"R{obj.id}"
+    return f"O{obj.id}"
 
 
 def _number(value: Any) -> float | None:

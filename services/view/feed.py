@@ -4,7 +4,9 @@ and blobs only while a browser watches the arena), and the recalibration query.
 
 Callbacks only validate and store the newest items (bounded), never encode or draw:
 that is done by the server at the browser's rate. A message that fails validation is
-counted and dropped.
+counted and dropped. Each item is kept with when it arrived and its replay mark (the
+attachment ``ovis replay`` puts on what it publishes), so that the page can say how
+current it is and whether it is a replay.
 """
 
 from __future__ import annotations
@@ -26,16 +28,24 @@ from ovis.common.messages import (
     CalibrationUpdate,
     MessageError,
     ObstacleFrame,
+    ReplayMark,
     ServiceStatus,
     StreamHealth,
     Topics,
     decode,
     encode,
 )
+from ovis.common.view.freshness import (
+    Freshness,
+    Seen,
+    freshness,
+    read_replay_mark,
+    replay_of_result,
+)
 from ovis.common.view.health import HealthSummary, LatencyWindow, summarize
 from ovis.common.view.scene import camera_footprint
 
-__all__ = ["ArenaFeed", "Bus"]
+__all__ = ["ArenaFeed", "Bus", "Item"]
 
 log = logging.getLogger("ovis.view")
 
@@ -47,10 +57,16 @@ DIED_HOLD_S = 2.0
 KEEP = 8
 
 
-class _Seq(msgspec.Struct):
-    """The sequence number of any frame-like message (the rest is skipped)."""
+#: A kept frame, binarised frame or blob list: its payload and when it arrived.
+Item = tuple[bytes, Seen]
+
+
+class _Head(msgspec.Struct):
+    """The sequence number and capture stamp of any frame-like message (the rest is
+    skipped)."""
 
     seq: Annotated[int, msgspec.Meta(ge=0)]
+    stamp_ns: Annotated[int, msgspec.Meta(ge=0)]
 
 
 def _newest(store: collections.OrderedDict[int, Any], seq: int, item: Any) -> None:
@@ -75,13 +91,19 @@ class ArenaFeed:
         self.statuses: dict[str, ServiceStatus] = {}
         self.latency = LatencyWindow()
         self.stream: StreamHealth | None = None
+        self.stream_received_s = 0.0
+        #: the newest camera frame, binarised frame and obstacle message received
+        self.seen: dict[str, Seen] = {}
+        #: since when the view looks for frames (a browser watches), and for obstacles
+        self.looking_since_s: float | None = None
+        self.started_s = time.monotonic()
         self.calibration: Calibration | None = None
         self.footprint: list[tuple[float, float]] = []
         self.obstacles: collections.OrderedDict[int, dict[str, Any]] = collections.OrderedDict()
         self.obstacle_messages = 0
-        self.frames: collections.OrderedDict[int, bytes] = collections.OrderedDict()
-        self.binaries: collections.OrderedDict[int, bytes] = collections.OrderedDict()
-        self.blobs: collections.OrderedDict[int, bytes] = collections.OrderedDict()
+        self.frames: collections.OrderedDict[int, Item] = collections.OrderedDict()
+        self.binaries: collections.OrderedDict[int, Item] = collections.OrderedDict()
+        self.blobs: collections.OrderedDict[int, Item] = collections.OrderedDict()
         self.refused: collections.Counter[str] = collections.Counter()
         self.frames_seen = 0
         self._watchers = 0
@@ -112,8 +134,25 @@ class ArenaFeed:
                 self.statuses.pop(name, None)
                 self.died[name] = time.monotonic()
 
+    def _mark(self, sample: zenoh.Sample) -> ReplayMark | None:
+        """The sample's replay mark; a bad one is counted and the sample taken as live."""
+        attachment = sample.attachment
+        try:
+            return read_replay_mark(None if attachment is None else attachment.to_bytes())
+        except ValueError as exc:
+            self.refuse("replay mark", MessageError(str(exc)))
+            return None
+
+    def _seen(self, sample: zenoh.Sample, seq: int, stamp_ns: int) -> Seen:
+        return Seen(
+            seq=seq,
+            stamp_ns=stamp_ns,
+            received_ns=time.time_ns(),
+            received_s=time.monotonic(),
+            replay=self._mark(sample),
+        )
+
     def _on_obstacles(self, sample: zenoh.Sample) -> None:
-        now = time.time_ns()
         payload = sample.payload.to_bytes()
         try:
             msg = decode(payload, ObstacleFrame)  # validates; the page gets every field
@@ -121,10 +160,22 @@ class ArenaFeed:
             self.refuse("obstacles", exc)
             return
         generic = msgspec.msgpack.decode(payload)
+        seen = self._seen(sample, msg.seq, msg.stamp_ns)
         with self.lock:
+            if seen.replay is None:
+                kept = self.frames.get(msg.seq)
+                replay = replay_of_result(
+                    None if kept is None else kept[1],
+                    self.seen.get("camera"),
+                    msg.stamp_ns,
+                    seen.received_s,
+                )
+                seen = msgspec.structs.replace(seen, replay=replay)
             _newest(self.obstacles, msg.seq, generic)
             self.obstacle_messages += 1
-            self.latency.add((now - msg.stamp_ns) / 1e6)
+            self.seen["obstacles"] = seen
+            if seen.replay is None:  # a replay's stamps are not now's: no latency
+                self.latency.add((seen.received_ns - msg.stamp_ns) / 1e6)
 
     def _on_health(self, sample: zenoh.Sample) -> None:
         try:
@@ -134,6 +185,7 @@ class ArenaFeed:
             return
         with self.lock:
             self.stream = msg
+            self.stream_received_s = time.monotonic()
 
     def _on_calibration(self, sample: zenoh.Sample) -> None:
         self.accept_calibration(sample.payload.to_bytes())
@@ -150,16 +202,19 @@ class ArenaFeed:
                 self.calibration = calib
                 self.footprint = footprint
 
-    def _keeper(self, store: collections.OrderedDict[int, bytes], what: str):
+    def _keeper(self, store: collections.OrderedDict[int, Item], what: str, kind: str | None):
         def on_sample(sample: zenoh.Sample) -> None:
             payload = sample.payload.to_bytes()
-            try:  # only the sequence number now; the rest when a picture is made
-                seq = msgspec.msgpack.decode(payload, type=_Seq).seq
+            try:  # only the sequence number and stamp now; the rest when a picture is made
+                head = msgspec.msgpack.decode(payload, type=_Head)
             except (msgspec.DecodeError, msgspec.ValidationError) as exc:
                 self.refuse(what, MessageError(str(exc)))
                 return
+            seen = self._seen(sample, head.seq, head.stamp_ns)
             with self.lock:
-                _newest(store, seq, payload)
+                _newest(store, head.seq, (payload, seen))
+                if kind is not None:
+                    self.seen[kind] = seen
                 if what == "frame":
                     self.frames_seen += 1
 
@@ -172,10 +227,15 @@ class ArenaFeed:
             if self._watchers > 1:
                 return
             t = self.topics
+            self.looking_since_s = time.monotonic()
             self._frame_subs = [
-                self.session.declare_subscriber(t.frames, self._keeper(self.frames, "frame")),
-                self.session.declare_subscriber(t.binary, self._keeper(self.binaries, "binary")),
-                self.session.declare_subscriber(t.blobs, self._keeper(self.blobs, "blobs")),
+                self.session.declare_subscriber(
+                    t.frames, self._keeper(self.frames, "frame", "camera")
+                ),
+                self.session.declare_subscriber(
+                    t.binary, self._keeper(self.binaries, "binary", "binary")
+                ),
+                self.session.declare_subscriber(t.blobs, self._keeper(self.blobs, "blobs", None)),
             ]
 
     def unwatch(self) -> None:
@@ -187,6 +247,9 @@ class ArenaFeed:
             self.frames.clear()
             self.binaries.clear()
             self.blobs.clear()
+            self.seen.pop("camera", None)
+            self.seen.pop("binary", None)
+            self.looking_since_s = None
         for sub in subs:
             sub.undeclare()
 
@@ -212,12 +275,28 @@ class ArenaFeed:
                 if reply.ok is not None:
                     self.accept_calibration(reply.ok.payload.to_bytes())
 
+    def freshness(self, kind: str) -> Freshness:
+        """How current the newest item of ``kind`` (camera, binary, obstacles) is now."""
+        with self.lock:
+            since = self.started_s if kind == "obstacles" else self.looking_since_s
+            return freshness(
+                self.seen.get(kind), time.time_ns(), time.monotonic(), looking_since_s=since
+            )
+
     def health(self) -> HealthSummary:
+        fresh = {kind: self.freshness(kind) for kind in ("camera", "binary", "obstacles")}
         now = time.monotonic()
         with self.lock:
             shown = {n for n in self.alive if now - self.died.get(n, -DIED_HOLD_S) >= DIED_HOLD_S}
             return summarize(
-                self.arena, shown, self.statuses, self.latency, self.stream, self.calibration
+                self.arena,
+                shown,
+                self.statuses,
+                self.latency,
+                self.stream,
+                self.calibration,
+                stream_age_s=now - self.stream_received_s if self.stream is not None else None,
+                fresh=fresh,
             )
 
     def recalibrate(self, request: CalibrateRequest, timeout: float) -> CalibrateReply:

@@ -1,18 +1,41 @@
 """The newest frame of an arena as JPEG pictures for the browser: the camera frame with
-the detections of the same frame drawn on it, and the binarised frame."""
+the detections of the same frame drawn on it (every robot labelled, with its heading;
+the calibration's control points only on the calibration's own frame), and the
+binarised frame; each with how current it is."""
 
 from __future__ import annotations
+
+import time
 
 import msgspec
 
 from ovis.common.messages import BinaryFrame, BlobList, Frame, MessageError, decode
-from ovis.common.view.picture import binary_image, downscale, draw_overlay, to_jpeg
+from ovis.common.view.freshness import Freshness, freshness
+from ovis.common.view.picture import (
+    binary_image,
+    calibration_frame,
+    control_points,
+    downscale,
+    draw_overlay,
+    object_marks,
+    to_jpeg,
+)
 from ovis.common.view.scene import scene_objects
 from ovis.services.view.feed import ArenaFeed
 
-__all__ = ["KINDS", "Picture", "make_pictures"]
+__all__ = ["KINDS", "DrawnRobot", "Picture", "make_pictures"]
 
 KINDS = ("camera", "binary")
+
+
+class DrawnRobot(msgspec.Struct, kw_only=True):
+    """A robot labelled on the picture: its label and where (picture pixels), and
+    whether its heading arrow is drawn."""
+
+    label: str
+    x: float
+    y: float
+    arrow: bool
 
 
 class Picture(msgspec.Struct, kw_only=True):
@@ -28,6 +51,12 @@ class Picture(msgspec.Struct, kw_only=True):
     scale: float
     objects: int = 0
     jpeg: bytes = b""
+    fresh: Freshness | None = None
+    robots: list[DrawnRobot] = []
+    #: control points drawn: only on the calibration's own frame
+    points: int = 0
+    calibration_frame: int | None = None
+    calibration_version: int = 0
 
 
 def _pick(feed: ArenaFeed, kind: str):
@@ -39,11 +68,12 @@ def _pick(feed: ArenaFeed, kind: str):
             return None
         seqs = list(store)
         seq = next((s for s in reversed(seqs) if s in feed.obstacles), seqs[-1])
+        blobs = feed.blobs.get(seq)
         return (
             seq,
             store[seq],
             feed.obstacles.get(seq),
-            feed.blobs.get(seq),
+            None if blobs is None else blobs[0],
             feed.calibration,
         )
 
@@ -58,34 +88,42 @@ def make_pictures(
         picked = _pick(feed, kind)
         if picked is None or picked[0] == last.get(kind):
             continue
-        seq, payload, obstacles, blobs_payload, calib = picked
+        seq, (payload, seen), obstacles, blobs_payload, calib = picked
         last[kind] = seq
         try:
             msg = decode(payload, Frame if kind == "camera" else BinaryFrame)
         except MessageError as exc:
             feed.refuse("frame" if kind == "camera" else "binary", exc)
             continue
+        fresh = freshness(seen, time.time_ns(), time.monotonic())
+        extra: dict = {}
         if kind == "binary":
             small, scale = downscale(binary_image(msg), max_side)
-            n = 0
         else:
             small, scale = downscale(msg.image(), max_side)
-            objects = scene_objects(obstacles) if obstacles else []
+            camera = calib.camera if calib is not None else None
+            marks = object_marks(scene_objects(obstacles) if obstacles else [], camera)
             blobs = []
             if blobs_payload is not None:
                 try:
                     blobs = decode(blobs_payload, BlobList).blobs
                 except MessageError as exc:
                     feed.refuse("blobs", exc)
-            small = draw_overlay(
-                small,
-                scale,
-                objects=objects,
-                blobs=blobs,
-                points=calib.points if calib is not None else (),
-                camera=calib.camera if calib is not None else None,
-            )
-            n = len(objects)
+            points = control_points(calib, seq)
+            small = draw_overlay(small, scale, marks=marks, blobs=blobs, points=points)
+            extra = {
+                "objects": len(marks),
+                "robots": [
+                    DrawnRobot(
+                        label=m.label, x=m.col * scale, y=m.row * scale, arrow=m.tip is not None
+                    )
+                    for m in marks
+                    if m.kind == "robot"
+                ],
+                "points": len(points),
+                "calibration_frame": calibration_frame(calib),
+                "calibration_version": calib.version if calib is not None else 0,
+            }
         out.append(
             Picture(
                 arena=feed.arena,
@@ -95,8 +133,9 @@ def make_pictures(
                 width=small.shape[1],
                 height=small.shape[0],
                 scale=scale,
-                objects=n,
                 jpeg=to_jpeg(small, quality),
+                fresh=fresh,
+                **extra,
             )
         )
     return out

@@ -33,6 +33,8 @@ from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from ovis.common.messages import CalibrateRequest, Topics
+from ovis.common.view.grid import map_grid_step
+from ovis.common.view.scene import scene_objects
 from ovis.common.view.settings import ViewSettings
 from ovis.services.view.feed import ArenaFeed, Bus
 from ovis.services.view.pictures import KINDS, Picture, make_pictures
@@ -226,6 +228,7 @@ class ViewServer:
             operator=s.operator_token is not None,
             max_fps=s.max_fps,
             max_side=s.max_side,
+            health_period_s=HEALTH_PERIOD_S,
         )
 
     async def _handle(self, viewer: Viewer, text: str | None, data: bytes | None) -> None:
@@ -360,16 +363,19 @@ class ViewServer:
 
     def _push_health(self, arena: str, viewers: list[Viewer]) -> None:
         feed = self.bus.feed(arena)
+        _count, latest = self._latest(feed)
         with feed.lock:
             footprint = list(feed.footprint)
             frames_seen = feed.frames_seen
             refused = dict(feed.refused)
+        objects = [(o.x_cm, o.y_cm) for o in scene_objects(latest)] if latest else []
         text = _text(
             "health",
             arena=arena,
             arenas=self.bus.arenas(),
             summary=feed.health(),
             footprint=footprint,
+            grid_step_cm=map_grid_step([*footprint, *objects]),
             frames_seen=frames_seen,
             refused=refused,
             viewers=sum(v.arena == arena for v in self.viewers),

@@ -1,16 +1,21 @@
 // ovis live view: one WebSocket, plain DOM/SVG. Every object drawn on the map is a
 // <g> with data-id, data-kind, data-x-cm, data-y-cm (and data-heading-deg for robots).
+// How current each stream is comes from the server (state and seconds as of sending);
+// the page adds the time since, every second, so the seconds grow with no message.
 "use strict";
 
 const SVGNS = "http://www.w3.org/2000/svg";
 const TRAIL = 60; // positions kept per robot
+const PICTURES_KEPT = 300; // headers of the last pictures, for scripts (view.pictureLog)
 const $ = (id) => document.getElementById(id);
 
 const view = {
   ws: null, arena: null, operator: false, fatal: false, pictures: 0, pictureUrl: null,
   footprint: [], bounds: null, trails: new Map(), selected: "", lastMessage: null,
-  alive: new Set(), received: 0, health: null,
+  alive: new Set(), received: 0, health: null, connected: false, lastHealthAt: 0,
+  healthPeriod: 0.5, fresh: {}, kind: "camera", gridStep: null, pictureLog: [],
 };
+window.ovisView = view;
 
 function fmt(v, digits = 1) {
   return v === null || v === undefined || !Number.isFinite(v) ? "–" : v.toFixed(digits);
@@ -36,13 +41,14 @@ function connect() {
   ws.binaryType = "arraybuffer";
   view.ws = ws;
   setConnection("connecting", "connecting…");
-  ws.onopen = () => setConnection("open", "live");
+  ws.onopen = () => { setConnection("open", "connected"); };
   ws.onclose = () => {
-    setConnection("closed", "disconnected");
-    if (!view.fatal) {
-      $("notice").textContent = "lost the connection to the view server; reconnecting…";
-      setTimeout(connect, 2000);
-    }
+    if (view.ws !== ws) return;
+    view.connected = false;
+    setConnection("closed", view.fatal ? "disconnected" : "disconnected, reconnecting…");
+    unknown(view.fatal ? $("notice").textContent
+      : "lost the connection to the view server: nothing shown is current; reconnecting every 2 s…");
+    if (!view.fatal) setTimeout(connect, 2000);
   };
   ws.onmessage = (ev) => {
     if (ev.data instanceof ArrayBuffer) onPicture(ev.data);
@@ -68,17 +74,20 @@ function onText(text) {
 function onHello(msg) {
   if (view.arena !== msg.arena) resetArena();
   view.arena = msg.arena; view.operator = msg.operator;
+  view.healthPeriod = msg.health_period_s || 0.5;
   $("arena-name").textContent = `arena ${msg.arena}`;
   setArenas(msg.arenas || []);
   buildRecalibration(msg.operator);
-  send({ type: "show", kind: $("show-binary").checked ? "binary" : "camera" });
+  view.kind = $("show-binary").checked ? "binary" : "camera";
+  send({ type: "show", kind: view.kind });
 }
 
 function resetArena() {
   view.footprint = []; view.bounds = null; view.trails.clear(); view.lastMessage = null;
-  view.received = 0;
-  for (const id of ["footprint-layer", "planner-layer", "trail-layer", "object-layer"]) $(id).replaceChildren();
+  view.received = 0; view.fresh = {}; view.gridStep = null; view.pictureLog = [];
+  for (const id of ["grid-layer", "footprint-layer", "planner-layer", "trail-layer", "object-layer", "scale-layer"]) $(id).replaceChildren();
   $("picture").hidden = true; $("picture-info").textContent = "no picture yet";
+  showFreshness();
 }
 
 function setArenas(arenas) {
@@ -102,11 +111,24 @@ function onPicture(buf) {
   img.onload = () => { if (old) URL.revokeObjectURL(old); };
   img.src = url; img.hidden = false; view.pictureUrl = url;
   img.dataset.seq = header.seq; img.dataset.kind = header.kind;
+  img.dataset.points = header.points || 0;
+  img.dataset.robots = (header.robots || []).map((r) => r.label).join(",");
   view.pictures += 1;
+  view.pictureLog.push({ seq: header.seq, kind: header.kind, points: header.points || 0,
+    calibration_frame: header.calibration_frame, robots: header.robots || [],
+    width: header.width, height: header.height, state: header.fresh ? header.fresh.state : null });
+  if (view.pictureLog.length > PICTURES_KEPT) view.pictureLog.shift();
+  if (header.fresh) setFresh(header.kind, header.fresh);
   setCount("count-pictures", view.pictures);
-  $("picture-info").textContent =
-    `${header.kind} frame ${header.seq}, ${header.width}×${header.height}` +
-    (header.kind === "camera" ? `, ${header.objects} objects drawn` : "");
+  const robots = (header.robots || []).map((r) => r.label);
+  let info = `${header.kind} frame ${header.seq}, ${header.width}×${header.height}`;
+  if (header.kind === "camera") {
+    info += `, ${header.objects} objects drawn` + (robots.length ? ` (robots ${robots.join(", ")})` : "");
+    if (header.points) info += `; the ${header.points} control points of calibration v${header.calibration_version} (its own frame)`;
+    else if (header.calibration_frame != null) info += `; control points only on frame ${header.calibration_frame}, the calibration's`;
+  }
+  $("picture-info").textContent = info;
+  showFreshness();
 }
 
 function setCount(id, value) {
@@ -130,6 +152,51 @@ function applyBounds() {
   const b = view.bounds; if (!b) return;
   // World y points up: the SVG draws (x, -y).
   $("map").setAttribute("viewBox", `${b.x0} ${-b.y1} ${b.x1 - b.x0} ${b.y1 - b.y0}`);
+  drawGrid();
+}
+
+function gridLines(lo, hi, step) {
+  const out = [];
+  for (let k = Math.ceil(lo / step); k * step <= hi; k++) out.push(k * step);
+  return out;
+}
+
+function cmText(v) {
+  return Number.isInteger(v) ? `${v}` : `${+v.toFixed(3)}`;
+}
+
+// Lines every `gridStep` cm (the server chooses it from what the map shows), labelled
+// along the bottom and left edges, and a scale bar one step long.
+function drawGrid() {
+  const b = view.bounds, step = view.gridStep;
+  const grid = $("grid-layer"), scale = $("scale-layer");
+  if (!b || !step) { grid.replaceChildren(); scale.replaceChildren(); return; }
+  const w = b.x1 - b.x0, font = Math.max(w, b.y1 - b.y0) / 45, thin = w / 900;
+  const style = `font-size:${font}px`;
+  const items = [];
+  for (const x of gridLines(b.x0, b.x1, step)) {
+    items.push(el("line", { class: x === 0 ? "grid axis" : "grid", "data-x-cm": x,
+      x1: x, x2: x, y1: -b.y1, y2: -b.y0, "stroke-width": thin }));
+    if (x - b.x0 > font * 2) { // the corner is the y labels'
+      items.push(el("text", { class: "grid-label", "data-x-cm": x, x: x + font * 0.2, y: -b.y0 - font * 0.3, style }, cmText(x)));
+    }
+  }
+  for (const y of gridLines(b.y0, b.y1, step)) {
+    items.push(el("line", { class: y === 0 ? "grid axis" : "grid", "data-y-cm": y,
+      x1: b.x0, x2: b.x1, y1: -y, y2: -y, "stroke-width": thin }));
+    items.push(el("text", { class: "grid-label", "data-y-cm": y, x: b.x0 + font * 0.2, y: -y - font * 0.3, style }, cmText(y)));
+  }
+  grid.dataset.stepCm = step;
+  grid.replaceChildren(...items);
+  // The scale bar: bottom right, one grid step long.
+  const x1 = b.x1 - font, x0 = x1 - step, y = -b.y0 - font * 1.6, tick = font * 0.5;
+  const bar = el("g", { id: "scale-bar", "data-cm": step });
+  bar.append(el("title", {}, `scale: this bar is ${cmText(step)} cm on the floor; grid lines every ${cmText(step)} cm`));
+  bar.append(el("rect", { class: "scale-back", x: x0 - font * 0.4, y: y - font * 1.6, width: step + font * 0.8, height: font * 2.2 }));
+  bar.append(el("line", { class: "scale", x1: x0, x2: x1, y1: y, y2: y, "stroke-width": font / 5 }));
+  for (const x of [x0, x1]) bar.append(el("line", { class: "scale", x1: x, x2: x, y1: y - tick, y2: y + tick, "stroke-width": font / 8 }));
+  bar.append(el("text", { class: "scale-label", x: (x0 + x1) / 2, y: y - font * 0.5, "text-anchor": "middle", style }, `${cmText(step)} cm`));
+  scale.replaceChildren(bar);
 }
 
 function el(tag, attrs = {}, text) {
@@ -140,8 +207,8 @@ function el(tag, attrs = {}, text) {
 }
 
 function label(obj) {
-  const kind = obj.kind || "obstacle";
-  return obj.name || `${kind === "robot" ? "R" : "O"}${obj.id}`;
+  if ((obj.kind || "obstacle") !== "robot") return `O${obj.id}`;
+  return obj.name ? `R${obj.id} ${obj.name}` : `R${obj.id}`;
 }
 
 function objectKey(obj) { return `${obj.kind || "obstacle"}-${obj.id}`; }
@@ -193,8 +260,7 @@ function drawMap(m) {
   fillRobotSelect(robots);
   fillObjectTable(objects);
   setCount("count-objects", objects.length);
-  $("map-info").textContent = `frame ${m.seq}, calibration v${m.calibration_version}, ` +
-    `age ${fmt(m.frame_age_ms)} ms`;
+  $("map-info").textContent = `frame ${m.seq}, calibration v${m.calibration_version}`;
 }
 
 function drawPlanner(m, robots, obstacles) {
@@ -292,10 +358,15 @@ function onHealth(msg) {
     return tr;
   });
   document.querySelector("#stages tbody").replaceChildren(...rows);
-  $("latency-p50").textContent = s.latency_p50_ms == null ? "–" : `${fmt(s.latency_p50_ms, 2)} ms`;
+  const noLatency = s.replay ? "– (a replay: not live)" : "–";
+  $("latency-p50").textContent = s.latency_p50_ms == null ? noLatency : `${fmt(s.latency_p50_ms, 2)} ms`;
   $("latency-p99").textContent = s.latency_p99_ms == null ? "–" : `${fmt(s.latency_p99_ms, 2)} ms`;
   $("stream").textContent = s.stream; $("stream").dataset.state = s.stream;
+  $("stream-reason").textContent = s.stream_reason ? `: ${s.stream_reason}` : "";
   $("viewers").textContent = msg.viewers;
+  view.connected = true; view.lastHealthAt = performance.now();
+  for (const [kind, f] of Object.entries(s.fresh || {})) setFresh(kind, f);
+  if (msg.grid_step_cm !== view.gridStep) { view.gridStep = msg.grid_step_cm; drawGrid(); }
   const c = s.calibration, cal = $("calibration");
   cal.dataset.version = c ? c.version : 0;
   cal.textContent = c
@@ -308,6 +379,7 @@ function onHealth(msg) {
   else if (msg.footprint && msg.footprint.length && view.footprint[0] && msg.footprint[0][0] !== view.footprint[0][0]) drawFootprint(msg.footprint);
   if (msg.recalibration && view.operator) onRecalibration({ arena: msg.arena, ...msg.recalibration }, true);
   $("notice").textContent = notice(s, msg);
+  showFreshness();
 }
 
 function ago(s) {
@@ -320,11 +392,100 @@ function ago(s) {
 function notice(s, msg) {
   const alive = s.stages.filter((st) => st.alive).map((st) => st.name);
   const dead = s.stages.filter((st) => !st.alive).map((st) => st.name);
+  const down = dead.length ? ` (not running: ${dead.join(", ")})` : "";
+  const why = s.stream_reason ? `: ${s.stream_reason}` : "";
+  if (s.stream === "source lost") return `arena ${msg.arena}: SOURCE LOST${why}` + down;
+  if (s.replay) return `arena ${msg.arena}: a REPLAY of ${s.replay}, not a live camera` + down;
   if (!alive.length) return `arena ${msg.arena}: no stage is running (waiting for ovis up / ovis run)`;
-  if (!view.received) return `arena ${msg.arena}: waiting for the first obstacle message` + (dead.length ? ` (not running: ${dead.join(", ")})` : "");
-  if (s.stream === "stalled") return `arena ${msg.arena}: NO DATA, frames have stopped` + (dead.length ? ` (not running: ${dead.join(", ")})` : "");
+  if (!view.received) return `arena ${msg.arena}: waiting for the first obstacle message` + down;
+  if (s.stream === "stalled") return `arena ${msg.arena}: NO DATA, frames have stopped` + down;
+  if (!["ok", "waiting"].includes(s.stream)) return `arena ${msg.arena}: stream ${s.stream}${why}` + down;
   if (dead.length) return `arena ${msg.arena}: not running: ${dead.join(", ")}`;
   return `arena ${msg.arena}: all stages running`;
+}
+
+// --- how current it is -------------------------------------------------------------
+function setFresh(kind, f) {
+  view.fresh[kind] = { f, at: performance.now() };
+}
+
+// The freshness of `kind` now: the server's, its seconds grown by the time since.
+function freshNow(kind) {
+  const e = view.fresh[kind];
+  if (!e) return null;
+  const dt = (performance.now() - e.at) / 1000;
+  const plus = (v) => (v == null ? null : v + dt);
+  return { ...e.f, age_s: plus(e.f.age_s), since_s: plus(e.f.since_s) };
+}
+
+function secs(s) { return s < 10 ? s.toFixed(1) : `${Math.round(s)}`; }
+function ageText(s) { return Math.abs(s) < 1 ? `${Math.round(s * 1000)} ms` : `${secs(s)} s`; }
+function utc(ns) {
+  return new Date(ns / 1e6).toISOString().replace("T", " ").replace(/\.(\d)\d*Z$/, ".$1 UTC");
+}
+
+function describe(f, what) {
+  if (!f) return `no ${what} yet`;
+  switch (f.state) {
+    case "waiting": return `waiting for the first ${what}` + (f.since_s != null ? ` (${secs(f.since_s)} s)` : "");
+    case "live": return `live · ${what} ${f.seq} · age ${ageText(f.age_s)}`;
+    case "late": return `late · ${what} ${f.seq} captured ${secs(f.age_s)} s ago, not live ` +
+      "(replayed without saying so, or the camera's clock is off)";
+    case "replay": return `replay of ${f.recording} · recorded ${utc(f.recorded_ns)} · ${secs(f.into_s)} s into the recording`;
+    case "stalled": return `stalled · no ${what} for ${secs(f.since_s)} s · ` + (f.recording
+      ? `replay of ${f.recording}, last recorded ${utc(f.recorded_ns)}`
+      : `last ${what} ${f.seq}, captured ${secs(f.age_s)} s ago`);
+    default: return f.state;
+  }
+}
+
+function staleText(f) {
+  if (!view.connected) return "DISCONNECTED";
+  if (!f) return "";
+  if (f.state === "stalled") return `STALE ${Math.round(f.since_s)} s`;
+  if (f.state === "late") return `LATE ${Math.round(f.age_s)} s`;
+  return "";
+}
+
+function showFresh(id, f, what) {
+  const el = $(id);
+  el.dataset.state = view.connected ? (f ? f.state : "waiting") : "unknown";
+  el.dataset.sinceS = f && f.since_s != null ? f.since_s.toFixed(1) : "";
+  el.textContent = view.connected ? describe(f, what) : "unknown (not connected to the view server)";
+}
+
+function showFreshness() {
+  const kind = $("picture").dataset.kind || view.kind;
+  const pic = freshNow(kind), obs = freshNow("obstacles");
+  showFresh("picture-fresh", pic, kind === "binary" ? "binarised frame" : "frame");
+  showFresh("map-fresh", obs, "obstacle message");
+  const stale = $("picture").hidden ? "" : staleText(pic);
+  $("picture-box").dataset.stale = stale ? "true" : "false";
+  $("picture-stale").hidden = !stale; $("picture-stale").textContent = stale;
+  const mapStale = !view.connected || (obs && (obs.state === "stalled" || obs.state === "late"));
+  $("map").dataset.stale = mapStale ? "true" : "false";
+}
+
+// Not connected (or the server stopped talking): nothing on the page is current.
+function unknown(text) {
+  view.connected = false;
+  $("stream").textContent = "unknown"; $("stream").dataset.state = "unknown";
+  $("stream-reason").textContent = "";
+  for (const id of ["latency-p50", "latency-p99", "viewers"]) $(id).textContent = "–";
+  for (const tr of document.querySelectorAll("#stages tbody tr")) {
+    tr.dataset.alive = "unknown"; tr.className = "unknown";
+    tr.cells[1].textContent = "?"; tr.cells[2].textContent = "unknown";
+  }
+  $("notice").textContent = text;
+  showFreshness();
+}
+
+function everySecond() {
+  const quiet = (performance.now() - view.lastHealthAt) / 1000;
+  if (view.connected && quiet > Math.max(5, 10 * view.healthPeriod)) {
+    unknown(`the view server has sent nothing for ${Math.round(quiet)} s: nothing shown is current`);
+  }
+  showFreshness();
 }
 
 // --- recalibration ---------------------------------------------------------------
@@ -374,7 +535,11 @@ function onRecalibration(msg, fromHealth = false) {
   }
 }
 
-$("show-binary").addEventListener("change", (e) => send({ type: "show", kind: e.target.checked ? "binary" : "camera" }));
+$("show-binary").addEventListener("change", (e) => {
+  view.kind = e.target.checked ? "binary" : "camera";
+  send({ type: "show", kind: view.kind });
+});
 $("arena-select").addEventListener("change", (e) => send({ type: "select", arena: e.target.value }));
 $("robot-select").addEventListener("change", (e) => selectRobot(e.target.value));
+setInterval(everySecond, 1000);
 connect();
