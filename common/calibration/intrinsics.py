@@ -1,6 +1,8 @@
 """A lens's intrinsics from photos of a board: OpenCV's detectors and ``calibrateCamera``.
 
-Each view's board corners come from :func:`ovis.common.vision.boards.find_board`; views
+The images must share one size: the size most of them have is kept and the others are
+rejected unread, by name (one odd file never decides the size for the rest). Each
+view's board corners come from :func:`ovis.common.vision.boards.find_board`; views
 where the board is not found are rejected, by name and reason. ``cv2.calibrateCameraExtended``
 (five distortion coefficients, no flags: OpenCV's defaults) gives K, the distortion, the
 overall RMS reprojection error and each view's. A view whose RMS is above
@@ -16,7 +18,8 @@ mean an extrapolated lens model there.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections import Counter
+from collections.abc import Callable, Iterable, Sequence
 from typing import NamedTuple
 
 import cv2
@@ -37,6 +40,7 @@ __all__ = [
     "RejectedView",
     "ViewResult",
     "calibrate_intrinsics",
+    "common_size",
     "corner_coverage",
     "detect_views",
     "distinct_view",
@@ -111,31 +115,46 @@ class FoundView(NamedTuple):
     view: BoardView
 
 
+def common_size(
+    images: Sequence[tuple[str, NDArray[np.uint8]]],
+) -> tuple[tuple[int, int], list[tuple[str, tuple[int, int]]]]:
+    """The size (width, height) most images share (a tie: the one seen first) and the
+    others' names and sizes: one odd file must not decide the size for the rest."""
+    sizes = [(name, (image.shape[1], image.shape[0])) for name, image in images]
+    if not sizes:
+        raise IntrinsicsError("no images given")
+    counts = Counter(size for _, size in sizes)
+    best = max(counts.values())
+    size = next(s for _, s in sizes if counts[s] == best)
+    return size, [(name, s) for name, s in sizes if s != size]
+
+
 def detect_views(
     images: Iterable[tuple[str, NDArray[np.uint8]]],
     spec: BoardSpec,
     *,
     on_view: Callable[[str, bool], None] | None = None,
+    on_skipped: Callable[[list[tuple[str, tuple[int, int]]], tuple[int, int]], None] | None = None,
 ) -> tuple[list[FoundView], list[RejectedView], tuple[int, int]]:
-    """Find the board in each (name, image); all images must share the first one's size.
+    """Find the board in each (name, image) of the size most of them share
+    (:func:`common_size`); the others are rejected unread (``on_skipped`` hears of them
+    once, with the size kept).
 
     Returns the views with the board, the rejected ones (why) and the size (width, height).
     """
+    images = list(images)
+    size, odd = common_size(images)
+    if odd and on_skipped:
+        on_skipped(odd, size)
     found: list[FoundView] = []
     rejected: list[RejectedView] = []
-    size: tuple[int, int] | None = None
     for name, image in images:
-        gray = as_gray(image)
-        here = (gray.shape[1], gray.shape[0])
-        if size is None:
-            size = here
-        if here != size:
-            reason = f"image is {here[0]}x{here[1]}, the first view {size[0]}x{size[1]}"
+        h, w = image.shape[:2]
+        if (w, h) != size:
+            reason = f"image is {w}x{h}, most of the images are {size[0]}x{size[1]}: skipped"
             rejected.append(RejectedView(view=name, reason=reason))
-            if on_view:
-                on_view(name, False)
             continue
-        view = find_board(gray, spec)
+        view = find_board(as_gray(image), spec)
         if view is None:
             reason = f"{spec.describe()} not found"
             rejected.append(RejectedView(view=name, reason=reason))
@@ -143,8 +162,6 @@ def detect_views(
             found.append(FoundView(name, view))
         if on_view:
             on_view(name, view is not None)
-    if size is None:
-        raise IntrinsicsError("no images given")
     return found, rejected, size
 
 

@@ -176,8 +176,16 @@ def intrinsics(
         def on_view(name: str, ok: bool) -> None:
             con.print(f"  {name}: {'board found' if ok else 'no board'}")
 
-        views = detect_views(frames, spec, on_view=on_view)
-        backdrop = frames[0][1]
+        def on_skipped(odd: list[tuple[str, tuple[int, int]]], size: tuple[int, int]) -> None:
+            names = ", ".join(f"{name} ({w}x{h})" for name, (w, h) in odd)
+            print(
+                f"warning: skipped {len(odd)} image(s) of another size than the "
+                f"{size[0]}x{size[1]} most of them share: {names}",
+                file=sys.stderr,
+            )
+
+        views = detect_views(frames, spec, on_view=on_view, on_skipped=on_skipped)
+        backdrop = next(img for _, img in frames if (img.shape[1], img.shape[0]) == views[2])
     try:
         report = calibrate_intrinsics(None, spec, views=views, drop_outliers=drop_outliers)
     except IntrinsicsError as exc:
