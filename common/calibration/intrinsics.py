@@ -13,7 +13,8 @@ the calibration is run again without them.
 Coverage says whether the corners of the image were seen: the image is cut into a
 :data:`COVERAGE_GRID` grid and a cell is covered when a corner of any used view falls in
 it. The distortion is only measured where corners were seen, so uncovered image corners
-mean an extrapolated lens model there.
+mean an extrapolated lens model there; one that folds back inside the image is named in
+the report's warnings.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
+from ovis.common.calibration.lens_check import distortion_problems
 from ovis.common.camera.intrinsics import CameraIntrinsics
 from ovis.common.vision.boards import BoardSpec, BoardView, find_board
 from ovis.common.vision.preprocess import as_gray
@@ -97,6 +99,9 @@ class IntrinsicsReport(msgspec.Struct, kw_only=True):
     outliers: list[str]
     outliers_dropped: bool
     coverage: Coverage
+    #: what makes the lens doubtful beyond its RMS (a distortion that folds back inside
+    #: the image: :func:`ovis.common.calibration.lens_check.distortion_problems`)
+    warnings: list[str] = []
 
     def intrinsics(self) -> CameraIntrinsics:
         return CameraIntrinsics(
@@ -241,7 +246,7 @@ def calibrate_intrinsics(
         for r in results:
             if r.view in errors:
                 r.rms_px = float(errors[r.view])
-    return IntrinsicsReport(
+    report = IntrinsicsReport(
         board=spec.describe(),
         image_width=size[0],
         image_height=size[1],
@@ -255,3 +260,5 @@ def calibrate_intrinsics(
         outliers_dropped=dropped,
         coverage=corner_coverage((f.view for f in used), size),
     )
+    report.warnings = distortion_problems(report.intrinsics(), "this lens")
+    return report
