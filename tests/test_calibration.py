@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import msgspec
 import numpy as np
 import pytest
@@ -179,6 +181,20 @@ def test_a_tiny_ga_that_fails_says_the_ga_is_too_small() -> None:
         assert sampled == 4000 and 0 < found < sampled
         _band_is_feasible(CalibrationProblem(frame, points, cfg), message)
     assert failures >= 3
+
+
+def test_ovis_calibrate_with_a_tiny_ga_exits_3_saying_what_to_raise(tmp_path: Path) -> None:
+    from test_cli import assert_one_line_error, ovis
+
+    ovis("simulate", "--out", str(tmp_path), "--frames", "1")
+    frame, points = str(tmp_path / "frame_0000.png"), str(tmp_path / "points.toml")
+    small = ("--population", "20", "--generations", "10", "--seed", "1", "--restarts", "0")
+    out = tmp_path / "calib.json"
+    proc = ovis("calibrate", frame, "--points", points, "--out", str(out), *small, check=False)
+    assert_one_line_error(
+        proc, "calibration failed: the GA (population 20, 10 generations:", "raise the population"
+    )
+    assert proc.returncode == 3 and not out.exists()
 
 
 def test_a_threshold_range_that_misses_the_objects_is_named() -> None:
