@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import msgspec
 import numpy as np
 import pytest
@@ -122,8 +124,90 @@ def test_blank_frame_is_infeasible_with_a_clear_message() -> None:
     frame, truth = Arena(cfg, 0).render()
     blank = np.full_like(frame, 60)
     cfg = msgspec.structs.replace(cfg, ga=msgspec.structs.replace(cfg.ga, generations=3))
-    with pytest.raises(InfeasibleCalibrationError, match="sees exactly 4 objects"):
+    with pytest.raises(InfeasibleCalibrationError, match="sees exactly 4 objects") as info:
         calibrate(blank, control_points(truth), cfg)
+    assert "the frame is infeasible" in str(info.value)
+    assert "it shows no object at all" in str(info.value)
+
+
+def _failure(cfg, frame, points, **settings) -> str:
+    """The message of a calibration expected to fail with these [ga]/[calibration] settings."""
+    ga = {k: v for k, v in settings.items() if k in ("population", "generations", "seed")}
+    ranges = {k: v for k, v in settings.items() if k not in ga}
+    cfg = msgspec.structs.replace(
+        cfg,
+        ga=msgspec.structs.replace(cfg.ga, **ga),
+        calibration=msgspec.structs.replace(cfg.calibration, **ranges),
+    )
+    with pytest.raises(InfeasibleCalibrationError) as info:
+        calibrate(frame, points, cfg)
+    return str(info.value)
+
+
+def _band_is_feasible(problem: CalibrationProblem, message: str) -> None:
+    """The message's "at T: a size filter above A and up to B cm²" sees one object per
+    point with the configured camera."""
+    import re
+
+    t, lo, hi = re.search(
+        r"at (\d+): a size filter above ([\d.]+) and up to ([\d.]+)", message
+    ).groups()
+    values = problem.nominal_values()
+    values[0], values[1] = float(t), (float(lo) + float(hi)) / 2
+    assert problem.evaluate(values[None, :]).feasible[0], message
+
+
+def test_a_tiny_ga_that_fails_says_the_ga_is_too_small() -> None:
+    """Population 20 and 10 generations on a simulated arena: the frame is fine (the
+    default GA calibrates it) and the message says so, names the GA's settings and what
+    to raise, with numbers that hold (the band it names sees 4 objects)."""
+    cfg = load_config()
+    frame, truth = Arena(cfg, 0).render()
+    points = control_points(truth)
+    failures = 0
+    for seed in range(5):
+        try:
+            message = _failure(cfg, frame, points, population=20, generations=10, seed=seed)
+        except pytest.fail.Exception:
+            continue  # this seed's tiny GA happened to find a feasible string
+        failures += 1
+        assert "the GA (population 20, 10 generations:" in message
+        assert "found none that sees exactly 4 objects" in message
+        assert "raise the population and the generations" in message
+        assert "frame is infeasible" not in message and "0 to 4" not in message
+        tried = int(message.split("generations: ")[1].split(" strings")[0])
+        assert tried <= 20 * 11
+        found, sampled = (int(v) for v in message.split(" random strings")[0].split()[-3::2])
+        assert sampled == 4000 and 0 < found < sampled
+        _band_is_feasible(CalibrationProblem(frame, points, cfg), message)
+    assert failures >= 3
+
+
+def test_ovis_calibrate_with_a_tiny_ga_exits_3_saying_what_to_raise(tmp_path: Path) -> None:
+    from test_cli import assert_one_line_error, ovis
+
+    ovis("simulate", "--out", str(tmp_path), "--frames", "1")
+    frame, points = str(tmp_path / "frame_0000.png"), str(tmp_path / "points.toml")
+    small = ("--population", "20", "--generations", "10", "--seed", "1", "--restarts", "0")
+    out = tmp_path / "calib.json"
+    proc = ovis("calibrate", frame, "--points", points, "--out", str(out), *small, check=False)
+    assert_one_line_error(
+        proc, "calibration failed: the GA (population 20, 10 generations:", "raise the population"
+    )
+    assert proc.returncode == 3 and not out.exists()
+
+
+def test_a_threshold_range_that_misses_the_objects_is_named() -> None:
+    cfg = load_config()
+    frame, truth = Arena(cfg, 0).render()
+    points = control_points(truth)
+    message = _failure(cfg, frame, points, threshold=(235.0, 250.0))
+    assert "no threshold in the configured range 235-250 sees exactly 4 objects" in message
+    assert "widen [calibration] threshold" in message
+    _band_is_feasible(CalibrationProblem(frame, points, cfg), message)
+    message = _failure(cfg, frame, points, size_filter_cm2=(200.0, 300.0))
+    assert "no size filter in the configured range 200-300 cm² sees exactly 4" in message
+    assert "set [calibration] size_filter_cm2" in message
 
 
 def test_frame_size_must_match_camera() -> None:

@@ -95,6 +95,30 @@ def test_intrinsics_flags_a_bent_board_as_an_outlier(tmp_path: Path) -> None:
     assert dropped["rms_px"] == pytest.approx(rms, rel=1e-3)
 
 
+def test_one_odd_sized_image_is_skipped_not_blamed_on_the_good_photos(tmp_path: Path) -> None:
+    """scikit-image's coins photo saved as aaa.png sorts before the 14 board photos: the
+    size most images share (640x512) is kept, aaa.png is skipped with one warning naming
+    it, and the lens is the 14 photos' (OpenCV's result on them)."""
+    from skimage import data
+
+    for p in photo_paths():
+        shutil.copy(p, tmp_path / p.name)
+    cv2.imwrite(str(tmp_path / "aaa.png"), data.coins())
+    proc = ovis("intrinsics", str(tmp_path), "--board", "chessboard:9x6", "--json")
+    out = json.loads(proc.stdout)
+    warnings = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(warnings) == 1 and warnings[0].startswith("warning: "), proc.stderr
+    assert "aaa.png (384x303)" in warnings[0] and "640x512" in warnings[0]
+    assert out["views_used"] == [p.name for p in photo_paths()]
+    assert [r["view"] for r in out["views_rejected"]] == ["aaa.png"]
+    assert "384x303" in out["views_rejected"][0]["reason"]
+    assert (out["image_width"], out["image_height"]) == (640, 512)
+    rms, K, d = opencv_calibration(photo_paths())
+    assert out["rms_px"] == pytest.approx(rms, rel=1e-3)
+    assert np.allclose(np.array(out["camera_matrix"]), K, rtol=1e-3)
+    assert np.allclose(out["dist"], d, atol=1e-3)
+
+
 def test_export_reads_cam_yaml(photos_with_blank: Path, tmp_path: Path) -> None:
     cam, ros = tmp_path / "CAM.yaml", tmp_path / "ros.yaml"
     ovis("intrinsics", *map(str, photo_paths()[:6]), "--board", "chessboard:9x6", "--out", str(cam))

@@ -8,7 +8,9 @@ otherwise), ``cv2.solvePnPRefineLM`` refines it by Levenberg–Marquardt on the 
 residuals. Error is reported as for the GA: each point's DIPE (eq. 14, px; mm only with a
 known pixel pitch) and, held out, leave-one-out: the pose refitted without a point and
 that point's error in px (projection vs. its pixel) and in cm on its plane (its pixel
-back-projected vs. its position).
+back-projected vs. its position). The residuals are judged against what the lens's own
+error and the points' pixel precision explain (:mod:`ovis.common.calibration.lens_check`,
+``accuracy.lens``): a wrong point, or a lens that is not this camera's, is named.
 
 The points must be usable: at least :data:`MIN_POINTS`, inside the image, not all on
 one line (in the world or in the image), no two at the same place.
@@ -27,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.calibration.file import Calibration, PointResidual, mm_or_none, now_iso
+from ovis.common.calibration.lens_check import CLICK_PX, pose_check
 from ovis.common.calibration.quality import AccuracyReport, HeldOut, HeldOutPoint
 from ovis.common.camera.intrinsics import CameraIntrinsics, with_pose
 from ovis.common.camera.pinhole import back_project, project
@@ -58,6 +61,9 @@ __all__ = [
 MIN_POINTS = 4
 #: Points closer than this to a line (as a fraction of their spread) count as collinear.
 COLLINEAR_TOLERANCE = 1e-3
+#: The residual (px) counted for a point a trial lens does not project (keeps the focal
+#: length search finite).
+_NO_FIT_PX = 1e6
 
 
 class FloorPoseError(ValueError):
@@ -163,24 +169,36 @@ def _held_out_point(p: ControlPoint, cam: PinholeParams, in_sample: float | None
     )
 
 
+def _residuals(
+    xyz: NDArray[np.float64], pix: NDArray[np.float64], cam: PinholeParams
+) -> NDArray[np.float64]:
+    """Each point's pixel distance from its projection (inf where it does not project)."""
+    pred = project(xyz[:, 0], xyz[:, 1], xyz[:, 2], cam)
+    d = np.hypot(pix[:, 1] - pred.row, pix[:, 0] - pred.col)
+    return np.where(pred.valid, d, np.inf)
+
+
 def _leave_one_out(
     points: Sequence[ControlPoint],
     xyz: NDArray[np.float64],
     pix: NDArray[np.float64],
     intr: CameraIntrinsics,
     in_sample: NDArray[np.float64],
-) -> HeldOut | None:
-    """Each point held out in turn (needs MIN_POINTS others)."""
+) -> tuple[HeldOut, NDArray[np.float64]] | None:
+    """Each point held out in turn (needs MIN_POINTS others); also the others' sum of
+    squared residuals (px²) under each refit, for the outlier test of
+    :mod:`ovis.common.calibration.lens_check`."""
     n = len(points)
     if n <= MIN_POINTS:
         return None
     held: list[HeldOutPoint] = []
+    rest_ssr = np.empty(n)
     for i in range(n):
         use = np.arange(n) != i
         rvec, tvec = _pose(xyz[use], pix[use], intr)
-        held.append(
-            _held_out_point(points[i], _camera(intr, rvec, tvec, None), float(in_sample[i]))
-        )
+        cam = _camera(intr, rvec, tvec, None)
+        held.append(_held_out_point(points[i], cam, float(in_sample[i])))
+        rest_ssr[i] = float(np.sum(np.square(_residuals(xyz[use], pix[use], cam))))
     px = np.array([h.error_px for h in held])
     cm = np.array([h.error_cm for h in held if h.error_cm is not None])
     return HeldOut(
@@ -191,7 +209,53 @@ def _leave_one_out(
         max_px=float(px.max()),
         mean_cm=float(cm.mean()) if cm.size else None,
         max_cm=float(cm.max()) if cm.size else None,
-    )
+    ), rest_ssr
+
+
+def _refit(
+    xyz: NDArray[np.float64], pix: NDArray[np.float64], intr: CameraIntrinsics
+) -> NDArray[np.float64]:
+    """The residuals of the pose refitted with the lens ``intr``."""
+    try:
+        rvec, tvec = _pose(xyz, pix, intr)
+    except (FloorPoseError, cv2.error):
+        return np.full(len(xyz), np.inf)
+    return _residuals(xyz, pix, _camera(intr, rvec, tvec, None))
+
+
+def _scaled_focal(intr: CameraIntrinsics, scale: float) -> CameraIntrinsics:
+    K = intr.matrix
+    K[0, 0] *= scale
+    K[1, 1] *= scale
+    return msgspec.structs.replace(intr, camera_matrix=tuple(map(tuple, K.tolist())))
+
+
+def _lens_alternatives(
+    xyz: NDArray[np.float64], pix: NDArray[np.float64], intr: CameraIntrinsics
+) -> list[tuple[str, NDArray[np.float64], int]]:
+    """The pose refitted with the lens file's distortion left out, and with the best
+    single scale on its focal length (a bounded search over ¼×..4×): what each change
+    was, the residuals, their degrees of freedom."""
+    from scipy.optimize import minimize_scalar
+
+    n = len(xyz)
+    plain = msgspec.structs.replace(intr, dist=(0.0,) * 5)
+
+    def ssr(log_scale: float) -> float:
+        r = _refit(xyz, pix, _scaled_focal(intr, math.exp(log_scale)))
+        return float(np.sum(np.square(np.minimum(r, _NO_FIT_PX))))
+
+    best = minimize_scalar(ssr, bounds=(math.log(0.25), math.log(4.0)), method="bounded")
+    scale = math.exp(float(best.x))
+    focal = _scaled_focal(intr, scale)
+    return [
+        ("with its distortion left out", _refit(xyz, pix, plain), 2 * n - 6),
+        (
+            f"with its focal length ×{scale:.3g} (fx {focal.matrix[0, 0]:.1f} px)",
+            _refit(xyz, pix, focal),
+            2 * n - 7,
+        ),
+    ]
 
 
 def solve_floor_pose(
@@ -203,9 +267,13 @@ def solve_floor_pose(
     pose: PoseConfig | None = None,
     pixel_pitch_mm: float | None = None,
     source: str = "",
+    point_px: float = CLICK_PX,
+    lens_name: str = "the intrinsics file",
 ) -> Calibration:
     """The calibration of a camera with lens ``intr`` from pixel-known ``points`` seen in an
-    image of ``image_size`` (width, height). See the module docstring."""
+    image of ``image_size`` (width, height), judged against what the lens and the points'
+    pixel precision ``point_px`` (RMS, px) explain (``accuracy.lens``, see
+    :mod:`ovis.common.calibration.lens_check`). See the module docstring."""
     t0 = time.perf_counter()
     check_image_size(intr, *image_size, "the image")
     _validate(points, *image_size)
@@ -231,6 +299,18 @@ def solve_floor_pose(
     notes = []
     if loo is None:
         notes.append(f"leave-one-out needs more than {MIN_POINTS} points (got {len(points)})")
+    lens = pose_check(
+        names=[p.name for p in points],
+        residuals_px=px,
+        residuals_cm=_floor_errors(points, pix, xyz, cam),
+        lens=intr,
+        cam=cam,
+        point_px=point_px,
+        rest_ssr=None if loo is None else loo[1],
+        held_out=None if loo is None else [(h.error_px, h.error_cm) for h in loo[0].points],
+        alternatives=_lens_alternatives(xyz, pix, intr) if len(points) > MIN_POINTS else (),
+        what=lens_name,
+    )
     return Calibration(
         created=now_iso(),
         dipe_px=float(px.mean()),
@@ -243,8 +323,22 @@ def solve_floor_pose(
         points=residuals,
         elapsed_s=time.perf_counter() - t0,
         source_image=source,
-        accuracy=AccuracyReport(leave_one_out=loo, notes=notes),
+        accuracy=AccuracyReport(
+            leave_one_out=None if loo is None else loo[0], notes=notes, lens=lens
+        ),
     )
+
+
+def _floor_errors(
+    points: Sequence[ControlPoint],
+    pix: NDArray[np.float64],
+    xyz: NDArray[np.float64],
+    cam: PinholeParams,
+) -> list[float | None]:
+    """Each point's pixel back-projected onto its plane vs. its position (cm)."""
+    b = back_project(pix[:, 1], pix[:, 0], cam, xyz[:, 2])
+    err = np.hypot(b.x_cm - xyz[:, 0], b.y_cm - xyz[:, 1])
+    return [float(e) if ok else None for e, ok in zip(err, b.valid, strict=True)]
 
 
 def board_points(gray: NDArray[np.uint8], spec: BoardSpec) -> list[ControlPoint]:

@@ -1,6 +1,8 @@
 """A lens's intrinsics from photos of a board: OpenCV's detectors and ``calibrateCamera``.
 
-Each view's board corners come from :func:`ovis.common.vision.boards.find_board`; views
+The images must share one size: the size most of them have is kept and the others are
+rejected unread, by name (one odd file never decides the size for the rest). Each
+view's board corners come from :func:`ovis.common.vision.boards.find_board`; views
 where the board is not found are rejected, by name and reason. ``cv2.calibrateCameraExtended``
 (five distortion coefficients, no flags: OpenCV's defaults) gives K, the distortion, the
 overall RMS reprojection error and each view's. A view whose RMS is above
@@ -11,12 +13,14 @@ the calibration is run again without them.
 Coverage says whether the corners of the image were seen: the image is cut into a
 :data:`COVERAGE_GRID` grid and a cell is covered when a corner of any used view falls in
 it. The distortion is only measured where corners were seen, so uncovered image corners
-mean an extrapolated lens model there.
+mean an extrapolated lens model there; one that folds back inside the image is named in
+the report's warnings.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections import Counter
+from collections.abc import Callable, Iterable, Sequence
 from typing import NamedTuple
 
 import cv2
@@ -24,6 +28,7 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
+from ovis.common.calibration.lens_check import distortion_problems
 from ovis.common.camera.intrinsics import CameraIntrinsics
 from ovis.common.vision.boards import BoardSpec, BoardView, find_board
 from ovis.common.vision.preprocess import as_gray
@@ -37,6 +42,7 @@ __all__ = [
     "RejectedView",
     "ViewResult",
     "calibrate_intrinsics",
+    "common_size",
     "corner_coverage",
     "detect_views",
     "distinct_view",
@@ -93,6 +99,9 @@ class IntrinsicsReport(msgspec.Struct, kw_only=True):
     outliers: list[str]
     outliers_dropped: bool
     coverage: Coverage
+    #: what makes the lens doubtful beyond its RMS (a distortion that folds back inside
+    #: the image: :func:`ovis.common.calibration.lens_check.distortion_problems`)
+    warnings: list[str] = []
 
     def intrinsics(self) -> CameraIntrinsics:
         return CameraIntrinsics(
@@ -111,31 +120,46 @@ class FoundView(NamedTuple):
     view: BoardView
 
 
+def common_size(
+    images: Sequence[tuple[str, NDArray[np.uint8]]],
+) -> tuple[tuple[int, int], list[tuple[str, tuple[int, int]]]]:
+    """The size (width, height) most images share (a tie: the one seen first) and the
+    others' names and sizes: one odd file must not decide the size for the rest."""
+    sizes = [(name, (image.shape[1], image.shape[0])) for name, image in images]
+    if not sizes:
+        raise IntrinsicsError("no images given")
+    counts = Counter(size for _, size in sizes)
+    best = max(counts.values())
+    size = next(s for _, s in sizes if counts[s] == best)
+    return size, [(name, s) for name, s in sizes if s != size]
+
+
 def detect_views(
     images: Iterable[tuple[str, NDArray[np.uint8]]],
     spec: BoardSpec,
     *,
     on_view: Callable[[str, bool], None] | None = None,
+    on_skipped: Callable[[list[tuple[str, tuple[int, int]]], tuple[int, int]], None] | None = None,
 ) -> tuple[list[FoundView], list[RejectedView], tuple[int, int]]:
-    """Find the board in each (name, image); all images must share the first one's size.
+    """Find the board in each (name, image) of the size most of them share
+    (:func:`common_size`); the others are rejected unread (``on_skipped`` hears of them
+    once, with the size kept).
 
     Returns the views with the board, the rejected ones (why) and the size (width, height).
     """
+    images = list(images)
+    size, odd = common_size(images)
+    if odd and on_skipped:
+        on_skipped(odd, size)
     found: list[FoundView] = []
     rejected: list[RejectedView] = []
-    size: tuple[int, int] | None = None
     for name, image in images:
-        gray = as_gray(image)
-        here = (gray.shape[1], gray.shape[0])
-        if size is None:
-            size = here
-        if here != size:
-            reason = f"image is {here[0]}x{here[1]}, the first view {size[0]}x{size[1]}"
+        h, w = image.shape[:2]
+        if (w, h) != size:
+            reason = f"image is {w}x{h}, most of the images are {size[0]}x{size[1]}: skipped"
             rejected.append(RejectedView(view=name, reason=reason))
-            if on_view:
-                on_view(name, False)
             continue
-        view = find_board(gray, spec)
+        view = find_board(as_gray(image), spec)
         if view is None:
             reason = f"{spec.describe()} not found"
             rejected.append(RejectedView(view=name, reason=reason))
@@ -143,8 +167,6 @@ def detect_views(
             found.append(FoundView(name, view))
         if on_view:
             on_view(name, view is not None)
-    if size is None:
-        raise IntrinsicsError("no images given")
     return found, rejected, size
 
 
@@ -224,7 +246,7 @@ def calibrate_intrinsics(
         for r in results:
             if r.view in errors:
                 r.rms_px = float(errors[r.view])
-    return IntrinsicsReport(
+    report = IntrinsicsReport(
         board=spec.describe(),
         image_width=size[0],
         image_height=size[1],
@@ -238,3 +260,5 @@ def calibrate_intrinsics(
         outliers_dropped=dropped,
         coverage=corner_coverage((f.view for f in used), size),
     )
+    report.warnings = distortion_problems(report.intrinsics(), "this lens")
+    return report

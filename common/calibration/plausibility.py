@@ -12,7 +12,10 @@ no real camera. Three signs are checked:
   true camera may lie outside it. With a mean DIPE above :data:`LIMIT_DIPE_PX` this
   makes the calibration implausible; below, the points are still fitted well (a
   parameter the data hardly determine often ends at a limit) and it is a warning;
-* the camera not above the control points (z up): floor axes given left-handed.
+* the camera not above the control points (z up): floor axes given left-handed;
+* with a known lens, residuals the lens and the points' precision do not explain, or a
+  lens file that cannot be trusted (``accuracy.lens``, see
+  :mod:`ovis.common.calibration.lens_check`).
 """
 
 from __future__ import annotations
@@ -84,6 +87,8 @@ def plausibility(calib: Calibration) -> tuple[list[str], list[str]]:
             f"mean DIPE {calib.dipe_px:.3g} px is above {MAX_MEAN_DIPE_PX:g} px: the camera "
             "does not explain the control points"
         )
+    if calib.accuracy is not None and calib.accuracy.lens is not None:
+        reasons += calib.accuracy.lens.problems
     limits = _at_limits(calib)
     if calib.dipe_px > LIMIT_DIPE_PX:
         return reasons + limits, []

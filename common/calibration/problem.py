@@ -226,20 +226,6 @@ class CalibrationProblem:
         """Fitness only (the GA's objective)."""
         return self.evaluate(values).fitness
 
-    def count_range(self) -> tuple[int, int, int]:
-        """(min, max, threshold of the nearest miss) of object counts over the threshold
-        range, with the size filter at its largest and the camera at its nominal values —
-        a diagnostic for infeasible calibrations."""
-        lo, hi = self.bounds[0]
-        thresholds = np.arange(int(np.ceil(lo)), int(np.floor(hi)) + 1)
-        nominal = self.nominal_values()
-        values = np.repeat(nominal[None, :], thresholds.size, axis=0)
-        values[:, 0] = thresholds
-        values[:, 1] = self.bounds[1, 1]
-        counts = self.evaluate(values).count
-        nearest = int(thresholds[np.argmin(np.abs(counts - self.n_points))])
-        return int(counts.min()), int(counts.max()), nearest
-
 
 def run_constrained_ga(
     problem: CalibrationProblem,
@@ -250,7 +236,8 @@ def run_constrained_ga(
     dedupe: bool = True,
 ) -> GAResult:
     """Run the GA on ``fitness`` over ``bounds`` under the exact-count constraint (eq. 15);
-    raise :class:`InfeasibleCalibrationError`, saying what was seen, if nothing is feasible."""
+    raise :class:`InfeasibleCalibrationError`, saying which setting stopped it
+    (:mod:`ovis.common.calibration.infeasible`), if nothing is feasible."""
     config = problem.config
     result = run_ga(
         fitness,
@@ -261,15 +248,9 @@ def run_constrained_ga(
         feasible_below=INFEASIBLE,
     )
     if result.best_fitness >= INFEASIBLE:
-        lo, hi, nearest = problem.count_range()
-        raise InfeasibleCalibrationError(
-            f"no threshold/size filter in the configured ranges sees exactly "
-            f"{problem.n_points} objects (one per control point): over thresholds "
-            f"{config.calibration.threshold[0]:g}-{config.calibration.threshold[1]:g} the "
-            f"frame shows {lo} to {hi} objects (nearest at threshold {nearest}). Check that "
-            "every control point's object is in view and no other large object is, the "
-            "image polarity (image.polarity), and the calibration ranges"
-        )
+        from ovis.common.calibration.infeasible import infeasible_message
+
+        raise InfeasibleCalibrationError(infeasible_message(problem, result))
     return result
 
 

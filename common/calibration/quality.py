@@ -9,7 +9,10 @@ records say what that number hides (computed by :mod:`ovis.common.calibration.ac
 * :class:`ParameterDetermination` — per calibrated parameter, whether the data
   determine it: how far sweeping it over its whole range moves the points, its
   standard error from the Jacobian of the pixel residuals, and its spread across GA
-  restarts with other seeds.
+  restarts with other seeds;
+* :class:`LensCheck` — for a pose fitted with a known lens, whether its residuals are
+  what the lens's own error and the points' precision explain, and what to blame if not
+  (computed by :mod:`ovis.common.calibration.lens_check`).
 
 Only plain msgspec Structs live here (no computation), so that the calibration file
 can hold them without importing the solvers.
@@ -19,7 +22,14 @@ from __future__ import annotations
 
 import msgspec
 
-__all__ = ["AccuracyReport", "HeldOut", "HeldOutPoint", "ParameterDetermination", "PointFit"]
+__all__ = [
+    "AccuracyReport",
+    "HeldOut",
+    "HeldOutPoint",
+    "LensCheck",
+    "ParameterDetermination",
+    "PointFit",
+]
 
 
 class PointFit(msgspec.Struct, kw_only=True):
@@ -89,6 +99,41 @@ class ParameterDetermination(msgspec.Struct, kw_only=True):
     determined: bool = False
 
 
+class LensCheck(msgspec.Struct, kw_only=True):
+    """A known-lens floor pose judged against what its lens and its points explain
+    (:mod:`ovis.common.calibration.lens_check`).
+
+    ``lens_rms_px``: the intrinsics file's RMS reprojection error (None: not stated);
+    ``point_px``: the control points' pixel precision (RMS); ``expected_px``: one
+    point's expected RMS residual from both; ``allowed_rms_px``: the largest RMS residual
+    of these points they explain; ``rms_px``: the residuals' RMS. ``residual_cm``: each
+    point's pixel back-projected onto its plane vs. its position (in the order of the
+    calibration's points; None where the pixel does not see the plane). ``outlier``: the
+    point leave-one-out singles out, with its held-out error. ``problems``: why the pose
+    is not believable (empty: it is); ``hints``: what explains the points instead.
+    """
+
+    lens_rms_px: float | None
+    point_px: float
+    rms_px: float
+    camera_height_cm: float
+    tilt_deg: float
+    worst: str
+    worst_px: float
+    worst_cm: float | None = None
+    residual_cm: list[float | None] = []
+    expected_px: float | None = None
+    allowed_rms_px: float | None = None
+    explained: bool = False
+    outlier: str | None = None
+    outlier_px: float | None = None
+    outlier_cm: float | None = None
+    #: other points whose removal would leave the rest explained too (less well)
+    outlier_also: list[str] = []
+    problems: list[str] = []
+    hints: list[str] = []
+
+
 class AccuracyReport(msgspec.Struct, kw_only=True):
     """Held-out errors and parameter identifiability of one calibration."""
 
@@ -109,3 +154,5 @@ class AccuracyReport(msgspec.Struct, kw_only=True):
     restart_dipe_px: list[float] = []
     #: plain-language findings
     notes: list[str] = []
+    #: known-lens floor poses: the residuals judged against the lens and the points
+    lens: LensCheck | None = None

@@ -71,7 +71,7 @@ def main() -> None:
     except ZenohUnreachableError as exc:
         _fail(str(exc), 4)
     except InfeasibleCalibrationError as exc:
-        _fail(f"calibration is infeasible: {exc}", 3)
+        _fail(f"calibration failed: {exc}", 3)
     except Exception as exc:  # last line of defence: one line, not a traceback
         if os.environ.get("OVIS_DEBUG"):
             raise

@@ -176,8 +176,16 @@ def intrinsics(
         def on_view(name: str, ok: bool) -> None:
             con.print(f"  {name}: {'board found' if ok else 'no board'}")
 
-        views = detect_views(frames, spec, on_view=on_view)
-        backdrop = frames[0][1]
+        def on_skipped(odd: list[tuple[str, tuple[int, int]]], size: tuple[int, int]) -> None:
+            names = ", ".join(f"{name} ({w}x{h})" for name, (w, h) in odd)
+            print(
+                f"warning: skipped {len(odd)} image(s) of another size than the "
+                f"{size[0]}x{size[1]} most of them share: {names}",
+                file=sys.stderr,
+            )
+
+        views = detect_views(frames, spec, on_view=on_view, on_skipped=on_skipped)
+        backdrop = next(img for _, img in frames if (img.shape[1], img.shape[0]) == views[2])
     try:
         report = calibrate_intrinsics(None, spec, views=views, drop_outliers=drop_outliers)
     except IntrinsicsError as exc:
@@ -194,6 +202,8 @@ def intrinsics(
         used = set(report.views_used)
         corners = [f.view.image_xy for f in views[0] if f.name in used]
         plot_coverage(plot, report, corners, None if backdrop is None else as_gray(backdrop))
+    for text in report.warnings:
+        print(f"warning: {text}", file=sys.stderr)
     if json:
         emit_json(report)
         return
@@ -243,12 +253,13 @@ def register(app: typer.Typer) -> None:
     app.command()(locate)
 
 
-def refuse_implausible(calib, force: bool) -> list[str]:
-    """Stop (exit 3, nothing written) on an implausible calibration unless ``force``;
-    with ``force``, return the reasons to print as a warning."""
+def refuse_implausible(calib, force: bool, extra: list[str] | None = None) -> list[str]:
+    """Stop (exit 3, nothing written) on an implausible calibration (or for ``extra``
+    reasons) unless ``force``; with ``force``, return the reasons to print as a warning."""
     from ovis.common.calibration.plausibility import plausibility
 
     reasons, suspicious = plausibility(calib)
+    reasons = reasons + (extra or [])
     if reasons and not force:
         raise UserError(
             "implausible calibration, not saved: " + "; ".join(reasons) + " (check the "
@@ -288,9 +299,10 @@ def calibrate_known_lens(
     intrinsics: Path | None,
     points: Path | None,
     board: str | None,
-    square_cm: float,
+    square_cm: float | None,
     marker_cm: float | None,
     markers: Path | None,
+    point_px: float | None,
     config: Path | None,
     preset: str | None,
     out: Path,
@@ -299,7 +311,9 @@ def calibrate_known_lens(
     quiet: bool,
 ) -> None:
     """`ovis calibrate --intrinsics`: the floor pose with the lens fixed (see
-    :mod:`ovis.common.calibration.floor`); blob points go to the GA with the lens fixed."""
+    :mod:`ovis.common.calibration.floor`), judged against what the lens and the points'
+    precision explain (:mod:`ovis.common.calibration.lens_check`; printed even when
+    refused); blob points go to the GA with the lens fixed."""
     import msgspec
 
     from ovis.common.calibration.file import save_calibration
@@ -309,6 +323,7 @@ def calibrate_known_lens(
         known_lens_config,
         solve_floor_pose,
     )
+    from ovis.common.calibration.lens_check import BOARD_PX, CLICK_PX, distortion_problems
     from ovis.common.camera.intrinsics import IntrinsicsFileError, read_intrinsics
     from ovis.common.config import resolve_config
     from ovis.common.vision.imageio import read_image
@@ -317,6 +332,11 @@ def calibrate_known_lens(
 
     if intrinsics is None:
         raise UserError("--board and --markers need --intrinsics CAM.yaml (from `ovis intrinsics`)")
+    if board is not None and square_cm is None:
+        raise UserError(
+            "--board needs --square-cm: the side of one printed square in cm (measure it); "
+            "the camera's position comes out in those units"
+        )
     if out.is_dir():
         raise UserError(f"{out} is a folder; give a file name")
     try:
@@ -324,14 +344,18 @@ def calibrate_known_lens(
     except IntrinsicsFileError as exc:
         raise UserError(str(exc)) from None
     gray = as_gray(read_image(image))
+    extra: list[str] = []
     try:
         check_image_size(intr, gray.shape[1], gray.shape[0], f"image {image}")
-        pts, pts_file = _known_lens_points(gray, intr, points, board, square_cm, marker_cm, markers)
+        pts, pts_file = _known_lens_points(
+            gray, intr, points, board, square_cm or 1.0, marker_cm, markers
+        )
         cfg = resolve_config(config, preset, pts_file.config if pts_file else None)
         pitch = (
             getattr(cfg.camera, "pixel_pitch_mm", None) if cfg.camera.model == "pinhole" else None
         )
         if all(p.pixel_known for p in pts):
+            default_px = BOARD_PX if board is not None else CLICK_PX
             calib = solve_floor_pose(
                 intr,
                 pts,
@@ -340,10 +364,13 @@ def calibrate_known_lens(
                 pose=cfg.pose,
                 pixel_pitch_mm=pitch,
                 source=str(image),
+                point_px=default_px if point_px is None else point_px,
+                lens_name=str(intrinsics),
             )
         else:
             from ovis.services.cli.ui import calibrate_with_progress
 
+            extra = distortion_problems(intr, str(intrinsics))
             cfg = known_lens_config(cfg, intr)
             calib = calibrate_with_progress(
                 gray, pts, cfg, source=str(image), show=not quiet and not json
@@ -351,50 +378,83 @@ def calibrate_known_lens(
     except FloorPoseError as exc:
         raise UserError(str(exc)) from None
     calib = msgspec.structs.replace(calib, source_image=str(image))
-    warnings = refuse_implausible(calib, force)
-    save_calibration(out, calib)
     if json:
         emit_json(calib)
-        return
-    _print_floor_pose(calib, out, warnings)
+    else:
+        _print_floor_pose(calib, intr)
+    warnings = refuse_implausible(calib, force, extra)
+    save_calibration(out, calib)
+    if not json:
+        from ovis.services.cli.ui import console
+
+        for w in warnings:
+            console().print(f"WARNING (forced): {w}")
+        console().print(f"wrote {out}")
 
 
-def _print_floor_pose(calib, out: Path, warnings: list[str]) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
+def _print_floor_pose(calib, intr) -> None:
+    """Where the camera is, each control point's residual and how the residuals compare
+    with what the lens explains (also for a pose about to be refused)."""
     from ovis.common.calibration.file import dipe_text
-    from ovis.common.camera.projection import camera_centre_cm
+    from ovis.common.calibration.lens_check import viewing
     from ovis.services.cli.reports import print_accuracy
+    from ovis.services.cli.ui import console, table
 
-    con = Console(highlight=False)
+    con = console()
     cam = calib.camera
-    cx, cy, cz = camera_centre_cm(cam)
+    height, tilt = viewing(cam)
     con.print(
-        f"camera centre ({cx:.2f}, {cy:.2f}, {cz:.2f}) cm in the floor's frame; lens fx "
-        f"{cam.fx:.2f} fy {cam.fy:.2f} cx {cam.cx:.2f} cy {cam.cy:.2f} px (fixed)"
+        f"camera {height:.2f} cm above the floor (z = 0), its axis {tilt:.1f}° from straight "
+        f"down; lens fx {cam.fx:.2f} fy {cam.fy:.2f} cx {cam.cx:.2f} cy {cam.cy:.2f} px "
+        "(fixed)"
     )
-    if len(calib.points) <= 12:
-        t = Table(title="control points", title_justify="left")
-        for col in ("point", "X,Y,Z cm", "pixel row,col", "predicted row,col", "px"):
-            t.add_column(col, justify="right")
-        for r in calib.points:
-            t.add_row(
-                r.name,
-                f"{r.x_cm:g}, {r.y_cm:g}, {r.z_cm:g}",
-                f"{r.detected_row:.2f}, {r.detected_col:.2f}",
-                f"{r.predicted_row:.2f}, {r.predicted_col:.2f}",
-                f"{r.dipe_px:.3f}",
+    rep = calib.accuracy
+    check = rep.lens if rep is not None else None
+    loo = {p.name: p for p in rep.leave_one_out.points} if rep and rep.leave_one_out else {}
+    columns = ["point", "X,Y,Z cm", "row,col", "px", "cm"]
+    columns += ["LOO px", "LOO cm"] if loo else []
+    title = "control points: pixel, residual (px; cm on the floor)"
+    t = table(title + (", held out (leave-one-out)" if loo else ""), columns)
+    cms = check.residual_cm if check is not None else [None] * len(calib.points)
+    for r, cm in zip(calib.points, cms, strict=True):
+        row = [
+            r.name,
+            f"{r.x_cm:g},{r.y_cm:g},{r.z_cm:g}",
+            f"{r.detected_row:.2f},{r.detected_col:.2f}",
+            f"{r.dipe_px:.3f}",
+            "-" if cm is None else f"{cm:.3f}",
+        ]
+        if loo:
+            h = loo[r.name]
+            row += [f"{h.error_px:.3f}", "-" if h.error_cm is None else f"{h.error_cm:.3f}"]
+        t.add_row(*row)
+    con.print(t)
+    lens_rms = "not stated" if intr.rms_px is None else f"{intr.rms_px:.3f} px"
+    line = (
+        f"{len(calib.points)} control points: DIPE mean "
+        f"{dipe_text(calib.dipe_px, calib.dipe_mm)}, max "
+        f"{dipe_text(calib.dipe_max_px, calib.dipe_max_mm)}; lens RMS {lens_rms}"
+    )
+    if check is not None:
+        line += f"; residual RMS {check.rms_px:.3f} px"
+        if check.allowed_rms_px is not None:
+            verdict = "explained" if check.explained else "NOT explained"
+            line += (
+                f", {verdict} (at most {check.allowed_rms_px:.3f} px for the lens and the "
+                f"points' precision {check.point_px:g} px)"
             )
-        con.print(t)
-    con.print(
-        f"{len(calib.points)} control points: DIPE mean {dipe_text(calib.dipe_px, calib.dipe_mm)}"
-        f", max {dipe_text(calib.dipe_max_px, calib.dipe_max_mm)}"
-    )
-    for w in warnings:
-        con.print(f"WARNING (forced): {w}")
-    print_accuracy(calib, con)
-    con.print(f"wrote {out}")
+    con.print(line)
+    if loo:
+        held = rep.leave_one_out
+        cm = "" if held.mean_cm is None else f" = {held.mean_cm:.3f} cm"
+        con.print(
+            f"held out (leave-one-out): mean {held.mean_px:.3f} px{cm}, max {held.max_px:.3f} px"
+        )
+    if rep is not None:  # its notes (the held-out errors are in the table above)
+        import msgspec
+
+        shown = msgspec.structs.replace(rep, leave_one_out=None)
+        print_accuracy(msgspec.structs.replace(calib, accuracy=shown), con)
 
 
 def _pixel(text: str) -> tuple[float, float]:

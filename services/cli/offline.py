@@ -128,8 +128,14 @@ def calibrate(
         ),
     ] = None,
     square_cm: Annotated[
-        float, typer.Option("--square-cm", min=1e-6, help="--board: side of a square (cm).")
-    ] = 1.0,
+        float | None,
+        typer.Option(
+            "--square-cm",
+            min=1e-6,
+            help="--board (required): side of a square (cm); the camera's position is "
+            "in these units.",
+        ),
+    ] = None,
     marker_cm: Annotated[
         float | None, typer.Option("--marker-cm", min=1e-6, help="--board charuco: marker side.")
     ] = None,
@@ -138,6 +144,17 @@ def calibrate(
         typer.Option(
             help="With --intrinsics: ArUco markers TOML (dictionary; [[markers]] id, x_cm, "
             "y_cm, side_cm[, angle_deg]) taped at surveyed floor positions."
+        ),
+    ] = None,
+    point_px: Annotated[
+        float | None,
+        typer.Option(
+            "--point-px",
+            min=0.0,
+            help="With --intrinsics: how precisely the control points' pixels are known "
+            "(RMS, px); default 0.5 for --points and --markers (a careful click), 0 for "
+            "--board (the lens's own corner detector: its RMS covers them). A pose whose "
+            "residuals the lens's RMS and this do not explain is refused (exit 3).",
         ),
     ] = None,
     force: Annotated[
@@ -199,6 +216,12 @@ def calibrate(
     Every calibration also reports its held-out error (leave-one-out over the control
     points, and --check points) and which parameters the data determine (GA restarts,
     Jacobian), and the GA's DIPE beside the least-squares polish's.
+
+    With --intrinsics CAM.yaml the lens is fixed and only the camera's pose is solved,
+    from pixel-known points, --board (with --square-cm) or --markers. The report gives
+    the camera's height and tilt, the lens's RMS and each point's residual; a pose whose
+    residuals the lens's RMS and the points' precision (--point-px) do not explain is
+    refused (exit 3) naming the point, or the lens file, to blame, unless --force.
     """
     from ovis.common.calibration.file import save_calibration
     from ovis.common.config import load_points, with_ga
@@ -214,6 +237,7 @@ def calibrate(
             square_cm=square_cm,
             marker_cm=marker_cm,
             markers=markers,
+            point_px=point_px,
             config=config,
             preset=preset,
             out=out,
