@@ -24,13 +24,14 @@ from foreign_mcap import (
 )
 from real_photos import photo_paths
 
-from ovis.common.messages import Frame, decode
+from ovis.common.messages import Frame, decode, encode
 from ovis.common.recording.foreign import (
     ForeignError,
     ForeignFrames,
     choose_channel,
     compressed_pixels,
     first_image,
+    frame_size,
     list_channels,
     raw_pixels,
 )
@@ -200,3 +201,22 @@ def test_a_damaged_message_is_refused_with_the_reason(tmp_path: Path, photos) ->
     # a message that is not CDR at all
     with pytest.raises(ForeignError, match=r"not a valid sensor_msgs/msg/Image \(cdr\)"):
         ForeignFrames(path, info, "k").decoder(b"\x00\x01garbage")
+
+
+def test_frame_size_of_any_recording(tmp_path: Path, photos) -> None:
+    """The size `ovis up --calibration` checks: a foreign file's first image, an ovis
+    recording's first frame (None without frames)."""
+    other = tmp_path / "other.mcap"
+    write_photos(other, photos, "foxglove protobuf png", T0, PERIOD)
+    assert frame_size(other) == (640, 512)
+    ours = tmp_path / "ours.mcap"
+    writer = SessionWriter(ours)
+    writer.frame("ovis/default/frames", encode(Frame.from_image(photos[0][1][:100], seq=0,
+                 stamp_ns=T0)), T0, T0)  # fmt: skip
+    writer.close()
+    assert frame_size(ours) == (640, 100)
+    empty = tmp_path / "empty.mcap"
+    writer = SessionWriter(empty)
+    writer.bus("ovis/default/health", b"\x80", T0, T0)
+    writer.close()
+    assert frame_size(empty) is None

@@ -228,6 +228,13 @@ def up(
     seed: Annotated[
         int | None, typer.Option(min=0, help="Simulated scene seed ([service] seed).")
     ] = None,
+    topic: Annotated[
+        str | None,
+        typer.Option(
+            help="--source X.mcap written by another tool: the topic of its image channel "
+            "to read ([service] source_topic); needed when it has several."
+        ),
+    ] = None,
 ) -> None:
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
@@ -256,6 +263,7 @@ def up(
         fps=fps,
         state_dir=state_dir,
         seed=seed,
+        source_topic=topic,
     )
     topics = _topics(cfg)
     cpus = _cpus(pin) or []
