@@ -246,7 +246,8 @@ def up(
     """
     if cameras is not None:
         given = [f"--{n}" for n, v in (("source", source), ("calibration", calibration),
-                 ("record", record), ("view", view or None), ("arena", arena)) if v]  # fmt: skip
+                 ("record", record), ("view", view or None), ("arena", arena),
+                 ("topic", topic)) if v]  # fmt: skip
         if given:
             raise UserError(f"--cameras runs the simulated grid: not with {', '.join(given)}")
         from ovis.services.cli.multicam_up import up_cameras
