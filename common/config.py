@@ -532,6 +532,16 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     #: one camera of several (``[[cameras]]``): this process is in that camera's chain
     #: and its topics are ``ovis/<arena>/cam/<camera_name>/…``; None: the one camera
     camera_name: CameraName | None = None
+    #: an MCAP source another tool wrote: the topic of the image channel to read (empty:
+    #: its only image channel); ``ovis up --topic``
+    source_topic: Annotated[str, msgspec.Meta(max_length=4096)] = ""
+
+    def __post_init__(self) -> None:
+        if self.source_topic and not self.source.lower().endswith(".mcap"):
+            raise ValueError(
+                f"source_topic {self.source_topic!r} picks a channel of an MCAP file, but "
+                f"the source is {self.source!r}: give an .mcap source or no topic"
+            )
 
 
 class CameraSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -538,6 +538,10 @@ def _source_size(cfg) -> tuple[int, int] | None:
     source = cfg.service.source
     if source == "sim" or not Path(source).exists():
         return None
+    if source.lower().endswith(".mcap"):  # a recording: its first frame (checked already)
+        from ovis.common.recording.foreign import frame_size
+
+        return frame_size(source, cfg.service.source_topic or None)
     from ovis.common.capture.sources import SourceError, open_source
 
     try:

@@ -200,6 +200,13 @@ def up(
     seed: Annotated[
         int | None, typer.Option(min=0, help="Simulated scene seed ([service] seed).")
     ] = None,
+    topic: Annotated[
+        str | None,
+        typer.Option(
+            help="--source X.mcap written by another tool: the topic of its image channel "
+            "to read ([service] source_topic); needed when it has several."
+        ),
+    ] = None,
 ) -> None:
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
@@ -211,7 +218,8 @@ def up(
     """
     if cameras is not None:
         given = [f"--{n}" for n, v in (("source", source), ("calibration", calibration),
-                 ("record", record), ("view", view or None), ("arena", arena)) if v]  # fmt: skip
+                 ("record", record), ("view", view or None), ("arena", arena),
+                 ("topic", topic)) if v]  # fmt: skip
         if given:
             raise UserError(f"--cameras runs the simulated grid: not with {', '.join(given)}")
         from ovis.services.cli.multicam_up import up_cameras
@@ -228,6 +236,7 @@ def up(
         fps=fps,
         state_dir=state_dir,
         seed=seed,
+        source_topic=topic,
     )
     topics = arena_topics(cfg)
     cpus = _cpus(pin) or []
