@@ -34,7 +34,7 @@ from ovis.common.world.marker_search import (
 )
 from ovis.common.world.planner import planner_inputs
 from ovis.common.world.plans import RobotPlan, robot_plans
-from ovis.common.world.pose import ROBOT_ID, Tracker, pick_robot
+from ovis.common.world.pose import ROBOT_ID, Tracker, pick_robot, robot_ids
 from ovis.common.world.robots import RobotState, RobotTracker, UnknownMarker
 
 __all__ = [
@@ -312,8 +312,8 @@ class Detector:
         self.camera = camera
         self.image = image
         self.pose = pose
-        first_obstacle = max((r.id for r in pose.robots), default=ROBOT_ID) + 1
-        self.tracker = Tracker(pose.track_gate_cm, _next_id=first_obstacle)
+        self.tracker = Tracker(pose.track_gate_cm)
+        self.tracker.reserve(robot_ids(pose))
         self.robots = RobotTracker(pose)
         self.tables = PlaneTables()
         self._last_stamp: float | None = None
@@ -322,9 +322,12 @@ class Detector:
         self.top_side_cm = top_side_cm(pose, camera)
 
     def recalibrate(self, camera: CameraModel, image: ImageParams, pose: PoseConfig) -> None:
-        """Use a new calibration; obstacle and robot identities are kept."""
+        """Use a new calibration; obstacle and robot identities are kept, except that an
+        obstacle holding an id a newly configured robot has gets a new one (ids are unique
+        across kinds, :meth:`Tracker.reserve`)."""
         self.camera, self.image, self.pose = camera, image, pose
         self.tracker.gate_cm = pose.track_gate_cm
+        self.tracker.reserve(robot_ids(pose))
         self.robots.reconfigure(pose)
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
         self.marker_side_px = marker_side_px(pose, camera)
