@@ -1,7 +1,8 @@
 """One frame → robot and obstacles on the floor, and the motion planner's inputs.
 
 The paper's pipeline (§3) with a calibration: median step, binarization, 8-connected
-labeling, size filter A^f (cm² on the floor, through the camera), Koplowitz–Bruckstein
+labeling, size filter A^f (cm² on the floor, through the camera; the background is never
+an object, :mod:`ovis.common.vision.objects`), Koplowitz–Bruckstein
 perimeter and compactness (eq. 13); then each blob's centroid is back-projected onto the
 plane of its class's top face (robot or obstacle height) to get its world position, its
 radius is that of the disk of equal floor area, and the orientation of non-circular
@@ -23,6 +24,7 @@ from ovis.common.camera.projection import PixelJacobian, pixel_footprint_cm2, pi
 from ovis.common.config import CameraModel, ImageParams, PinholeParams, PoseConfig
 from ovis.common.vision.labeling import filter_components, label_components
 from ovis.common.vision.markers import Markers
+from ovis.common.vision.objects import background
 from ovis.common.vision.perimeter import perimeter
 from ovis.common.vision.preprocess import ImageError, as_gray, segment, smooth
 from ovis.common.vision.shape import compactness, orientation
@@ -200,10 +202,14 @@ def measure_blobs_and_maps(
     min_area_px: float = 0.0,
     tables: PlaneTables | None = None,
 ) -> tuple[Blobs, list[PixelJacobian]]:
-    """:func:`measure_blobs` (size filter on ``planes_cm[0]``), and the pixel → plane map
+    """:func:`measure_blobs` (size filter on ``planes_cm[0]``, never the background:
+    :func:`~ovis.common.vision.objects.background`), and the pixel → plane map
     at every kept blob on each of ``planes_cm``, all from one back-projection (the size
     filter needs the first anyway; the pose wants the obstacle and the robot plane)."""
     comp = label_components(binary, min_area_px=min_area_px)
+    behind = background(comp)
+    if behind.any():
+        comp = filter_components(comp, ~behind)
     maps = plane_maps(comp.row, comp.col, camera, planes_cm, tables)
     footprint = maps[0].area_cm2
     keep = (footprint > 0) & (comp.area_px * footprint >= params.size_filter_cm2)

@@ -355,7 +355,11 @@ def detect(
     ] = None,
     size_filter: Annotated[
         float | None,
-        typer.Option(min=0.0, help="Smallest object: cm² with a calibration, px without."),
+        typer.Option(
+            min=0.0,
+            help="Smallest object: cm² with a calibration (default: its size filter), px "
+            "without (default: 1/20 of the typical object's area, at least 16 px).",
+        ),
     ] = None,
     max_size: Annotated[
         float | None,
