@@ -38,6 +38,7 @@ from ovis.common.world.planner import planner_inputs
 from ovis.common.world.plans import RobotPlan, robot_plans
 from ovis.common.world.pose import ROBOT_ID, Tracker, pick_robot, robot_ids
 from ovis.common.world.robots import RobotState, RobotTracker, UnknownMarker
+from ovis.common.world.unmarked import UnmarkedRobot
 
 __all__ = [
     "Blobs",
@@ -88,6 +89,10 @@ class DetectedObject(msgspec.Struct):
     elongation: NonNegative = 1.0
     vx_cm_s: Finite = 0.0
     vy_cm_s: Finite = 0.0
+    #: whether ``heading_deg`` is the robot's front (a marker's, or an unmarked robot's
+    #: resolved from its motion, :mod:`ovis.common.world.unmarked`); false: an axis, either
+    #: end (obstacles, and an unmarked robot that has not moved yet)
+    heading_resolved: bool = False
 
 
 class PlannerEntry(msgspec.Struct):
@@ -291,11 +296,13 @@ class _MarkedFrame(NamedTuple):
         z: NDArray[np.float64],
         heading: NDArray[np.object_],
         vel: NDArray[np.float64],
+        resolved: NDArray[np.bool_],
     ) -> None:
         """Write each robot's id and filtered pose into its blob's columns (in place)."""
         for robot, k in zip(self.robots, self.rep, strict=True):
             if k >= 0:
                 ids[k], z[k], heading[k] = robot.id, robot.z_cm, robot.heading_deg
+                resolved[k] = True
                 xy[k] = robot.x_cm, robot.y_cm
                 vel[k] = robot.vx_cm_s, robot.vy_cm_s
 
@@ -321,6 +328,7 @@ class Detector:
         self.tracker = Tracker(pose.track_gate_cm)
         self.tracker.reserve(robot_ids(pose))
         self.robots = RobotTracker(pose)
+        self.unmarked = UnmarkedRobot(pose)
         self.tables = PlaneTables()
         self._last_stamp: float | None = None
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
@@ -335,6 +343,7 @@ class Detector:
         self.tracker.gate_cm = pose.track_gate_cm
         self.tracker.reserve(robot_ids(pose))
         self.robots.reconfigure(pose)
+        self.unmarked.pose = pose
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
         self.marker_side_px = marker_side_px(pose, camera)
         self.top_side_cm = top_side_cm(pose, camera)
@@ -411,6 +420,7 @@ class Detector:
         dt = now - self._last_stamp if self._last_stamp is not None else 1.0
         self._last_stamp = now
         marked = _MarkedFrame.none(n)
+        robot = -1  # the unmarked robot's blob
         if pose.robots:
             marked = self._marked(markers or Markers.none(), top, now)
             is_robot = marked.owner >= 0
@@ -436,8 +446,14 @@ class Detector:
         vel[obstacle] = step / dt if dt > 0 else 0.0
         shown = heading.astype(object)
         shown[elongation < ROUND_ELONGATION] = None
+        resolved = np.zeros(n, dtype=bool)
         if pose.robots:  # each robot's blob where its marker and filter put it
-            marked.fill(ids, xy, z, shown, vel)
+            marked.fill(ids, xy, z, shown, vel, resolved)
+        elif robot >= 0 and ok[robot]:  # the unmarked robot: heading oriented, velocity
+            x, y = xy[robot].tolist()
+            motion = self.unmarked.update(x, y, shown[robot], now)
+            shown[robot], resolved[robot] = motion.heading_deg, motion.resolved
+            vel[robot] = motion.vx_cm_s, motion.vy_cm_s
         # Objects in id order (the robot first), built column by column.
         out = np.arange(n)[ok]
         out = out[ids[out].argsort(kind="stable")]
@@ -458,6 +474,7 @@ class Detector:
             "elongation": elongation,
             "vx_cm_s": vel[:, 0],
             "vy_cm_s": vel[:, 1],
+            "heading_resolved": resolved,
         }
         fields = DetectedObject.__struct_fields__  # positional: in field order
         objects = list(map(DetectedObject, *(columns[f][out].tolist() for f in fields)))
