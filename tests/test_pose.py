@@ -46,6 +46,21 @@ def test_tracker_gives_new_ids_beyond_the_gate_and_never_reuses() -> None:
     assert ids.tolist() == [3]  # the track was lost: a new id, never an old one
 
 
+def test_reserved_ids_are_never_given_to_obstacles() -> None:
+    """A calibration that configures robots 2 and 7 while obstacles 1–3 are tracked: the
+    one holding 2 gets a new id above the robots', the others keep theirs, and new
+    obstacles skip every id a robot has or had."""
+    t = Tracker(gate_cm=5.0)
+    t.update(np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]]))
+    t.reserve({2, 7})
+    ids, _ = t.update(np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0]]))
+    assert ids.tolist() == [1, 8, 3, 9]
+    t.reserve({10})
+    ids, _ = t.update(np.array([[40.0, 0.0], [50.0, 0.0]]))
+    assert ids.tolist() == [11, 12]
+    assert ROBOT_ID in t.reserved and {2, 7, 10} <= t.reserved
+
+
 def _dense_optimum(a: np.ndarray, b: np.ndarray, gate: float) -> tuple[int, float]:
     """Pairs and total distance of the one dense assignment the tracker used to solve."""
     if not (len(a) and len(b)):

@@ -1,6 +1,7 @@
-"""Detection on a real photo (skimage's coins): one blob per coin, checked against an
-independent segmentation; adaptive threshold and background subtraction where a fixed
-threshold fails."""
+"""Detection on real photos (skimage's coins): one blob per coin, checked against an
+independent segmentation, on canvases of any size; adaptive threshold and background
+subtraction where a fixed threshold fails; plain photos (skimage's camera, moon, page)
+whose background is never an object."""
 
 from __future__ import annotations
 
@@ -70,6 +71,52 @@ def test_detect_coins_with_no_flag_one_blob_per_coin(coins) -> None:
     check_one_blob_per_coin(out["objects"], labels)
 
 
+def on_canvas(image: np.ndarray, labels: np.ndarray, cols: int, rows: int):
+    """The photo and its reference labels pasted in the top-left corner of a canvas of
+    the photo's median grey (its floor): a wider view of the same coins. (The corner: the
+    photo's bottom and right edges are darker than that grey, so the paste draws no
+    bright edge; its bright top edge would be an object of the canvas in its own right.)"""
+    canvas = np.full((rows, cols), int(np.median(image)), np.uint8)
+    where = np.zeros((rows, cols), labels.dtype)
+    canvas[: image.shape[0], : image.shape[1]] = image
+    where[: image.shape[0], : image.shape[1]] = labels
+    return canvas, where
+
+
+@pytest.mark.parametrize(
+    "cols, rows", [(384, 303), (512, 400), (640, 480), (1024, 768), (1280, 960), (1920, 1440)]
+)
+def test_coins_on_any_canvas_give_24_of_24_at_defaults(
+    coins, tmp_path: Path, cols: int, rows: int
+) -> None:
+    """The smallest object follows the objects, not the frame's area (a fixed fraction of
+    the frame dropped coins on the larger canvases)."""
+    _, labels = coins
+    canvas, where = on_canvas(data.coins(), labels, cols, rows)
+    path = tmp_path / "canvas.png"
+    cv2.imwrite(str(path), canvas)
+    out = json.loads(ovis("detect", str(path), "--json").stdout)
+    check_one_blob_per_coin(out["objects"], where)
+    assert out["background_blobs"] == 0
+    smallest = min(o["area_px"] for o in out["objects"])
+    assert 16 <= out["min_area_px"] < smallest / 5  # far below the smallest coin
+
+
+@pytest.mark.parametrize("name", ["camera", "moon", "page"])
+def test_the_background_of_a_plain_photo_is_not_an_object(name: str, tmp_path: Path) -> None:
+    """skimage's camera, moon and page: the blob that touches the border and covers most
+    of the frame is left out, and said so."""
+    image = getattr(data, name)()
+    path = tmp_path / f"{name}.png"
+    cv2.imwrite(str(path), image)
+    out = json.loads(ovis("detect", str(path), "--json").stdout)
+    assert out["background_blobs"] == 1
+    frame = image.shape[0] * image.shape[1]
+    assert all(o["area_px"] < 0.5 * frame for o in out["objects"])
+    text = " ".join(ovis("detect", str(path)).stdout.split())  # the title may wrap
+    assert "1 background blob left out" in text
+
+
 def test_otsu_finds_24_blobs_but_a_wrong_segmentation(coins) -> None:
     """A count of 24 is not enough: global Otsu merges a coin with the uneven background."""
     path, labels = coins
@@ -90,7 +137,7 @@ def _fixed_never_works(path: Path, labels: np.ndarray) -> None:
 
     frame = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     for level in range(256):
-        objs = detect_pixels(frame, ImageParams(median="ordinary", threshold=level))
+        objs = detect_pixels(frame, ImageParams(median="ordinary", threshold=level)).objects
         assert not is_correct([msgspec.structs.asdict(o) for o in objs], labels), level
 
 

@@ -193,8 +193,9 @@ class RobotFilter:
         self.heading = _predicted(self.heading, dt, self.accel_var[1], q)
         self.stamp_s = stamp_s
 
-    def update(self, x: float, y: float, heading: float) -> None:
-        """Fold in one marker measurement taken at the current stamp."""
+    def update(self, x: float, y: float, heading: float | None) -> None:
+        """Fold in one measurement taken at the current stamp (a marker's; without a
+        heading, the position alone: an unmarked robot's centre)."""
         value, rate = self.value, self.rate
         (k0, k1), self.position = _corrected(self.position, self.noise_var[0])
         dx, dy = x - value[0], y - value[1]
@@ -202,11 +203,13 @@ class RobotFilter:
         value[1] += k0 * dy
         rate[0] += k1 * dx
         rate[1] += k1 * dy
+        self.seen_s = self.stamp_s
+        if heading is None:
+            return
         (k0, k1), self.heading = _corrected(self.heading, self.noise_var[1])
         turn = wrap_angle_deg(heading - value[2])
         value[2] = wrap_angle_deg(value[2] + k0 * turn)
         rate[2] += k1 * turn
-        self.seen_s = self.stamp_s
 
 
 def _predicted(

@@ -622,7 +622,7 @@ def detect_without_calibration(images: list[Path], flags: dict, *, json: bool, o
 
     from ovis.common.config import ImageParams
     from ovis.common.vision.imageio import read_image
-    from ovis.common.world.pixels import default_min_area_px, detect_pixels
+    from ovis.common.world.pixels import detect_pixels
     from ovis.services.cli.ui import emit_json
 
     size_filter, max_size = flags.pop("size_filter"), flags.pop("max_size")
@@ -631,18 +631,27 @@ def detect_without_calibration(images: list[Path], flags: dict, *, json: bool, o
     for i, path in enumerate(images):
         frame = read_image(path)
         found = detect_pixels(frame, params, min_area_px=size_filter, max_area_px=max_size)
-        results.append({"image": str(path), "objects": found})
+        results.append(
+            {
+                "image": str(path),
+                "objects": found.objects,
+                "min_area_px": found.min_area_px,
+                "background_blobs": found.background,
+            }
+        )
         if overlay is not None:
-            _draw_pixel_objects(frame, found, overlay, i, len(images))
+            _draw_pixel_objects(frame, found.objects, overlay, i, len(images))
     if json:
         emit_json(results[0] if len(results) == 1 else results)
         return
     con = Console(highlight=False)
     for r, path in zip(results, images, strict=True):
-        lo = size_filter if size_filter is not None else default_min_area_px(read_image(path).shape)
+        behind = r["background_blobs"]
         t = Table(
             title=f"{path}: {len(r['objects'])} object(s), pixels only (no calibration; "
-            f"threshold {params.threshold_mode}, smallest {lo:.0f} px)",
+            f"threshold {params.threshold_mode}, smallest {r['min_area_px']:.0f} px"
+            + (f"; {behind} background blob left out" if behind else "")
+            + ")",
             title_justify="left",
         )
         for col in ("id", "row", "col", "area px", "perim px", "compact."):

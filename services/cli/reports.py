@@ -167,6 +167,17 @@ def print_accuracy(calib, con=None) -> None:
         con.print(f"- {note}")
 
 
+def _unmarked_motion(robot) -> str:
+    """The unmarked robot's heading (and whether it is its front) and velocity."""
+    if robot.heading_deg is None:
+        heading = "none (a round blob)"
+    elif robot.heading_resolved:
+        heading = f"{robot.heading_deg:.1f} deg (its front, from its motion)"
+    else:
+        heading = f"{robot.heading_deg:.1f} deg (either end: it has not moved yet)"
+    return f"heading {heading}, velocity ({robot.vx_cm_s:.1f}, {robot.vy_cm_s:.1f}) cm/s"
+
+
 def print_detection(path: Path, det) -> None:
     con = console()
     columns = ("id", "kind", "row", "col", "area px", "perim px", "compact.")
@@ -185,6 +196,9 @@ def print_detection(path: Path, det) -> None:
             f"{o.radius_cm:.2f}",
         )
     con.print(t)
+    robot = next((o for o in det.objects if o.kind == "robot"), None)
+    if robot is not None and not det.robots:  # the unmarked robot
+        con.print(f"robot {robot.id}: {_unmarked_motion(robot)}")
     if det.robots or det.unknown_markers:
         from ovis.services.cli.robots import print_robots
 
