@@ -533,6 +533,12 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     #: and its topics are ``ovis/<arena>/cam/<camera_name>/…``; None: the one camera
     camera_name: CameraName | None = None
 
+    @property
+    def simulated_source(self) -> bool:
+        """Whether ``source`` is the simulator ("sim" or a simulated grid camera):
+        anything else is a real camera's frames, which need a calibration of their own."""
+        return self.source == "sim" or self.source.startswith("grid:")
+
 
 class CameraSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """One of several cameras over one arena (``[[cameras]]``): its name, its source (as
