@@ -346,6 +346,8 @@ class ObstacleFrame(_Msg, tag="obstacles", kw_only=True):
     robot_plans: list[RobotPlan] = []
     unknown_markers: list[UnknownMarker] = []
     markers_at_border: Annotated[int, msgspec.Meta(ge=0)] = 0
+    #: the capture's stream identity of the frame (Frame.stream): whose run it is
+    stream: str = ""
 
 
 class StreamHealth(_Msg, tag="health", kw_only=True):
@@ -464,6 +466,7 @@ class ServiceStatus(_Msg, tag="status", kw_only=True):
     calibration_epoch: str = ""  # the calibrator's store id of the calibration in use
     seq_jumps: int = 0  # sequence jumps beyond the plausible gap (not counted as dropped)
     stream_restarts: int = 0  # times the capture's stream identity changed
+    stream: str = ""  # the capture's stream identity of the last frame (the capture's own)
 
 
 Message = (
