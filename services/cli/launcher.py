@@ -16,16 +16,19 @@ import typer
 
 from ovis.services.cli.errors import UserError
 from ovis.services.cli.options import (
+    CONNECT_S,
     DEFAULT_ENDPOINT,
     STARTUP_S,
     ArenaOpt,
     ConfigOpt,
     ConnectOpt,
+    ConnectTimeoutOpt,
     JsonOpt,
     SummaryJsonOpt,
     arena_topics,
     config_with_options,
     stop_on_signals,
+    time_left,
 )
 
 __all__ = ["register"]
@@ -436,25 +439,30 @@ def watch(
     json: JsonOpt = False,
     count: Annotated[int | None, typer.Option(min=1, help="Stop after N frames.")] = None,
     duration: Annotated[float | None, typer.Option(min=0.0, help="Stop after S seconds.")] = None,
+    timeout: ConnectTimeoutOpt = CONNECT_S,
 ) -> None:
     """Subscribe to the obstacle topic and print each frame's objects and planner inputs.
 
     Also follows the pose service's health topic: when frames stop, it says "no data"
     (instead of going quiet). With --json, one JSON object per line, as published:
-    "type" is "obstacles" for a frame, "health" for the stream's state.
+    "type" is "obstacles" for a frame, "health" for the stream's state. With no router
+    answering within --timeout: exit code 4 and why. Ctrl-C or SIGTERM ends it at any
+    moment, also while it waits for the router.
     """
+    stop = stop_on_signals()  # first: nothing below may block before it is in place
     from ovis.common.messages import ObstacleFrame, StreamHealth, decode
-    from ovis.services.bus import open_session
+    from ovis.services.bus import client_session
     from ovis.services.cli.watching import format_health, format_obstacles
     from ovis.services.inbox import Inbox
 
     cfg = config_with_options(config, connect=connect, arena=arena)
     topics = arena_topics(cfg)
     box = Inbox(depth=64)
-    stop = stop_on_signals()
     seen = 0
     deadline = time.monotonic() + duration if duration is not None else None
-    with open_session(cfg.zenoh) as session:
+    with client_session(cfg.zenoh, timeout, stop, wait_s=time_left(timeout)) as session:
+        if session is None:  # stopped while waiting for the router
+            return
         session.declare_subscriber(topics.obstacles, lambda s: box.put(s.payload.to_bytes()))
         session.declare_subscriber(topics.health, lambda s: box.put(s.payload.to_bytes()))
         while not stop.is_set() and (count is None or seen < count):
@@ -484,7 +492,9 @@ def recalibrate(
     arena: ArenaOpt = None,
     frame: Annotated[int | None, typer.Option(min=0, help="Frame sequence number.")] = None,
     seed: Annotated[int | None, typer.Option(min=0, help="GA seed.")] = None,
-    timeout: Annotated[float, typer.Option(min=0.1, help="Seconds to wait for it.")] = 60.0,
+    timeout: Annotated[
+        float, typer.Option(min=0.1, help="Seconds to wait for the calibration.")
+    ] = 60.0,
     json: JsonOpt = False,
     cancel: Annotated[
         bool, typer.Option("--cancel", help="Cancel the calibration that runs instead.")
@@ -494,16 +504,27 @@ def recalibrate(
 
     Shows the new calibration's DIPE, parameters and version. While a calibration runs,
     the calibrator answers at once that it is busy (progress and ETA); --cancel stops it.
+    With no router answering within 5 s: exit code 4. Ctrl-C or SIGTERM ends it at any
+    moment (exit code 130).
     """
+    stop = stop_on_signals()  # first: nothing below may block before it is in place
     from ovis.common.calibration.file import dipe_text
     from ovis.common.messages import CalibrateReply, CalibrateRequest, decode, encode
-    from ovis.services.bus import open_session
+    from ovis.services.bus import client_session, interruptible
 
     cfg = config_with_options(config, connect=connect, arena=arena)
     topics = arena_topics(cfg)
     request = encode(CalibrateRequest(frame_seq=frame, seed=seed, cancel=cancel))
-    with open_session(cfg.zenoh, wait=False) as session:
-        replies = list(session.get(topics.calibrate, payload=request, timeout=timeout))
+    with client_session(cfg.zenoh, CONNECT_S, stop, wait_s=time_left(CONNECT_S)) as session:
+        replies = (
+            None
+            if session is None
+            else interruptible(
+                stop, lambda: list(session.get(topics.calibrate, payload=request, timeout=timeout))
+            )
+        )
+    if replies is None:
+        raise UserError("interrupted before the calibrator answered", 130)
     if not replies:
         raise UserError(
             f"no calibrator is alive on {topics.calibrate} (connect: "
@@ -540,15 +561,26 @@ def status(
     config: ConfigOpt = None,
     arena: ArenaOpt = None,
     json: JsonOpt = False,
+    timeout: ConnectTimeoutOpt = CONNECT_S,
 ) -> None:
-    """Which services are alive (Zenoh liveliness), their frame rates, drops and errors."""
-    from ovis.services.bus import open_session
+    """Which services are alive (Zenoh liveliness), their frame rates, drops and errors.
+
+    With no router answering within --timeout: exit code 4 and why. Ctrl-C or SIGTERM
+    ends it at any moment (exit code 130)."""
+    stop = stop_on_signals()  # first: nothing below may block before it is in place
+    from ovis.services.bus import client_session, interruptible
     from ovis.services.cli.watching import collect_status, status_table
 
     cfg = config_with_options(config, connect=connect, arena=arena)
     topics = arena_topics(cfg)
-    with open_session(cfg.zenoh, wait=False) as session:
-        report = collect_status(session, topics)
+    with client_session(cfg.zenoh, timeout, stop, wait_s=time_left(timeout)) as session:
+        report = (
+            None
+            if session is None
+            else interruptible(stop, lambda: collect_status(session, topics))
+        )
+    if report is None:
+        raise UserError("interrupted before the services answered", 130)
     if json:
         sys.stdout.write(msgspec.json.encode(report).decode() + "\n")
         return
