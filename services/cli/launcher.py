@@ -234,7 +234,9 @@ def up(
         if given:
             raise UserError(f"--cameras runs the simulated grid: not with {', '.join(given)}")
         from ovis.services.cli.multicam_up import up_cameras
+        from ovis.services.cli.startup import check_endpoint
 
+        check_endpoint(listen)  # one system per run
         return up_cameras(cameras, config=config, listen=listen, duration=duration, json=json,
                           seed=seed, fps=fps, max_restarts=max_restarts, pin=pin)  # fmt: skip
     cfg = config_with_options(

@@ -63,7 +63,7 @@ def format_health(msg: StreamHealth) -> str:
     """A health message that is not "ok", as one line: no data, and since when."""
     since = msg.seconds_since_frame
     ago = f"the last frame ({msg.last_seq}) came {since:.1f} s ago" if since else "no frame yet"
-    return f"NO DATA: frames {msg.state}; {ago}"
+    return f"NO DATA: frames {msg.state}; {ago}" + (f"; {msg.reason}" if msg.reason else "")
 
 
 class ServiceReport(msgspec.Struct):
@@ -142,8 +142,8 @@ def status_table(report: list[ServiceReport], topics: Topics):
             continue
         errors = ", ".join(f"{k} {v}" for k, v in s.errors.items()) or "0"
         state = s.state
-        if s.state in ("degraded", "failing"):
-            state = f"[red]{s.state}[/]: {s.reason}"
+        if s.state != "ok":  # any other state is not ok (waiting, source lost, …)
+            state = f"[red]{s.state}[/]" + (f": {s.reason}" if s.reason else "")
         t.add_row(
             r.service,
             "yes",
