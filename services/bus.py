@@ -3,6 +3,7 @@ a session that always closes, and the loopback peers of ``ovis up``."""
 
 from __future__ import annotations
 
+import errno
 import socket
 import threading
 from collections.abc import Callable, Iterator
@@ -158,8 +159,9 @@ def client_session(
 
 def endpoint_in_use(endpoint: str) -> str | None:
     """Why a router could not listen on ``endpoint`` because something holds it (the
-    operating system's words), or None: free, or not a port (a bind is tried, with
-    SO_REUSEADDR so that only a listener, not a closed connection, counts)."""
+    operating system's words), or None: free, not a port, or failing otherwise (the
+    router says why). A bind is tried, with SO_REUSEADDR so that only a listener, not a
+    closed connection, counts."""
     proto, _, address = endpoint.partition("/")
     address = address.split("#", 1)[0].split("?", 1)[0]
     host, _, port = address.rpartition(":")
@@ -176,5 +178,5 @@ def endpoint_in_use(endpoint: str) -> str | None:
         try:
             probe.bind(where)
         except OSError as exc:
-            return exc.strerror or str(exc)
+            return (exc.strerror or str(exc)) if exc.errno == errno.EADDRINUSE else None
     return None

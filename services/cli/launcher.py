@@ -339,10 +339,10 @@ def _wait_router(fleet, listen: str, stop) -> None:
         if "listening on" in text:
             return
         if fleet.children["router"].proc.poll() is not None:
-            last = text.strip().splitlines()[-1:] or ["(no output)"]
+            last = (text.strip().splitlines()[-1:] or ["(no output)"])[0]
             raise UserError(
-                f"the router could not listen on {listen}: {last[0]}; give --listen "
-                "tcp/127.0.0.1:PORT with a free port"
+                f"the router could not listen on {listen} ({last.removeprefix('error: ')}); "
+                "give --listen tcp/127.0.0.1:PORT with a free port"
             )
         stop.wait(0.05)
 
