@@ -142,7 +142,7 @@ def test_the_exit_code_says_what_came_out() -> None:
     assert end.exit_code == 3 and "camera 0 unplugged" in end.reason
     assert end.health["capture"] == "source lost: camera 0 unplugged"
     # nothing processed: exit 3, and the health is never "ok"
-    gone = _status("capture", state="source unavailable", last_error="folder D is gone")
+    gone = _status("capture", state="source lost", last_error="folder D is gone")
     idle = with_verdict(LiveScore().summary({"capture": gone}, {}, 3.0), gone, [])
     assert idle.exit_code == 3 and idle.reason == "no frame was captured: folder D is gone"
     assert idle.health["run"] == "no frame processed"
