@@ -20,6 +20,7 @@ No ovis import: a test file that must not import ovis (test_adversarial.py) runs
 from __future__ import annotations
 
 import contextlib
+import importlib
 import os
 import signal
 import sys
@@ -33,7 +34,7 @@ from typing import Any
 import pytest
 import zenoh
 
-__all__ = ["GRACE_S", "MARKER", "Proc", "Snapshot", "leaks", "processes", "snapshot"]
+__all__ = ["GRACE_S", "HANDS_OVER", "MARKER", "Proc", "Snapshot", "leaks", "processes", "snapshot"]
 
 #: Environment variable that marks every process started by this pytest run.
 MARKER = "OVIS_TEST_RUN"
@@ -41,6 +42,9 @@ MARKER = "OVIS_TEST_RUN"
 GRACE_S = 5.0
 #: Set by pytest itself while a test runs.
 _PYTEST_ENV = {"PYTEST_CURRENT_TEST"}
+#: Libraries that change the environment when first imported (OpenCV sets
+#: LD_LIBRARY_PATH): imported before the first test, so that no test is blamed for it.
+_IMPORTED_FIRST = ("cv2",)
 _HANDLED = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGPIPE, signal.SIGCHLD)
 
 _sessions: list[zenoh.Session] = []  # every session opened in this process, while open
@@ -225,12 +229,13 @@ def _left_open(before: set[int]) -> list[zenoh.Session]:
     return left
 
 
-def leaks(before: Snapshot) -> list[str]:
+def leaks(before: Snapshot, *, processes_too: bool = True) -> list[str]:
     """What was left behind since ``before``, one line each (after waiting up to
     :data:`GRACE_S` for processes and threads that are exiting); kills the processes,
     closes the sessions and restores the test process."""
     deadline = time.monotonic() + GRACE_S
-    while True:
+    left: list[Proc] = []
+    while processes_too:
         now = processes()
         owners = {p.pid for p in before.procs.values() if now.get(p.pid) == p}
         left = [p for p in now.values() if not _under(p, owners, now)]
@@ -328,15 +333,27 @@ def _tracked_open(*args: Any, **kwargs: Any) -> zenoh.Session:
     return session
 
 
-def _guard(what: str) -> Iterator[None]:
+def _guard(what: str, *, processes_too: bool = True) -> Iterator[None]:
     before = snapshot()
     yield
-    found = leaks(before)
+    found = leaks(before, processes_too=processes_too)
     if found:
         pytest.fail(f"{what} left behind:\n  " + "\n  ".join(found), pytrace=False)
 
 
+#: Marks a test whose processes a module-scoped fixture keeps and stops (checked when
+#: the module ends, not after the test).
+HANDS_OVER = "processes_kept_by_the_module"
+
+
 def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers",
+        f"{HANDS_OVER}: the processes this test starts are stopped by a module-scoped "
+        "fixture; the leak guard checks them when the module ends",
+    )
+    for name in _IMPORTED_FIRST:
+        importlib.import_module(name)
     # a pytest run by a test (pytester) adds its own pid: both guards see its processes
     os.environ[MARKER] = ",".join(filter(None, (os.environ.get(MARKER), str(os.getpid()))))
     zenoh.open = _tracked_open
@@ -356,4 +373,5 @@ def _nothing_left_by_the_module(request: pytest.FixtureRequest) -> Iterator[None
 @pytest.fixture(autouse=True)
 def _nothing_left_by_the_test(request: pytest.FixtureRequest) -> Iterator[None]:
     """Set up after the module's fixtures, torn down after the test's other fixtures."""
-    yield from _guard(request.node.nodeid)
+    kept = request.node.get_closest_marker(HANDS_OVER) is not None
+    yield from _guard(request.node.nodeid, processes_too=not kept)

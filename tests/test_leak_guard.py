@@ -124,11 +124,22 @@ def never_stopped():
     return proc
 
 
+@pytest.fixture(scope="module")
+def fleet():
+    procs = []
+    yield procs
+    for proc in procs:
+        proc.kill()
+        proc.wait()
+
+
 def test_one(stopped, never_stopped):
     assert stopped.poll() is None
 
 
-def test_two(stopped, never_stopped):
+@pytest.mark.processes_kept_by_the_module
+def test_two(stopped, never_stopped, fleet):
+    fleet.append(subprocess.Popen(SLEEPER))  # stopped with the fleet
     assert stopped.poll() is None
 """
 
@@ -171,6 +182,8 @@ def test_each_leak_fails_its_test_and_is_undone(
         assert "cores (sched affinity) of its threads" in out
     for name in ("test_cleans_up", "test_the_process_is_as_before", "test_one "):
         assert f"teardown of {name}" not in out
+    # the fleet's process, started by test_two, is not said to be left (only the module's)
+    assert out.count("process left running") == 3
     # what was left running is gone: killed by the guard
     for name in ("child", "orphan", "module"):
         stat = Path(f"/proc/{pids[name]}/stat")
