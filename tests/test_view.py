@@ -208,7 +208,9 @@ def test_counts_pictures_and_health_update(system) -> None:
         page.wait_for_selector("#picture[data-kind=camera]", timeout=5000)
         page.wait_for_timeout(500)
         DOCS_IMAGE.parent.mkdir(parents=True, exist_ok=True)
-        page.screenshot(path=str(DOCS_IMAGE), full_page=True)
+        # written here: given a path, Playwright writes it on a thread of its event loop's
+        # executor, a thread that then stays for the module
+        DOCS_IMAGE.write_bytes(page.screenshot(full_page=True))
     assert DOCS_IMAGE.stat().st_size > 20000
 
 
