@@ -23,11 +23,12 @@ import contextlib
 import importlib
 import os
 import signal
+import socket
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -117,22 +118,30 @@ def _read_dir(path: Path) -> list[Path]:
 
 def processes(root: int | None = None) -> dict[int, Proc]:
     """The live (not zombie) processes of this run: descendants of ``root`` (this
-    process) and processes that carry :data:`MARKER` = ``root``."""
+    process) and processes started since it that carry :data:`MARKER` = ``root``."""
     root = os.getpid() if root is None else root
     every: dict[int, Proc] = {}
-    marked: set[int] = set()
     for entry in _read_dir(Path("/proc")):
-        if not entry.name.isdigit() or int(entry.name) == root:
-            continue
-        fields = _read(entry / "stat").decode(errors="replace").rpartition(")")[2].split()
-        if len(fields) < 20 or fields[0] in "ZX":  # gone, or a zombie: uses nothing
-            continue
-        pid = int(entry.name)
-        cmd = _read(entry / "cmdline").replace(b"\0", b" ").decode(errors="replace").strip()
-        every[pid] = Proc(pid, int(fields[19]), int(fields[1]), cmd)
-        if root in _marks(_read(entry / "environ")):
-            marked.add(pid)
-    return {pid: p for pid, p in every.items() if pid in marked or _under(p, {root}, every)}
+        if entry.name.isdigit():
+            fields = _read(entry / "stat").decode(errors="replace").rpartition(")")[2].split()
+            if len(fields) > 19 and fields[0] not in "ZX":  # not gone, nor a zombie
+                every[int(entry.name)] = Proc(int(entry.name), int(fields[19]), int(fields[1]), "")
+    born = every[root].start if root in every else 0
+    ours = {
+        pid: p
+        for pid, p in every.items()
+        if pid != root
+        and (
+            _under(p, {root}, every)
+            or (p.start >= born and root in _marks(_read(Path(f"/proc/{pid}/environ"))))
+        )
+    }
+    return {pid: replace(p, cmd=_cmdline(pid)) for pid, p in ours.items()}
+
+
+def _cmdline(pid: int) -> str:
+    raw = _read(Path(f"/proc/{pid}/cmdline"))
+    return raw.replace(b"\0", b" ").decode(errors="replace").strip()
 
 
 def _marks(environ: bytes) -> set[int]:
@@ -198,18 +207,14 @@ def _signal_names(numbers: frozenset[int]) -> list[str]:
 
 def _listening_ports() -> set[int]:
     """The TCP ports this process listens on (its own sockets, not its children's)."""
-    inodes = set()
-    for fd in _read_dir(Path("/proc/self/fd")):
-        with contextlib.suppress(OSError):
-            target = os.readlink(fd)
-            if target.startswith("socket:["):
-                inodes.add(target[8:-1])
     ports = set()
-    for table in ("tcp", "tcp6"):
-        for line in _read(Path("/proc/net") / table).decode().splitlines()[1:]:
-            cols = line.split()
-            if len(cols) > 9 and cols[3] == "0A" and cols[9] in inodes:  # 0A: LISTEN
-                ports.add(int(cols[1].rsplit(":", 1)[1], 16))
+    for fd in _read_dir(Path("/proc/self/fd")):
+        with contextlib.suppress(OSError, ValueError):
+            if os.readlink(fd).startswith("socket:["):
+                with socket.socket(fileno=os.dup(int(fd.name))) as sock:
+                    inet = sock.family in (socket.AF_INET, socket.AF_INET6)
+                    if inet and sock.getsockopt(socket.SOL_SOCKET, socket.SO_ACCEPTCONN):
+                        ports.add(sock.getsockname()[1])
     return ports
 
 
