@@ -26,7 +26,8 @@ from ovis.common.vision.labeling import filter_components, label_components
 from ovis.common.vision.markers import Markers
 from ovis.common.vision.objects import background
 from ovis.common.vision.perimeter import perimeter
-from ovis.common.vision.preprocess import ImageError, as_gray, segment, smooth
+from ovis.common.vision.preprocess import ImageError, as_gray, smooth
+from ovis.common.vision.segmentation import segment
 from ovis.common.vision.shape import compactness, orientation
 from ovis.common.world.marker_search import (
     marker_search_image,
