@@ -544,6 +544,12 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
                 f"the source is {self.source!r}: give an .mcap source or no topic"
             )
 
+    @property
+    def simulated_source(self) -> bool:
+        """Whether ``source`` is the simulator ("sim" or a simulated grid camera):
+        anything else is a real camera's frames, which need a calibration of their own."""
+        return self.source == "sim" or self.source.startswith("grid:")
+
 
 class CameraSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """One of several cameras over one arena (``[[cameras]]``): its name, its source (as

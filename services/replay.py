@@ -286,7 +286,7 @@ def capture_from_recording(service: Service) -> None:
             on_skip=lambda reason: service.error("source", reason),
         )
     except RecordingError as exc:
-        service.state = "source unavailable"
+        service.state = "source lost"
         service.error("source", str(exc))
         service.ready()
         service.stop.wait()

@@ -512,68 +512,6 @@ def locate(
         print(f"row {f['row']:g}, col {f['col']:g} -> x {f['x_cm']:.3f} cm, y {f['y_cm']:.3f} cm")
 
 
-def hand_over_calibration(path: Path, cfg) -> str:
-    """`ovis up --calibration`: check the file (and, for a folder or video source, that
-    its frames are the calibration's size), store it as the newest version in the state
-    folder, and say so."""
-    from ovis.common.calibration.file import load_calibration
-    from ovis.common.calibration.store import CalibrationStore
-
-    calib = load_calibration(path)
-    size = _source_size(cfg)
-    cam = calib.camera
-    if size is not None and size != (cam.cols, cam.rows):
-        raise UserError(
-            f"{cfg.service.source} delivers {size[0]}x{size[1]} frames but {path} is for "
-            f"{cam.cols}x{cam.rows}; calibrate on a frame of this source"
-        )
-    saved = CalibrationStore(cfg.service.state_dir).save(calib)
-    return (
-        f"ovis up: calibration {path} stored as version {saved.version} in {cfg.service.state_dir}"
-    )
-
-
-def _source_size(cfg) -> tuple[int, int] | None:
-    """(width, height) of a folder's or video's first frame (None for live sources)."""
-    source = cfg.service.source
-    if source == "sim" or not Path(source).exists():
-        return None
-    if source.lower().endswith(".mcap"):  # a recording: its first frame (checked already)
-        from ovis.common.recording.foreign import frame_size
-
-        return frame_size(source, cfg.service.source_topic or None)
-    from ovis.common.capture.sources import SourceError, open_source
-
-    try:
-        src = open_source(source, cfg, loop=False)
-        try:
-            image, _ = src.read()
-        finally:
-            src.close()
-    except SourceError as exc:
-        raise UserError(str(exc)) from None
-    return image.shape[1], image.shape[0]
-
-
-def nothing_processed(summary, log_dir: Path) -> str:
-    """Why `ovis up` must fail when frames arrived and none came out ('' when fine)."""
-    if summary.frames_captured == 0 or summary.frames_processed > 0:
-        return ""
-    errors = "; ".join(
-        f"{svc}: {', '.join(f'{k} x{n}' for k, n in errs.items())}"
-        for svc, errs in summary.errors.items()
-    )
-    why = errors or (
-        "no calibration (version 0): give --calibration CALIB.json or a points file"
-        if summary.calibration_version < 1
-        else "no stage reported an error"
-    )
-    return (
-        f"{summary.frames_captured} frames captured, none processed: {why}; see the logs in "
-        f"{log_dir}"
-    )
-
-
 def with_image_flags(
     params,
     *,
