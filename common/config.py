@@ -246,11 +246,12 @@ class PinholeRanges(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 class ImageParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Image pipeline settings (paper §3). ``threshold``/``size_filter_cm2`` are calibrated.
 
-    Beyond the paper, for real floors (:mod:`ovis.common.vision.preprocess`):
+    Beyond the paper, for real floors (:mod:`ovis.common.vision.segmentation`):
     ``threshold_mode`` "fixed" (the paper's grey level), "otsu" (Otsu's level of the
     frame), "adaptive" (``threshold`` applied to the local contrast: the frame minus its
-    Gaussian local mean over ``block_px``, plus 128) or "auto" (Otsu's level of that
-    local contrast); ``background``, an image of the empty floor subtracted first (then
+    Gaussian local mean over ``block_px``, by default a window that follows the objects,
+    plus 128) or "auto" (Otsu's level of that local contrast around the objects);
+    ``background``, an image of the empty floor subtracted first (then
     128 is "as the empty floor"); ``roi``, a mask image (non-zero: look here);
     ``max_size_cm2``, the largest object kept.
     """
@@ -261,7 +262,7 @@ class ImageParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     size_filter_cm2: _rng(0.0, 1e6) = 20.0
     perimeter: Literal["kb", "crofton"] = "kb"
     threshold_mode: Literal["fixed", "otsu", "adaptive", "auto"] = "fixed"
-    block_px: Annotated[int, msgspec.Meta(ge=0, le=100001)] = 0  # 0: a third of the frame
+    block_px: Annotated[int, msgspec.Meta(ge=0, le=100001)] = 0  # 0: follows the objects
     background: str | None = None
     roi: str | None = None
     max_size_cm2: Annotated[float, msgspec.Meta(gt=0.0, le=1e9)] | None = None

@@ -35,6 +35,16 @@ def test_tracker_keeps_ids_through_motion_and_crossing_order() -> None:
     assert ids2.tolist() == [1]
 
 
+def test_tracker_says_which_displacements_are_measured() -> None:
+    """A new obstacle's displacement (0) is not measured; a tracked one's is."""
+    t = Tracker(gate_cm=5.0)
+    first = t.track(np.array([[0.0, 0.0]]))
+    assert first.tracked.tolist() == [False] and first.step.tolist() == [[0.0, 0.0]]
+    second = t.track(np.array([[1.0, 0.0], [30.0, 0.0]]))
+    assert second.tracked.tolist() == [True, False]
+    assert second.step.tolist() == [[1.0, 0.0], [0.0, 0.0]]
+
+
 def test_tracker_gives_new_ids_beyond_the_gate_and_never_reuses() -> None:
     t = Tracker(gate_cm=5.0)
     t.update(np.array([[0.0, 0.0]]))

@@ -71,21 +71,59 @@ def test_detect_coins_with_no_flag_one_blob_per_coin(coins) -> None:
     check_one_blob_per_coin(out["objects"], labels)
 
 
-def on_canvas(image: np.ndarray, labels: np.ndarray, cols: int, rows: int):
-    """The photo and its reference labels pasted in the top-left corner of a canvas of
-    the photo's median grey (its floor): a wider view of the same coins. (The corner: the
-    photo's bottom and right edges are darker than that grey, so the paste draws no
-    bright edge; its bright top edge would be an object of the canvas in its own right.)"""
+def on_canvas(
+    image: np.ndarray, labels: np.ndarray, cols: int, rows: int, at: tuple[int, int] = (0, 0)
+):
+    """The photo and its reference labels pasted with their top-left corner at ``at``
+    (row, col) on a canvas of the photo's median grey (its floor): a wider view of the
+    same coins."""
     canvas = np.full((rows, cols), int(np.median(image)), np.uint8)
     where = np.zeros((rows, cols), labels.dtype)
-    canvas[: image.shape[0], : image.shape[1]] = image
-    where[: image.shape[0], : image.shape[1]] = labels
+    inside = np.s_[at[0] : at[0] + image.shape[0], at[1] : at[1] + image.shape[1]]
+    canvas[inside], where[inside] = image, labels
     return canvas, where
 
 
-@pytest.mark.parametrize(
-    "cols, rows", [(384, 303), (512, 400), (640, 480), (1024, 768), (1280, 960), (1920, 1440)]
-)
+def evenly_lit(image: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """The photo with its own uneven light taken out, on its median grey: its floor (the
+    coins painted out by cv2.inpaint, blurred) subtracted. Pasted anywhere on a canvas of
+    that grey it draws no edge: its top is brighter than the canvas, its bottom darker, as
+    taken, and the local contrast sees those steps as light bands."""
+    mask = cv2.dilate((labels > 0).astype(np.uint8), np.ones((9, 9), np.uint8))
+    floor = cv2.inpaint(image, mask, 7, cv2.INPAINT_TELEA)
+    light = cv2.GaussianBlur(floor.astype(np.float32), (0, 0), 15)
+    return np.clip(image - light + np.median(image), 0, 255).astype(np.uint8)
+
+
+CANVASES = [(384, 303), (512, 400), (640, 480), (1024, 768), (1280, 960), (1920, 1440)]
+
+
+def places(cols: int, rows: int) -> dict[str, tuple[int, int]]:
+    """Where the photo goes on a canvas: its corner, its centre, an offset drawn at random
+    (seeded by the canvas's size)."""
+    free_r, free_c = rows - 303, cols - 384
+    rng = np.random.default_rng(cols * rows)
+    return {
+        "corner": (0, 0),
+        "centre": (free_r // 2, free_c // 2),
+        "random": (int(rng.integers(0, free_r + 1)), int(rng.integers(0, free_c + 1))),
+    }
+
+
+def detect_on(canvas: np.ndarray, tmp_path: Path) -> dict:
+    path = tmp_path / "canvas.png"
+    cv2.imwrite(str(path), canvas)
+    return json.loads(ovis("detect", str(path), "--json").stdout)
+
+
+def window_follows_the_coins(out: dict, labels: np.ndarray) -> None:
+    """About four coin widths (√ area), whatever the canvas."""
+    areas = np.bincount(labels.ravel())[1:]
+    widths = np.sqrt(areas[areas > 0])
+    assert 4 * widths.min() <= out["window_px"] <= 4 * widths.max(), out["window_px"]
+
+
+@pytest.mark.parametrize("cols, rows", CANVASES)
 def test_coins_on_any_canvas_give_24_of_24_at_defaults(
     coins, tmp_path: Path, cols: int, rows: int
 ) -> None:
@@ -93,13 +131,51 @@ def test_coins_on_any_canvas_give_24_of_24_at_defaults(
     the frame dropped coins on the larger canvases)."""
     _, labels = coins
     canvas, where = on_canvas(data.coins(), labels, cols, rows)
-    path = tmp_path / "canvas.png"
-    cv2.imwrite(str(path), canvas)
-    out = json.loads(ovis("detect", str(path), "--json").stdout)
+    out = detect_on(canvas, tmp_path)
     check_one_blob_per_coin(out["objects"], where)
     assert out["background_blobs"] == 0
     smallest = min(o["area_px"] for o in out["objects"])
     assert 16 <= out["min_area_px"] < smallest / 5  # far below the smallest coin
+    window_follows_the_coins(out, labels)
+
+
+@pytest.mark.parametrize("place", ["corner", "centre", "random"])
+@pytest.mark.parametrize("cols, rows", CANVASES)
+def test_coins_anywhere_on_any_canvas_give_24_of_24_at_defaults(
+    coins, tmp_path: Path, cols: int, rows: int, place: str
+) -> None:
+    """The local-contrast window and the auto level follow the objects, not the frame (a
+    third of the frame's side and Otsu's level of the whole frame found 20 to 23 of the 24
+    coins on every canvas larger than the photo)."""
+    _, labels = coins
+    photo = evenly_lit(data.coins(), labels)
+    canvas, where = on_canvas(photo, labels, cols, rows, places(cols, rows)[place])
+    out = detect_on(canvas, tmp_path)
+    check_one_blob_per_coin(out["objects"], where)
+    window_follows_the_coins(out, labels)
+
+
+@pytest.mark.parametrize("place", ["centre", "random"])
+@pytest.mark.parametrize("cols, rows", CANVASES[1:])
+def test_coins_as_taken_within_a_canvas_one_blob_per_coin(
+    coins, tmp_path: Path, cols: int, rows: int, place: str
+) -> None:
+    """The photo as taken, inside a canvas: every coin one blob (a coin merged with the
+    floor on 1920×1440 before); what else is found is the photo's own bright top edge
+    against the canvas, a real step of some 40 grey levels, no coin's."""
+    _, labels = coins
+    top, left = places(cols, rows)[place]
+    canvas, where = on_canvas(data.coins(), labels, cols, rows, (top, left))
+    out = detect_on(canvas, tmp_path)
+    ids = [k for k in np.unique(where) if k]
+    centres = np.array(ndi.center_of_mass(where > 0, where, ids))
+    found = np.array([[o["row"], o["col"]] for o in out["objects"]])
+    on_coin = np.linalg.norm(centres[:, None] - found[None], axis=2).min(axis=0) < 3.0
+    check_one_blob_per_coin([o for o, c in zip(out["objects"], on_coin, strict=True) if c], where)
+    edge = found[~on_coin]
+    assert len(edge) <= 3
+    assert ((edge[:, 0] >= top) & (edge[:, 0] < top + 15)).all(), edge
+    assert ((edge[:, 1] >= left) & (edge[:, 1] < left + 384)).all(), edge
 
 
 @pytest.mark.parametrize("name", ["camera", "moon", "page"])

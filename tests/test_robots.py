@@ -25,7 +25,15 @@ from ovis.common.config import (
     config_from_dict,
     load_config,
 )
-from ovis.common.messages import BinaryFrame, BlobList, Frame, MessageError, decode, encode
+from ovis.common.messages import (
+    BinaryFrame,
+    BlobList,
+    Frame,
+    MessageError,
+    ObstacleFrame,
+    decode,
+    encode,
+)
 from ovis.common.pipeline.stages import binary_frame, blob_list, obstacle_frame
 from ovis.common.sim.arena import Arena, SimObject
 from ovis.common.sim.scenes import marked_scene
@@ -44,6 +52,7 @@ from ovis.common.world.robots import (
     poses_of,
 )
 from ovis.common.world.unmarked import UnmarkedRobot
+from ovis.services.cli.watching import format_obstacles
 
 
 def _robot(i: int, marker: int | None = None, **kw) -> dict:
@@ -356,6 +365,10 @@ def test_a_robot_out_of_view_is_kept_with_its_age_then_dropped() -> None:
     assert tracker.update(Markers.none(), cam, 0.6)[0] == []  # dropped after 0.5 s
     back, _ = tracker.update(_markers([0], square), cam, 0.7)
     assert len(back) == 1 and back[0].age_s == 0.0  # a new filter
+    # one sighting (then a prediction) is no velocity; a second sighting is
+    assert [r.velocity_measured for r in (seen[0], kept[0], back[0])] == [False] * 3
+    again, _ = tracker.update(_markers([0], square), cam, 0.8)
+    assert again[0].velocity_measured and (again[0].vx_cm_s, again[0].vy_cm_s) == (0.0, 0.0)
 
 
 def test_unknown_marker_is_reported_not_tracked() -> None:
@@ -622,6 +635,15 @@ def test_unmarked_track_starts_again_after_the_timeout_or_a_jump() -> None:
     assert _track(robot, [(6.0 + 1.5 * k, 0.0, 0.0) for k in range(1, 3)], start=23)[-1].resolved
     jump = robot.update(40.0, 0.0, 0.0, 25 / 30)  # 31 cm from where it was expected
     assert not jump.resolved and (jump.vx_cm_s, jump.vy_cm_s) == (0.0, 0.0)
+    assert not jump.velocity_measured  # a new track: one position, no velocity yet
+    assert robot.update(41.5, 0.0, 0.0, 26 / 30).velocity_measured
+
+
+def test_unmarked_velocity_is_measured_from_the_second_frame() -> None:
+    robot = UnmarkedRobot(PoseConfig())
+    out = _track(robot, [(1.5 * k, 0.0, 0.0) for k in range(3)])
+    assert [m.velocity_measured for m in out] == [False, True, True]
+    assert (out[0].vx_cm_s, out[0].vy_cm_s) == (0.0, 0.0) and out[2].vx_cm_s > 20.0
 
 
 def test_filter_takes_a_position_without_a_heading() -> None:
@@ -657,24 +679,58 @@ def _unmarked_scores(pairs: list, fps: float) -> dict[str, float]:
     return {"within": within / moved, "flips": flips, "velocity": float(np.mean(errors))}
 
 
-def _unmarked_run(seed: int, frames: int, live: bool) -> tuple[list, float]:
-    """The (published, true) robot of each frame of a default arena, by Detector.detect or
-    through the stages (capture stamps ``1/fps`` apart)."""
+def _published(seed: int, frames: int, live: bool):
+    """Per frame of a default arena: the objects published (robot first), by
+    Detector.detect or through the stages (capture stamps ``1/fps`` apart, the obstacle
+    frame encoded and decoded), and the truth."""
     cfg = load_config()
     fps = cfg.simulator.fps
     calib = msgspec.structs.replace(calibration_from_config(cfg), version=1)
     detector = Detector(cfg.camera, cfg.image, cfg.pose)
-    pairs = []
     for k, (image, truth) in enumerate(Arena(cfg, seed).frames(frames)):
         if live:
             frame = Frame.from_image(image, seq=k, stamp_ns=round(1e18 + k * 1e9 / fps))
             blobs = blob_list(binary_frame(frame, as_gray(image), calib), calib, 0.0)
-            robot = obstacle_frame(blobs, detector, 1, "a", frame.stamp_ns).robot
+            out = obstacle_frame(blobs, detector, 1, "a", frame.stamp_ns)
+            out = decode(encode(out), ObstacleFrame)
+            yield [out.robot, *out.obstacles], truth, out
         else:
-            found = detector.detect(image, stamp_s=k / fps).objects
-            robot = next(o for o in found if o.kind == "robot")
-        pairs.append((robot, next(o for o in truth.objects if o.kind == "robot")))
-    return pairs, fps
+            yield detector.detect(image, stamp_s=k / fps).objects, truth, None
+
+
+def _unmarked_run(seed: int, frames: int, live: bool) -> tuple[list, float]:
+    """The (published, true) robot of each frame of a default arena (:func:`_published`)."""
+    pairs = [
+        (next(o for o in found if o.kind == "robot"),
+         next(o for o in truth.objects if o.kind == "robot"))
+        for found, truth, _ in _published(seed, frames, live)
+    ]  # fmt: skip
+    return pairs, load_config().simulator.fps
+
+
+@pytest.mark.parametrize("live", [False, True], ids=["offline", "live"])
+def test_no_velocity_is_published_before_it_is_measured(live: bool) -> None:
+    """The first frame of every track: velocity 0 and said not measured, and `ovis watch`
+    shows "–"; from the second frame on: measured, within 5 cm/s of the truth's step
+    (the simulator moves everything by its velocity each frame)."""
+    runs = list(_published(29004, 3, live))
+    fps = load_config().simulator.fps
+    for k, (found, truth, message) in enumerate(runs):
+        assert len(found) == len(truth.objects) >= 2
+        assert all(o.velocity_measured == (k > 0) for o in found)
+        if k == 0:
+            assert all((o.vx_cm_s, o.vy_cm_s) == (0.0, 0.0) for o in found)
+        else:
+            before = runs[k - 1][1].objects
+            for o in found:
+                t = min(truth.objects, key=lambda t: math.hypot(t.x_cm - o.x_cm, t.y_cm - o.y_cm))
+                t0 = next(b for b in before if b.id == t.id)
+                step = ((t.x_cm - t0.x_cm) * fps, (t.y_cm - t0.y_cm) * fps)
+                assert math.hypot(o.vx_cm_s - step[0], o.vy_cm_s - step[1]) < 5.0
+        if message is not None:
+            shown = format_obstacles(message).splitlines()[1:]
+            assert len(shown) == len(found)
+            assert all(("v – cm/s" in line) == (k == 0) for line in shown), shown
 
 
 @pytest.mark.parametrize("live", [False, True], ids=["offline", "live"])
@@ -719,6 +775,12 @@ def test_unmarked_robot_over_a_sequence_in_ovis_detect(tmp_path) -> None:
     ]
     scores = _unmarked_scores(pairs, 30.0)
     assert scores["within"] >= 0.95 and scores["flips"] == 0 and scores["velocity"] <= 2.0
+    measured = [[o["velocity_measured"] for o in f["objects"]] for f in found]
+    assert not any(measured[0]) and all(all(m) for m in measured[1:])
+    text = ovis("detect", *frames[:2], "--calibration", str(tmp_path / "c.json")).stdout
+    said = [line for line in text.splitlines() if line.startswith("robot 0:")]
+    assert len(said) == 2
+    assert "velocity –" in said[0] and "velocity (" in said[1], said
     slow = json.loads(ovis(*args, "--fps", "15").stdout)
     speed = [
         np.mean([math.hypot(o["vx_cm_s"], o["vy_cm_s"]) for f in run[1:] for o in f["objects"]

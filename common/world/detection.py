@@ -26,7 +26,8 @@ from ovis.common.vision.labeling import filter_components, label_components
 from ovis.common.vision.markers import Markers
 from ovis.common.vision.objects import background
 from ovis.common.vision.perimeter import perimeter
-from ovis.common.vision.preprocess import ImageError, as_gray, segment, smooth
+from ovis.common.vision.preprocess import ImageError, as_gray, smooth
+from ovis.common.vision.segmentation import segment
 from ovis.common.vision.shape import compactness, orientation
 from ovis.common.world.marker_search import (
     marker_search_image,
@@ -93,6 +94,9 @@ class DetectedObject(msgspec.Struct):
     #: resolved from its motion, :mod:`ovis.common.world.unmarked`); false: an axis, either
     #: end (obstacles, and an unmarked robot that has not moved yet)
     heading_resolved: bool = False
+    #: whether ``vx_cm_s``/``vy_cm_s`` are measured: the object tracked over two frames'
+    #: capture times; false in its first frame (they are then 0, not a measurement)
+    velocity_measured: bool = False
 
 
 class PlannerEntry(msgspec.Struct):
@@ -297,12 +301,13 @@ class _MarkedFrame(NamedTuple):
         heading: NDArray[np.object_],
         vel: NDArray[np.float64],
         resolved: NDArray[np.bool_],
+        measured: NDArray[np.bool_],
     ) -> None:
         """Write each robot's id and filtered pose into its blob's columns (in place)."""
         for robot, k in zip(self.robots, self.rep, strict=True):
             if k >= 0:
                 ids[k], z[k], heading[k] = robot.id, robot.z_cm, robot.heading_deg
-                resolved[k] = True
+                resolved[k], measured[k] = True, robot.velocity_measured
                 xy[k] = robot.x_cm, robot.y_cm
                 vel[k] = robot.vx_cm_s, robot.vy_cm_s
 
@@ -442,18 +447,22 @@ class Detector:
         vel = np.zeros((n, 2))
         xy = np.empty((n, 2))
         xy[:, 0], xy[:, 1] = j.x_cm, j.y_cm
-        ids[obstacle], step = self.tracker.update(xy[obstacle])
-        vel[obstacle] = step / dt if dt > 0 else 0.0
+        track = self.tracker.track(xy[obstacle])
+        ids[obstacle] = track.ids
+        measured = np.zeros(n, dtype=bool)
+        if dt > 0:
+            vel[obstacle], measured[obstacle] = track.step / dt, track.tracked
         shown = heading.astype(object)
         shown[elongation < ROUND_ELONGATION] = None
         resolved = np.zeros(n, dtype=bool)
         if pose.robots:  # each robot's blob where its marker and filter put it
-            marked.fill(ids, xy, z, shown, vel, resolved)
+            marked.fill(ids, xy, z, shown, vel, resolved, measured)
         elif robot >= 0 and ok[robot]:  # the unmarked robot: heading oriented, velocity
             x, y = xy[robot].tolist()
             motion = self.unmarked.update(x, y, shown[robot], now)
             shown[robot], resolved[robot] = motion.heading_deg, motion.resolved
             vel[robot] = motion.vx_cm_s, motion.vy_cm_s
+            measured[robot] = motion.velocity_measured
         # Objects in id order (the robot first), built column by column.
         out = np.arange(n)[ok]
         out = out[ids[out].argsort(kind="stable")]
@@ -475,6 +484,7 @@ class Detector:
             "vx_cm_s": vel[:, 0],
             "vy_cm_s": vel[:, 1],
             "heading_resolved": resolved,
+            "velocity_measured": measured,
         }
         fields = DetectedObject.__struct_fields__  # positional: in field order
         objects = list(map(DetectedObject, *(columns[f][out].tolist() for f in fields)))

@@ -19,7 +19,8 @@ from ovis.common.config import ImageParams
 from ovis.common.vision.labeling import filter_components, label_components
 from ovis.common.vision.objects import MIN_OBJECT_PX, background, smallest_object_px
 from ovis.common.vision.perimeter import perimeter
-from ovis.common.vision.preprocess import as_gray, segment, smooth
+from ovis.common.vision.preprocess import as_gray, smooth
+from ovis.common.vision.segmentation import segmentation
 from ovis.common.vision.shape import compactness
 
 __all__ = ["PixelDetection", "PixelObject", "detect_pixels"]
@@ -39,12 +40,15 @@ class PixelObject(msgspec.Struct):
 
 
 class PixelDetection(NamedTuple):
-    """The objects of a frame (largest first), the smallest area kept (px) and how many
-    blobs were left out as the background."""
+    """The objects of a frame (largest first), the smallest area kept (px), how many
+    blobs were left out as the background, the local-contrast window (px, 0: none) and
+    the threshold level used."""
 
     objects: list[PixelObject]
     min_area_px: float
     background: int
+    window_px: int = 0
+    level: int = 0
 
 
 def detect_pixels(
@@ -58,9 +62,9 @@ def detect_pixels(
     background (:mod:`ovis.common.vision.objects`); min defaults to
     :func:`~ovis.common.vision.objects.smallest_object_px` of the frame's blobs."""
     gray = as_gray(image)
-    binary = segment(smooth(gray, params.median), params)
+    seg = segmentation(smooth(gray, params.median), params)
     comp = label_components(
-        binary, min_area_px=MIN_OBJECT_PX if min_area_px is None else min_area_px
+        seg.binary, min_area_px=MIN_OBJECT_PX if min_area_px is None else min_area_px
     )
     behind = background(comp)
     comp = filter_components(comp, ~behind)
@@ -83,4 +87,4 @@ def detect_pixels(
         )
         for k, i in enumerate(order.tolist())
     ]
-    return PixelDetection(objects, lo, int(behind.sum()))
+    return PixelDetection(objects, lo, int(behind.sum()), seg.block_px, seg.level)

@@ -21,6 +21,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,7 +30,7 @@ from scipy.spatial import cKDTree
 
 from ovis.common.config import PoseConfig
 
-__all__ = ["ROBOT_ID", "Tracker", "gated_assignment", "pick_robot", "robot_ids"]
+__all__ = ["ROBOT_ID", "TrackStep", "Tracker", "gated_assignment", "pick_robot", "robot_ids"]
 
 ROBOT_ID = 0
 
@@ -111,6 +112,15 @@ def _optimal(cost: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.i
     return r[ok].astype(np.int64), c[ok].astype(np.int64)
 
 
+class TrackStep(NamedTuple):
+    """One frame of :class:`Tracker`: each obstacle's id, displacement (cm per frame) and
+    whether it continues a track (its displacement measured)."""
+
+    ids: NDArray[np.int64]
+    step: NDArray[np.float64]
+    tracked: NDArray[np.bool_]
+
+
 @dataclass
 class Tracker:
     """Frame-to-frame identities of obstacles on the floor (world cm).
@@ -152,6 +162,12 @@ class Tracker:
         Displacements are in cm per frame (0 for a new obstacle). Tracks not seen this
         frame are dropped.
         """
+        step = self.track(xy)
+        return step.ids, step.step
+
+    def track(self, xy: NDArray[np.float64]) -> TrackStep:
+        """:meth:`update`, and which obstacles continue a track (their displacement is
+        measured; a new one's 0 is not)."""
         xy = np.array(xy, dtype=np.float64).reshape(-1, 2)  # a copy: kept as the tracks
         ids = np.full(xy.shape[0], -1, dtype=np.int64)
         step = np.zeros(xy.shape)
@@ -164,4 +180,4 @@ class Tracker:
         if fresh:
             ids[new] = self._fresh(fresh)
         self._ids, self._xy, self._velocity = ids, xy, step
-        return ids.copy(), step.copy()
+        return TrackStep(ids.copy(), step.copy(), ~new)

@@ -62,12 +62,14 @@ PATH_FRAMES = 300
 
 class RobotMotion(NamedTuple):
     """The unmarked robot in one frame: heading (deg, None for a round blob), whether it
-    is resolved, and velocity (cm/s)."""
+    is resolved, velocity (cm/s) and whether that is measured (seen at two capture times
+    on this track)."""
 
     heading_deg: float | None
     resolved: bool
     vx_cm_s: float
     vy_cm_s: float
+    velocity_measured: bool = False
 
 
 def axis_end(axis_deg: float, towards_deg: float) -> float:
@@ -118,7 +120,8 @@ class UnmarkedRobot:
         self._path.append((x, y))
         self._last = (x, y, stamp_s)
         heading = None if axis_deg is None else self.heading_deg
-        return RobotMotion(heading, self.resolved and heading is not None, f.rate[0], f.rate[1])
+        resolved = self.resolved and heading is not None
+        return RobotMotion(heading, resolved, f.rate[0], f.rate[1], f.rate_measured)
 
     def _restart_velocity(self, x: float, y: float, stamp_s: float) -> RobotFilter:
         """A new filter from the previous frame's position, updated with this one: its

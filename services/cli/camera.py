@@ -575,6 +575,8 @@ def detect_without_calibration(images: list[Path], flags: dict, *, json: bool, o
                 "objects": found.objects,
                 "min_area_px": found.min_area_px,
                 "background_blobs": found.background,
+                "window_px": found.window_px,
+                "level": found.level,
             }
         )
         if overlay is not None:
@@ -587,7 +589,8 @@ def detect_without_calibration(images: list[Path], flags: dict, *, json: bool, o
         behind = r["background_blobs"]
         t = Table(
             title=f"{path}: {len(r['objects'])} object(s), pixels only (no calibration; "
-            f"threshold {params.threshold_mode}, smallest {r['min_area_px']:.0f} px"
+            f"threshold {params.threshold_mode}: {_threshold_said(r)}, smallest "
+            f"{r['min_area_px']:.0f} px"
             + (f"; {behind} background blob left out" if behind else "")
             + ")",
             title_justify="left",
@@ -604,6 +607,13 @@ def detect_without_calibration(images: list[Path], flags: dict, *, json: bool, o
                 f"{o.compactness:.3f}",
             )
         con.print(t)
+
+
+def _threshold_said(r: dict) -> str:
+    """The level, and the local-contrast window when there is one."""
+    if r["window_px"]:
+        return f"level {r['level']}, local window {r['window_px']} px"
+    return f"level {r['level']}"
 
 
 def _draw_pixel_objects(frame, found, overlay: Path, index: int, count: int) -> None:

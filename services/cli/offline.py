@@ -390,7 +390,12 @@ def detect(
         typer.Option(min=0.0, help="Largest object: cm² with a calibration, px without."),
     ] = None,
     block_px: Annotated[
-        int | None, typer.Option(min=3, help="Local-contrast window (px) for auto/adaptive.")
+        int | None,
+        typer.Option(
+            min=3,
+            help="Local-contrast window (px) for auto/adaptive. Default: four times the "
+            "typical object's width.",
+        ),
     ] = None,
     polarity: Annotated[
         str | None, typer.Option(help="'bright' objects on a dark floor, or 'dark'.")

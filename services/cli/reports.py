@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ovis.services.cli.ui import console, table
+from ovis.services.cli.ui import console, table, velocity_text
 
 __all__ = ["print_accuracy", "print_calibration", "print_detection"]
 
@@ -175,13 +175,16 @@ def _unmarked_motion(robot) -> str:
         heading = f"{robot.heading_deg:.1f} deg (its front, from its motion)"
     else:
         heading = f"{robot.heading_deg:.1f} deg (either end: it has not moved yet)"
-    return f"heading {heading}, velocity ({robot.vx_cm_s:.1f}, {robot.vy_cm_s:.1f}) cm/s"
+    if not robot.velocity_measured:
+        return f"heading {heading}, velocity – (not measured yet)"
+    return f"heading {heading}, velocity {velocity_text(robot)} cm/s"
 
 
 def print_detection(path: Path, det) -> None:
     con = console()
     columns = ("id", "kind", "row", "col", "area px", "perim px", "compact.")
-    t = table(f"{path}: {len(det.objects)} object(s)", (*columns, "X cm", "Y cm", "r cm"))
+    world = ("X cm", "Y cm", "r cm", "v cm/s")
+    t = table(f"{path}: {len(det.objects)} object(s)", (*columns, *world))
     for o in det.objects:
         t.add_row(
             str(o.id),
@@ -194,6 +197,7 @@ def print_detection(path: Path, det) -> None:
             f"{o.x_cm:.2f}",
             f"{o.y_cm:.2f}",
             f"{o.radius_cm:.2f}",
+            velocity_text(o),
         )
     con.print(t)
     robot = next((o for o in det.objects if o.kind == "robot"), None)

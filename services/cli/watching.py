@@ -22,7 +22,7 @@ from ovis.common.messages import (
     TruthFrame,
     decode,
 )
-from ovis.services.cli.ui import table
+from ovis.services.cli.ui import table, velocity_text
 
 __all__ = [
     "LiveView",
@@ -47,13 +47,17 @@ def format_obstacles(msg: ObstacleFrame) -> str:
         lines.append("  robot: not found")
     else:
         r = msg.robot
-        lines.append(f"  R    x {r.x_cm:7.2f}  y {r.y_cm:7.2f}  r {r.radius_cm:5.2f} cm")
+        lines.append(
+            f"  R    x {r.x_cm:7.2f}  y {r.y_cm:7.2f}  r {r.radius_cm:5.2f} cm  "
+            f"v {velocity_text(r)} cm/s"
+        )
     plan = {p.obstacle_id: p for p in msg.planner}
     for o in msg.obstacles:
         p = plan.get(o.id)
         extra = f"   distance {p.distance_cm:7.2f} cm  angle {p.angle_deg:+7.1f}°" if p else ""
         lines.append(
-            f"  O{o.id:<3d} x {o.x_cm:7.2f}  y {o.y_cm:7.2f}  r {o.radius_cm:5.2f} cm" + extra
+            f"  O{o.id:<3d} x {o.x_cm:7.2f}  y {o.y_cm:7.2f}  r {o.radius_cm:5.2f} cm  "
+            f"v {velocity_text(o)} cm/s" + extra
         )
     if not msg.obstacles:
         lines.append("  no obstacles")
