@@ -154,7 +154,12 @@ def up(
         ),
     ] = DEFAULT_ENDPOINT,
     duration: Annotated[
-        float | None, typer.Option(min=0.0, help="Stop after this many seconds (default: Ctrl-C).")
+        float | None,
+        typer.Option(
+            min=0.0,
+            help="Stop this many seconds after the capture starts (once the other stages "
+            "listen; default: Ctrl-C).",
+        ),
     ] = None,
     config: ConfigOpt = None,
     arena: ArenaOpt = None,
@@ -381,10 +386,11 @@ def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, durati
                 )
             if not stop.is_set():
                 start("capture")
+            # --duration counts from here: a slow start (a loaded machine) takes no frames away.
             polling = _poll_counters(fleet, session, topics)
             live_view.run(
                 stop,
-                until=(started + duration) if duration is not None else None,
+                until=(time.monotonic() + duration) if duration is not None else None,
                 live=live and not json,
                 supervise=fleet.supervise,
                 quiet=json,
