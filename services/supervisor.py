@@ -44,8 +44,13 @@ def die_with_parent() -> None:
 
 
 def _in_child(cpus: list[int]) -> None:
-    """In the child, before it runs: no orphans, and on ``cpus`` if any are given."""
+    """In the child, before it runs: no orphans, its own process group, and on ``cpus``
+    if any are given. In a group of its own, a Ctrl-C in the terminal reaches only the
+    launcher, which stops the children in order (the capture first, what it captured
+    still processed) after asking their last counts: a child stopping by itself at the
+    same moment left the summary counting more frames processed than captured."""
     die_with_parent()
+    os.setpgrp()
     if cpus:
         with contextlib.suppress(OSError):
             os.sched_setaffinity(0, cpus)

@@ -102,6 +102,13 @@ class LiveScore:
         self._truth: collections.OrderedDict[int, TruthFrame] = collections.OrderedDict()
         self._pending: collections.OrderedDict[int, ObstacleFrame] = collections.OrderedDict()
         self._lock = threading.Lock()
+        self._closed = False
+
+    def close(self) -> None:
+        """Count no more obstacle frames: every frame counted was captured before any
+        count the capture gives after this (processed never exceeds captured)."""
+        with self._lock:
+            self._closed = True
 
     def add_truth(self, truth: TruthFrame) -> None:
         with self._lock:
@@ -112,6 +119,8 @@ class LiveScore:
     def add_obstacles(self, msg: ObstacleFrame, received_ns: int) -> None:
         """An obstacle frame that arrived at ``received_ns`` (its latency from capture)."""
         with self._lock:
+            if self._closed:
+                return
             latency = (received_ns - msg.stamp_ns) / 1e6
             self.latency_ms.append(latency)
             self._by_stream[msg.stream].append(latency)

@@ -21,9 +21,10 @@ __all__ = ["HOW_TO_CALIBRATE", "FrameSizeError", "fit_to_frames", "made_on_simul
 
 #: What to do when a real camera has no calibration of its own (one line).
 HOW_TO_CALIBRATE = (
-    "make one with `ovis intrinsics PHOTOS --board chessboard:9x6 --out CAM.yaml` and "
-    "`ovis calibrate FLOOR.png --intrinsics CAM.yaml --board chessboard:9x6 --out calib.json` "
-    "(docs/real-camera.md), then give --calibration calib.json"
+    "make one with `ovis intrinsics photos/ --board chessboard:9x6 --square-cm S --out CAM.yaml` "
+    "and `ovis calibrate floor.jpg --intrinsics CAM.yaml --board chessboard:9x6 --square-cm S "
+    "--out calib.json` (S: a printed square's side in cm; docs/real-camera.md), then give "
+    "--calibration calib.json"
 )
 
 

@@ -8,6 +8,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
 
@@ -154,7 +155,12 @@ def up(
         ),
     ] = DEFAULT_ENDPOINT,
     duration: Annotated[
-        float | None, typer.Option(min=0.0, help="Stop after this many seconds (default: Ctrl-C).")
+        float | None,
+        typer.Option(
+            min=0.0,
+            help="Stop this many seconds after the capture starts (once the other stages "
+            "listen; default: Ctrl-C).",
+        ),
     ] = None,
     config: ConfigOpt = None,
     arena: ArenaOpt = None,
@@ -381,15 +387,18 @@ def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, durati
                 )
             if not stop.is_set():
                 start("capture")
-            polling = _poll_counters(fleet, session, topics)
+            # --duration counts from here: a slow start (a loaded machine) takes no frames away.
+            stop_polling = _poll_counters(fleet, session, topics)
             live_view.run(
                 stop,
-                until=(started + duration) if duration is not None else None,
+                until=(time.monotonic() + duration) if duration is not None else None,
                 live=live and not json,
                 supervise=fleet.supervise,
                 quiet=json,
             )
-            polling.set()
+            stop_polling()
+            # the frames processed, then the capture's count: never more processed than captured
+            live_view.score.close()
             statuses = live_view.poll_status(session)
             fleet.record(statuses)
     finally:
@@ -407,9 +416,11 @@ def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, durati
     return with_verdict(summary, statuses.get("capture"), failures)
 
 
-def _poll_counters(fleet, session, topics, period_s: float = 1.0) -> threading.Event:
-    """Every ``period_s`` until the event returned is set, give the supervisor the
-    stages' statuses (a thread): their counters then survive a restart in its totals."""
+def _poll_counters(fleet, session, topics, period_s: float = 1.0) -> Callable[[], None]:
+    """Every ``period_s`` until the function returned is called, give the supervisor the
+    stages' statuses (a thread): their counters then survive a restart in its totals.
+    The function returns once the thread recorded its last statuses (an older one
+    recorded after the final count would lower it)."""
     import zenoh
 
     from ovis.services.cli.watching import query_statuses
@@ -423,8 +434,14 @@ def _poll_counters(fleet, session, topics, period_s: float = 1.0) -> threading.E
             except zenoh.ZError:  # the session is closing
                 return
 
-    threading.Thread(target=poll, name="status-poll", daemon=True).start()
-    return done
+    thread = threading.Thread(target=poll, name="status-poll", daemon=True)
+    thread.start()
+
+    def stop() -> None:
+        done.set()
+        thread.join()
+
+    return stop
 
 
 def _wait_listening(fleet, session, topics, stages: tuple[str, ...], stop) -> set[str]:
