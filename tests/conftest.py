@@ -8,15 +8,28 @@
   collector's sight (``gc.freeze``, as the services do at start): a full collection walks
   every object it tracks and holds the interpreter meanwhile, and the one that came due
   inside a test publishing on a live schedule paused it (issue 27, item 12).
+- Ctrl-C reaches the processes the tests start as it reaches a program in a terminal.
+  A shell without job control starts a background command (``pytest &`` in a script,
+  ``nohup``, many CI runners) with SIGINT *ignored*, and an ignored signal stays ignored
+  in every child: Python then installs no KeyboardInterrupt handler, so a program that
+  relies on it (the example subscriber) sent SIGINT by a test never stops, and the test
+  fails only when the whole suite was started that way (issue 27, item 12). The suite
+  takes SIGINT back at its start; children then inherit the default.
 """
 
 from __future__ import annotations
 
 import gc
+import signal
 
 import pytest
 
 pytest_plugins = ["leak_guard", "pytester"]
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:

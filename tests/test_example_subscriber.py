@@ -344,3 +344,22 @@ def test_example_needs_only_zenoh_and_msgpack() -> None:
             imported.add(node.module.split(".")[0])
     third_party = imported - set(sys.stdlib_module_names) - {"__future__"}
     assert third_party == {"zenoh", "msgpack"}
+
+
+def test_ctrl_c_ends_it_even_when_the_suite_was_started_with_sigint_ignored() -> None:
+    """The suite started as a shell without job control starts a background command
+    (SIGINT ignored, which every child inherits): the Ctrl-C test above still passes,
+    since the suite takes SIGINT back at its start (tests/conftest.py). Without that,
+    the subscriber never saw the signal and the test timed out in such runs only."""
+    here = Path(__file__).resolve()
+    test = f"{here}::test_ctrl_c_closes_the_session_and_exits"
+    proc = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", test],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=here.parents[1],
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )
+    assert proc.returncode == 0, proc.stdout[-2000:]
+    assert "1 passed" in proc.stdout
