@@ -129,9 +129,9 @@ def test_forged_statuses_in_a_process_name_cannot_raise_its_totals() -> None:
     assert least(forged, genuine).errors == {} and least(genuine, genuine).errors == {"bad": 2}
     totals = CounterTotals()
     totals.record(least(genuine, forged))
-    # another start time for the same pid and host is not that process: ignored, so the
-    # genuine counts are never "finished" and added twice
-    totals.record(msgspec.structs.replace(forged, started_ns=2))
+    # another start time for the same pid and host is the same process: the genuine
+    # counts are never "finished" and added twice
+    totals.record(least(msgspec.structs.replace(forged, started_ns=2), genuine))
     totals.record(genuine)
     t = totals.totals()["pose"]
     assert (t.frames_in, t.frames_out, t.dropped, t.processes) == (50, 40, 1, 1)

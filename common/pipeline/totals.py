@@ -6,9 +6,9 @@ Anyone on the bus can answer a status query in a process's name. The totals ther
 believe of each process (pid and host, which the supervisor checks are its own child's)
 only what its own reply also says: when several replies claim one process, each counter
 is their smallest (:func:`least`; the genuine reply is among them, so a forged one can
-lower a count for one poll but never raise it), and a process keeps the start time it
-was first seen with (a reply with another one is not that process: it cannot make the
-process's counts "finished" and counted twice)."""
+lower a count for one poll but never raise it), and a process is its pid and host alone
+(a reply with another start time cannot make the process's counts "finished" and
+counted twice)."""
 
 from __future__ import annotations
 
@@ -61,9 +61,8 @@ def least(a: ServiceStatus, b: ServiceStatus) -> ServiceStatus:
 
 class CounterTotals:
     """The last status of each service's current process, and the sum of its earlier
-    processes' last statuses (a process is told apart by pid, host and start time).
-    Fed with every status poll; what a process counted after its last poll is lost. A
-    status of a known process (pid, host) with another start time is ignored."""
+    processes' last statuses (a process is told apart by pid and host). Fed with every
+    status poll; what a process counted after its last poll is lost."""
 
     def __init__(self) -> None:
         self._current: dict[str, ServiceStatus] = {}
@@ -71,15 +70,12 @@ class CounterTotals:
         self._lock = threading.Lock()
 
     def record(self, status: ServiceStatus) -> None:
-        def process(s: ServiceStatus) -> tuple[int, str, int]:
-            return s.pid, s.host, s.started_ns
+        def process(s: ServiceStatus) -> tuple[int, str]:
+            return s.pid, s.host
 
         with self._lock:
             before = self._current.get(status.service)
-            if before is not None and process(before)[:2] == process(status)[:2]:
-                if before.started_ns != status.started_ns:
-                    return  # not that process: it started once
-            elif before is not None:
+            if before is not None and process(before) != process(status):
                 done = self._finished.get(status.service, ServiceTotals())
                 self._finished[status.service] = _add(done, before)
             self._current[status.service] = status
