@@ -446,6 +446,7 @@ class CalibrateRequest(_Msg, tag="calibrate", kw_only=True):
     population: Annotated[int, msgspec.Meta(ge=2, le=10000)] | None = None
     generations: Annotated[int, msgspec.Meta(ge=1, le=10000)] | None = None
     cancel: bool = False  # cancel the calibration that runs (nothing else is done)
+    force: bool = False  # publish a candidate unlike the current calibration (camera moved)
 
 
 class CalibrateReply(_Msg, tag="calibrate-reply", kw_only=True):

@@ -6,7 +6,10 @@ frame's ground truth, which the capture sends just after the frame: the latest f
 that has it, and a named frame's is waited for up to ``TRUTH_WAIT_S``); the result,
 checked by :func:`calibration_problem`, is saved atomically as a new version of the
 store (with its epoch), published on ``ovis/<arena>/calibration`` and returned in the
-reply. ``ovis/<arena>/calibration`` is also a queryable returning the current
+reply, once it passed the quality gate (:mod:`ovis.common.calibration.gate`: a candidate
+much worse than the current calibration, or that does not see what it sees, is kept
+aside in ``rejected/``, the reply and the status say why, and the current calibration
+stays). ``ovis/<arena>/calibration`` is also a queryable returning the current
 calibration: the stages take only its answer (they ask it on every publication and
 every few seconds).
 
@@ -23,9 +26,10 @@ from collections.abc import Callable
 import msgspec
 import zenoh
 
-from ovis.common.calibration.file import dipe_text
+from ovis.common.calibration.file import Calibration, dipe_text
 from ovis.common.calibration.ga import GenerationStats
 from ovis.common.calibration.problem import InfeasibleCalibrationError, calibrate
+from ovis.common.calibration.rejected import save_rejected
 from ovis.common.calibration.store import CalibrationStore
 from ovis.common.calibration.validity import calibration_problem
 from ovis.common.config import ControlPoint, load_points
@@ -39,6 +43,7 @@ from ovis.common.messages import (
     TruthFrame,
     encode,
 )
+from ovis.common.pipeline.candidate import judge_candidate
 from ovis.common.pipeline.following import label
 from ovis.common.pipeline.recalibration import (
     CalibrationCancelledError,
@@ -125,6 +130,26 @@ def main(service: Service) -> None:
             )
 
     service.session.declare_queryable(service.topics.calibration, on_current)
+    rejected = [""]  # why the last candidate was refused, until one is published
+    service.amend_status = lambda status: (
+        msgspec.structs.replace(status, state="rejected candidate", reason=rejected[0])
+        if rejected[0] and status.state == "ok"
+        else status
+    )
+
+    def refuse(calib: Calibration, seq: int, problem: str) -> CalibrateReply:
+        """Keep a candidate the gate refused aside; the reply says why."""
+        rejected[0] = f"{problem} (frame {seq})"
+        service.error("rejected_candidate", rejected[0])
+        try:
+            kept = str(save_rejected(store.folder, calib, problem))
+        except OSError as exc:
+            kept = ""
+            service.error("processing", f"cannot keep the rejected candidate: {exc}")
+        return CalibrateReply(
+            ok=False, frame_seq=seq, dipe_px=calib.dipe_px, saved_to=kept, error=problem
+        )
+
     job = CalibrationJob()
     accepted = Inbox(depth=2)  # (query, request): at most one, the job being claimed
 
@@ -184,8 +209,9 @@ def main(service: Service) -> None:
         service.state = f"calibrating on frame {seq}"
         job.start(seq, run_cfg.ga.generations, cfg.service.calibration_budget_s)
         try:
+            image = frame.image()
             calib, _ = calibrate(
-                frame.image(),
+                image,
                 points,
                 run_cfg,
                 source=f"frame {seq}",
@@ -208,8 +234,13 @@ def main(service: Service) -> None:
         if problem is not None:  # never published: the stages would refuse it anyway
             service.error("calibration", f"calibration on frame {seq}: {problem}")
             return CalibrateReply(ok=False, frame_seq=seq, error=problem)
+        current = service.calibration if service.calibration.version > 0 else None
+        problem = judge_candidate(calib, current, image, request.force)
+        if problem is not None:
+            return refuse(calib, seq, problem)
         calib = store.save(calib)
         service.calibration = calib
+        rejected[0] = ""
         publish(CalibrationUpdate(calibration=calib))
         service.sent()
         service.log.info(

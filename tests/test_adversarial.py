@@ -227,11 +227,11 @@ def test_a_huge_query_is_refused_and_queries_are_answered_while_one_runs(
     assert attacker.calibrate(seed=7)["ok"]
 
 
-def test_sequence_number_1e9_is_not_a_billion_drops(attacker: Attacker) -> None:
-    before = attacker.status("preprocess")
-    frame = {
+def _black_frame(seq: int) -> dict[str, Any]:
+    """A frame of the arena's size, numbered ``seq``."""
+    return {
         "type": "frame",
-        "seq": 10**9,
+        "seq": seq,
         "stamp_ns": time.time_ns(),
         "rows": 480,
         "cols": 640,
@@ -239,6 +239,11 @@ def test_sequence_number_1e9_is_not_a_billion_drops(attacker: Attacker) -> None:
         "dtype": "uint8",
         "data": bytes(480 * 640),
     }
+
+
+def test_sequence_number_1e9_is_not_a_billion_drops(attacker: Attacker) -> None:
+    before = attacker.status("preprocess")
+    frame = _black_frame(10**9)
     for _ in range(3):
         attacker.put("frames", frame)
         time.sleep(0.1)
@@ -249,6 +254,109 @@ def test_sequence_number_1e9_is_not_a_billion_drops(attacker: Attacker) -> None:
         assert st["dropped"] < 1000, (stage, st["dropped"])
     assert after["seq_jumps"] > before["seq_jumps"]
     assert after["dropped"] - before["dropped"] < 100
+
+
+class Poisoner:
+    """Republishes every ground truth the capture sends with its control points changed
+    (after the genuine one: the calibrator keeps the last truth of a frame)."""
+
+    def __init__(self, attacker: Attacker, change: Any) -> None:
+        self.attacker, self.change = attacker, change
+        self.done: list[int] = []
+        self.sub = attacker.session.declare_subscriber(f"{ROOT}/truth", self._on_truth)
+
+    def _on_truth(self, sample: zenoh.Sample) -> None:
+        truth = _unpack(sample.payload.to_bytes())
+        if truth["seq"] in self.done:  # our own, seen by our own subscriber
+            return
+        self.done.append(truth["seq"])
+        for obj in truth["objects"]:
+            obj["x_cm"], obj["y_cm"] = self.change(obj["x_cm"], obj["y_cm"])
+        self.attacker.put("truth", truth)
+
+
+POISONS = {
+    "shifted 40 cm": lambda x, y: (x + 40.0, y),
+    "scaled 1.3x": lambda x, y: (1.3 * x, 1.3 * y),
+    "axes swapped": lambda x, y: (y, x),
+}
+
+
+def _newest_version(deployment: Deployment) -> int:
+    state = deployment.tmp / "state"
+    return max(int(p.stem.split("-v")[1]) for p in state.glob("calibration-v*.json"))
+
+
+@pytest.mark.parametrize("poison", POISONS)
+def test_poisoned_control_points_give_a_refused_candidate(
+    deployment: Deployment, attacker: Attacker, poison: str
+) -> None:
+    genuine = attacker.calibration()
+    newest = _newest_version(deployment)
+    poisoner = Poisoner(attacker, POISONS[poison])
+    seq = wait_for(lambda: poisoner.done and poisoner.done[-1], 10, "a poisoned truth")
+    reply = attacker.calibrate(frame_seq=seq)
+    poisoner.sub.undeclare()
+    assert not reply["ok"], reply
+    assert reply["error"].startswith(
+        f"rejected candidate: DIPE {reply['dipe_px']:.3g} px vs {genuine['dipe_px']:.3g} px"
+    ), reply
+    assert reply["dipe_px"] > 10 * genuine["dipe_px"] and reply["version"] == 0
+    kept = Path(reply["saved_to"])
+    assert kept.parent == deployment.tmp / "state" / "rejected" and kept.exists()
+    assert kept.with_suffix(".reason").read_text().strip() == reply["error"]
+    st = attacker.status("calibrator")
+    assert st["state"] == "rejected candidate" and st["reason"].startswith(reply["error"]), st
+    assert st["errors"].get("rejected_candidate", 0) >= 1
+    assert _newest_version(deployment) == newest
+    time.sleep(RECONCILE_S)
+    for stage in ("preprocess", "label", "pose", "calibrator"):
+        assert attacker.status(stage)["calibration_version"] == genuine["version"], stage
+
+
+@pytest.mark.processes_kept_by_the_module
+def test_after_poisoning_the_store_and_a_restarted_calibrator_keep_the_genuine_one(
+    deployment: Deployment, attacker: Attacker
+) -> None:
+    genuine, newest = attacker.calibration(), _newest_version(deployment)
+    assert newest == genuine["version"]
+    calibrator = deployment.procs["calibrator"]
+    calibrator.send_signal(signal.SIGTERM)
+    calibrator.wait(10)
+    log = deployment.tmp / "calibrator.log"  # the next tests read the running one's
+    config = str(deployment.tmp / "config.toml")
+    deployment.procs["calibrator"] = _ovis("run", "calibrator", "--config", config, log=log)
+    wait_for(lambda: attacker.ask("status/calibrator", timeout=1.0), 30, "the calibrator back")
+    assert attacker.calibration()["version"] == genuine["version"]
+    assert _newest_version(deployment) == newest
+    assert attacker.status("calibrator")["state"] == "ok"
+    # and a genuine recalibration is still published
+    reply = attacker.calibrate(seed=3)
+    assert reply["ok"] and reply["version"] == newest + 1, reply
+
+
+def test_a_forged_frame_pair_moves_the_drops_by_at_most_one(attacker: Attacker) -> None:
+    seqs: list[int] = []
+    sub = attacker.session.declare_subscriber(
+        f"{ROOT}/frames", lambda s: seqs.append(_unpack(s.payload.to_bytes())["seq"])
+    )
+    wait_for(lambda: seqs, 10, "a frame")
+    stages = ("preprocess", "label", "pose")
+    before = {s: attacker.status(s) for s in stages}
+    pairs = 5
+    for _ in range(pairs):
+        ahead = max(seqs) + 999  # the largest gap still taken for frames lost
+        for seq in (ahead, ahead + 1):
+            attacker.put("frames", _black_frame(seq))
+        time.sleep(0.3)
+    time.sleep(1.0)
+    sub.undeclare()
+    for stage in stages:
+        st = attacker.status(stage)
+        moved = st["dropped"] - before[stage]["dropped"]
+        # at most one per pair, and a frame or two the bus really lost on a loaded machine
+        assert moved <= pairs + 2, (stage, moved)
+        assert st["seq_jumps"] - before[stage]["seq_jumps"] >= pairs, (stage, st)
 
 
 def test_a_stage_that_gets_input_but_makes_no_output_says_failing_within_2_s(

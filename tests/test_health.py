@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import socket
 
+import msgspec
+
 from ovis.common.analysis.live import LiveScore, position_error_flag
 from ovis.common.messages import ServiceStatus
 from ovis.common.pipeline.counters import MAX_PLAUSIBLE_GAP, StageCounters
 from ovis.common.pipeline.health import HEALTH_WINDOW_S, StreamWatch, stage_verdict
-from ovis.common.pipeline.totals import CounterTotals
+from ovis.common.pipeline.totals import CounterTotals, least
 
 
 def _outcomes(pattern: str, now: float = 100.0) -> list[tuple[float, bool]]:
@@ -69,14 +71,32 @@ def test_a_forged_sequence_number_is_a_jump_not_a_billion_drops() -> None:
     for seq in range(10, 20):
         c.saw_frame(seq, 0, "stream-a")
     assert (c.seq_gaps, c.seq_jumps) == (0, 2)  # there and back
-    c.saw_frame(19 + MAX_PLAUSIBLE_GAP, 0, "stream-a")  # within the bound: frames lost
+    # within the bound: frames lost, confirmed one by one as the sequence goes on after it
+    for seq in range(19 + MAX_PLAUSIBLE_GAP, 19 + 2 * MAX_PLAUSIBLE_GAP):
+        c.saw_frame(seq, 0, "stream-a")
     assert c.seq_gaps == MAX_PLAUSIBLE_GAP - 1
     # a capture that restarts begins at 0 again, with a new stream identity
-    c.saw_frame(0, 0, "stream-b")
-    c.saw_frame(2, 0, "stream-b")
+    for seq in (0, 2, 3):
+        c.saw_frame(seq, 0, "stream-b")
     assert (c.stream_restarts, c.seq_gaps) == (1, MAX_PLAUSIBLE_GAP - 1 + 1)
     st = c.status("label", started_ns=0, state="ok", dropped_here=0, calibration_version=0)
     assert (st.dropped, st.seq_jumps, st.stream_restarts) == (MAX_PLAUSIBLE_GAP, 2, 1)
+
+
+def test_a_forged_frame_pair_ahead_moves_the_drops_by_at_most_one() -> None:
+    c = StageCounters()
+    for seq in range(10):
+        c.saw_frame(seq, 0, "s")
+    for pair in range(5):
+        ahead = 10 + pair + MAX_PLAUSIBLE_GAP - 1  # the largest gap still plausible
+        c.saw_frame(ahead, 0, "s")  # the forger's pair, between two genuine frames
+        c.saw_frame(ahead + 1, 0, "s")
+        c.saw_frame(10 + pair, 0, "s")  # the genuine sequence goes on
+        assert (c.seq_gaps, c.seq_jumps) == (pair + 1, pair + 1)
+    # a single forged frame ahead moves nothing but the jumps
+    c.saw_frame(500, 0, "s")
+    c.saw_frame(15, 0, "s")
+    assert (c.seq_gaps, c.seq_jumps, c.last_seq) == (5, 6, 15)
 
 
 def _status(pid: int, started_ns: int, **counts) -> ServiceStatus:
@@ -99,6 +119,22 @@ def test_totals_survive_restarts() -> None:
     t = totals.totals()["pose"]
     assert (t.frames_in, t.frames_out, t.dropped, t.processes) == (53, 43, 2, 2)
     assert t.errors == {"processing": 7, "bad": 1}
+
+
+def test_forged_statuses_in_a_process_name_cannot_raise_its_totals() -> None:
+    genuine = _status(10, 1, frames_in=50, frames_out=40, dropped=1, errors={"bad": 2})
+    forged = _status(10, 1, frames_in=10**9, frames_out=10**9, dropped=10**9, errors={"x": 9})
+    # both answer one poll: each counter is the smaller, whichever came first
+    assert least(forged, genuine).frames_in == least(genuine, forged).frames_in == 50
+    assert least(forged, genuine).errors == {} and least(genuine, genuine).errors == {"bad": 2}
+    totals = CounterTotals()
+    totals.record(least(genuine, forged))
+    # another start time for the same pid and host is the same process: the genuine
+    # counts are never "finished" and added twice
+    totals.record(least(msgspec.structs.replace(forged, started_ns=2), genuine))
+    totals.record(genuine)
+    t = totals.totals()["pose"]
+    assert (t.frames_in, t.frames_out, t.dropped, t.processes) == (50, 40, 1, 1)
 
 
 def test_the_summary_flags_an_error_over_matched_objects_only() -> None:

@@ -203,13 +203,15 @@ def test_calibration_of_another_image_size_is_refused() -> None:
 
 def test_counters_count_gaps_rate_and_errors() -> None:
     c = StageCounters()
-    for seq in (0, 1, 2, 5, 4, 6, 10):  # 3, 4 missing after 2 (4 comes late), 7–9 missing
+    # 3, 4 missing after 2 (4 comes late: not lost), 7–9 missing, each gap confirmed one
+    # frame at a time by the frames after it
+    for seq in (0, 1, 2, 5, 4, 6, 10, 11, 12, 13):
         c.saw_frame(seq, stamp_ns=time.time_ns())
         c.sent()
-    assert (c.frames_in, c.frames_out, c.seq_gaps, c.last_seq) == (7, 7, 5, 10)
+    assert (c.frames_in, c.frames_out, c.seq_gaps, c.last_seq) == (10, 10, 4, 13)
     assert c.error("bad_frame", "one") == 1 and c.error("bad_frame", "two") == 2
     st = c.status("label", started_ns=1, state="ok", dropped_here=3, calibration_version=4)
-    assert (st.service, st.dropped, st.last_error) == ("label", 8, "two")  # 5 gaps + 3 here
+    assert (st.service, st.dropped, st.last_error) == ("label", 7, "two")  # 4 gaps + 3 here
     assert st.errors == {"bad_frame": 2}
     assert st.calibration_version == 4 and st.fps > 0 and 0 <= st.last_frame_age_s < 5
     assert st.rss_mb == pytest.approx(rss_mb(), rel=0.2) and st.rss_mb > 10

@@ -1,6 +1,8 @@
 """A stage's counters: frames in and out, frames lost upstream (plausible gaps in
-sequence numbers; a jump beyond :data:`MAX_PLAUSIBLE_GAP` or a new capture stream is
-counted as such, not as lost frames), the recent input rate, the recent inputs' outcomes
+sequence numbers, confirmed one frame at a time by the sequence going on after the gap;
+a jump beyond :data:`MAX_PLAUSIBLE_GAP`, a gap the old sequence resumes from, or a new
+capture stream is counted as such, not as lost frames: no message moves a counter by
+more than one), the recent input rate, the recent inputs' outcomes
 (the stage's health verdict) and errors by kind; and the process's memory. They make the
 :class:`~ovis.common.messages.ServiceStatus` a stage answers with."""
 
@@ -57,6 +59,8 @@ class StageCounters:
         self.last_seq: int | None = None
         self.stream: str = ""  # the capture's stream identity of the last frame
         self.seq_gaps = 0
+        self._pending = 0  # frames missing in the last gap, not yet confirmed as dropped
+        self._before_gap = -1  # the last sequence number before that gap
         self.seq_jumps = 0
         self.stream_restarts = 0
         self._arrivals: collections.deque[float] = collections.deque(maxlen=64)
@@ -64,26 +68,47 @@ class StageCounters:
         self._lock = threading.Lock()
 
     def saw_frame(self, seq: int, stamp_ns: int, stream: str = "") -> None:
-        """Count an input frame; a plausible gap in sequence numbers counts as dropped
-        upstream (a late, older frame neither counts as a gap nor moves the last one
-        back). A new ``stream`` (the capture restarted) or a jump beyond
-        :data:`MAX_PLAUSIBLE_GAP` is counted as such, and the count restarts there."""
+        """Count an input frame. A plausible gap in sequence numbers is dropped upstream,
+        counted one frame at a time as the sequence goes on after it (a forged frame far
+        ahead, even a pair, moves the count by at most one); a frame of the sequence
+        before the gap (it goes on: the gap was a forged or stray number) counts the gap
+        as one jump instead. A new ``stream`` (the capture restarted) or a jump beyond
+        :data:`MAX_PLAUSIBLE_GAP` is counted as such, and the count restarts there; any
+        other late, older frame neither counts nor moves the last one back."""
         with self._lock:
             self.frames_in += 1
             if stream and self.stream and stream != self.stream:
                 self.stream_restarts += 1
-                self.last_seq = None
+                self._restart_sequence()
             self.stream = stream or self.stream
             if self.last_seq is not None and abs(seq - self.last_seq) > MAX_PLAUSIBLE_GAP:
                 self.seq_jumps += 1
-                self.last_seq = None
-            if self.last_seq is not None and seq > self.last_seq + 1:
-                self.seq_gaps += seq - self.last_seq - 1
-            if self.last_seq is None or seq > self.last_seq:
-                self.last_seq = seq
+                self._restart_sequence()
+            self._follow(seq)
             self.last_frame_ns = stamp_ns
             self.last_receipt_ns = time.time_ns()
             self._arrivals.append(time.monotonic())
+
+    def _restart_sequence(self) -> None:
+        self.last_seq, self._pending, self._before_gap = None, 0, -1
+
+    def _follow(self, seq: int) -> None:
+        """Move the followed sequence to ``seq`` (see :meth:`saw_frame`); under the lock."""
+        last = self.last_seq
+        if last is None:
+            self.last_seq = seq
+        elif seq == last + 1:
+            if self._pending:
+                self._pending -= 1
+                self.seq_gaps += 1
+            self.last_seq = seq
+        elif seq > last:
+            self._pending, self._before_gap, self.last_seq = seq - last - 1, last, seq
+        elif self._pending and seq == self._before_gap + 1:  # the old sequence goes on
+            self.seq_jumps += 1
+            self._pending, self._before_gap, self.last_seq = 0, -1, seq
+        elif self._pending and self._before_gap < seq:
+            self._pending -= 1  # a frame of the gap, late: not lost
 
     def sent(self) -> None:
         with self._lock:

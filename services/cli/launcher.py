@@ -527,11 +527,23 @@ def recalibrate(
     cancel: Annotated[
         bool, typer.Option("--cancel", help="Cancel the calibration that runs instead.")
     ] = False,
+    force: Annotated[
+        bool,
+        typer.Option(
+            "--force",
+            help="Publish even if unlike the current calibration (the camera moved); "
+            "a DIPE above 3 px or a calibration that sees nothing is still refused.",
+        ),
+    ] = False,
 ) -> None:
     """Ask the calibrator (a Zenoh query) to recalibrate on the latest frame, or --frame.
 
-    Shows the new calibration's DIPE, parameters and version. While a calibration runs,
-    the calibrator answers at once that it is busy (progress and ETA); --cancel stops it.
+    Shows the new calibration's DIPE, parameters and version. A new calibration much
+    worse than the current one (DIPE), or that does not see the objects the current one
+    sees where it sees them, is refused (exit code 3, the reason) and kept aside in the
+    state folder's rejected/; --force publishes it when the camera really moved. While a
+    calibration runs, the calibrator answers at once that it is busy (progress and ETA);
+    --cancel stops it.
     With no router answering within 5 s: exit code 4. Ctrl-C or SIGTERM ends it at any
     moment (exit code 130).
     """
@@ -542,7 +554,7 @@ def recalibrate(
 
     cfg = config_with_options(config, connect=connect, arena=arena)
     topics = arena_topics(cfg)
-    request = encode(CalibrateRequest(frame_seq=frame, seed=seed, cancel=cancel))
+    request = encode(CalibrateRequest(frame_seq=frame, seed=seed, cancel=cancel, force=force))
     with client_session(cfg.zenoh, CONNECT_S, stop, wait_s=time_left(CONNECT_S)) as session:
         replies = (
             None

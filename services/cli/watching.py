@@ -22,6 +22,7 @@ from ovis.common.messages import (
     TruthFrame,
     decode,
 )
+from ovis.common.pipeline.totals import least
 from ovis.services.cli.ui import table, velocity_text
 
 __all__ = [
@@ -97,9 +98,13 @@ def query_statuses(
     accept: Callable[[ServiceStatus], bool] | None = None,
 ) -> dict[str, ServiceStatus]:
     """The status replies of the arena's services, by name (a bad reply is skipped, and
-    one that ``accept`` refuses: another system's process)."""
+    one that ``accept`` refuses: another system's process). With ``accept``, every reply
+    is asked for and several accepted for one service give the smallest counters
+    (:func:`~ovis.common.pipeline.totals.least`: a forger answering in a process's name
+    cannot raise them)."""
     statuses: dict[str, ServiceStatus] = {}
-    for reply in session.get(topics.status_all, timeout=timeout):
+    every = zenoh.ConsolidationMode.NONE if accept is not None else zenoh.ConsolidationMode.AUTO
+    for reply in session.get(topics.status_all, timeout=timeout, consolidation=every):
         if reply.ok is None:
             continue
         try:
@@ -107,7 +112,8 @@ def query_statuses(
         except MessageError:
             continue
         if accept is None or accept(st):
-            statuses[st.service] = st
+            seen = statuses.get(st.service)
+            statuses[st.service] = st if seen is None or accept is None else least(seen, st)
     return statuses
 
 

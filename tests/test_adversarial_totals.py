@@ -1,0 +1,69 @@
+"""Issue 28's forged status replies against `ovis up`: a client that knows only Zenoh and
+MessagePack answers the status queries in the name of `ovis up`'s own processes (right
+pid, host and start time, or another start time, or a new pid each time) with a billion
+frames and drops; the summary's totals do not move."""
+
+from __future__ import annotations
+
+import itertools
+import json
+from pathlib import Path
+from typing import Any
+
+import zenoh
+from pipeline_helpers import start_up
+from test_adversarial import ROOT, Attacker, _pack
+from zenoh_helpers import wait_for
+
+BILLION = 10**9
+
+
+def _connect(endpoint: str) -> Attacker | None:
+    """A client of `ovis up`'s router, once it listens."""
+    try:
+        return Attacker(endpoint)
+    except zenoh.ZError:
+        return None
+
+
+def test_forged_statuses_do_not_move_ovis_ups_totals(tmp_path: Path) -> None:
+    proc, endpoint, err = start_up(tmp_path, "--duration", "15", "--fps", "10", "--pin", "none")
+    try:
+        attacker = wait_for(lambda: _connect(endpoint), 30, "ovis up's router")
+        try:
+            genuine = {
+                s: wait_for(
+                    lambda s=s: attacker.ask(f"status/{s}", timeout=1.0), 60, f"{s}'s status"
+                )[0]
+                for s in ("capture", "pose")
+            }
+            pids = itertools.count(1_000_000)
+
+            def forge(service: str, key: str, query: zenoh.Query) -> None:
+                real = genuine[service]
+                huge = {"frames_in": BILLION, "frames_out": BILLION, "dropped": BILLION}
+                # the right pid last: the reply Zenoh keeps for a key, by default
+                for started in (real["started_ns"] + 1, real["started_ns"]):
+                    for pid in (next(pids), real["pid"]):
+                        forged: dict[str, Any] = {**real, **huge, "started_ns": started, "pid": pid}
+                        query.reply(f"{ROOT}/status/{key}", _pack(forged))
+
+            # on the service's own key, and on keys of their own (the name that counts
+            # is the one in the message)
+            for service in genuine:
+                for key in (service, f"{service}-forged"):
+                    attacker.session.declare_queryable(
+                        f"{ROOT}/status/{key}", lambda q, s=service, k=key: forge(s, k, q)
+                    )
+            out, _ = proc.communicate(timeout=120)
+        finally:
+            attacker.session.close()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    summary = json.loads(out.decode())
+    assert proc.returncode == 0, (summary, err.read_text())
+    # 15 s at 10 fps: about 150 frames, never a billion
+    assert 0 < summary["frames_captured"] < 1000, summary
+    assert all(n < 1000 for n in summary["dropped"].values()), summary["dropped"]
