@@ -40,6 +40,7 @@ from ovis.common.messages import (
     encode,
 )
 from ovis.common.pipeline.following import label
+from ovis.common.pipeline.limits import frame_payload_problem
 from ovis.common.pipeline.recalibration import (
     CalibrationCancelledError,
     CalibrationJob,
@@ -100,14 +101,18 @@ def main(service: Service) -> None:
 
     def on_frame(sample: zenoh.Sample) -> None:
         # Only the header is decoded here (cheap); the image when a calibration needs it.
-        payload = sample.payload.to_bytes()
-        header = service.decode(payload, FrameHeader, "frame")
-        if header is not None:
+        # A frame is kept only if it has the camera's size and as many bytes as it says.
+        payload = service.take(sample.payload, "frame", "frame")
+        header = None if payload is None else service.decode(payload, FrameHeader, "frame")
+        if payload is None or header is None:
+            return
+        camera = service.calibration.camera
+        if not service.refused("bad_frame", frame_payload_problem(header, len(payload), camera)):
             service.saw_frame(header.seq, header.stamp_ns, header.stream)
             keeper.add_frame(header.seq, payload)
 
     def on_truth(sample: zenoh.Sample) -> None:
-        truth = service.decode(sample.payload.to_bytes(), TruthFrame, "truth")
+        truth = service.receive(sample.payload, "small", TruthFrame, "truth")
         if truth is not None:
             keeper.add_truth(truth)
 
@@ -117,7 +122,9 @@ def main(service: Service) -> None:
     publish = service.publisher(service.topics.calibration, drop=False)
 
     def on_current(query: zenoh.Query) -> None:
-        if service.calibration.version > 0:
+        if service.fits(query.payload, "small", "calibration_query") and (
+            service.calibration.version > 0
+        ):
             query.reply(
                 service.topics.calibration,
                 encode(CalibrationUpdate(calibration=service.calibration)),
@@ -135,8 +142,8 @@ def main(service: Service) -> None:
         """Every query is answered at once here (bad, too big, cancel, busy), or
         accepted for the loop, which answers when the calibration is done."""
         try:
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            request = CalibrateRequest()
+            payload = service.take(query.payload, "small", "calibrate_request")
+            request = CalibrateRequest() if payload == b"" else None
             if payload:
                 request = service.decode(payload, CalibrateRequest, "calibrate_request")
             if request is None:

@@ -13,7 +13,10 @@ FRAMES = """
 import json, resource, sys
 import numpy as np
 from ovis.services.memory import keep_freed_memory
-kept = keep_freed_memory() if sys.argv[1] == "keep" else None
+mode = sys.argv[1]
+kept = keep_freed_memory() if mode == "keep" else None
+if mode.isdigit():  # fitted to the largest message
+    kept = keep_freed_memory(int(mode))
 def frame():  # what a stage allocates per 640x480 frame: payload, images, the encoded reply
     bufs = [np.ones(640 * 480, np.uint8) for _ in range(4)]
     return int(sum(b[::4096].sum() for b in bufs))
@@ -41,3 +44,17 @@ def test_kept_memory_takes_no_page_fault_per_frame() -> None:
     assert kept["faults_per_frame"] < 2  # the same pages, frame after frame
     # with glibc's defaults the four 300 KB blocks are given back and faulted in again
     assert default["faults_per_frame"] > 100
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+def test_thresholds_fitted_to_a_stage_camera_still_take_no_page_fault_per_frame() -> None:
+    """What `ovis run` sets for the 640x480 camera: its largest message (a blob list)
+    stays in the heaps, anything larger is mapped on its own and unmapped when freed."""
+    from ovis.common.config import PinholeParams
+    from ovis.common.pipeline.limits import PayloadLimits
+
+    pose = {"rvec": [0.0, 0.0, 0.0], "tvec_cm": [0.0, 0.0, 100.0]}
+    camera = PinholeParams(rows=480, cols=640, fx=500.0, fy=500.0, cx=320.0, cy=240.0, **pose)
+    fitted = _faults(str(max(PayloadLimits.of(camera))))
+    assert fitted["kept"] is True
+    assert fitted["faults_per_frame"] < 2

@@ -54,7 +54,9 @@ def router(
     """
     from ovis.common.config import router_zenoh
     from ovis.services.bus import open_session
+    from ovis.services.memory import keep_freed_memory
 
+    keep_freed_memory(0)  # a router decodes no frame: keep no freed block for one
     cfg = config_with_options(config, mode="router")  # a bad file has been refused here
     zc = router_zenoh(
         cfg, config, listen=listen, connect=connect, default_endpoint=DEFAULT_ENDPOINT
