@@ -532,6 +532,9 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     #: one camera of several (``[[cameras]]``): this process is in that camera's chain
     #: and its topics are ``ovis/<arena>/cam/<camera_name>/…``; None: the one camera
     camera_name: CameraName | None = None
+    #: calibration versions the calibrator keeps in ``state_dir`` (older ones are
+    #: deleted when it saves a new one)
+    keep_calibrations: Annotated[int, msgspec.Meta(ge=1, le=100000)] = 20
 
 
 class CameraSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

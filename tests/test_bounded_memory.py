@@ -10,22 +10,17 @@ what it was, and a second round of the same adds nothing.
 
 from __future__ import annotations
 
-import json
-import signal
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import msgpack
 import pytest
-import zenoh
-from zenoh_helpers import free_port, wait_for
+from bus_client import BusClient
+from zenoh_helpers import free_port, ovis_cmd, spawn, stop, wait_for
 
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
-ROOT = "ovis/default"
 BIG = bytes(30 << 20)
 #: What a process may keep after the attacks: a few of its largest messages per heap
 #: and Zenoh's shared-memory pools (VmRSS), or its own pages (RssAnon).
@@ -33,35 +28,6 @@ MAX_GROWTH_MB = 50.0
 MAX_ANON_GROWTH_MB = 25.0
 #: What a second round of the same may add (nothing but noise).
 MAX_SECOND_ROUND_MB = 10.0
-
-
-class Client:
-    """A plain Zenoh client: puts, queries and the services' statuses."""
-
-    def __init__(self, endpoint: str) -> None:
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"client"')
-        conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-        conf.insert_json5("scouting/multicast/enabled", "false")
-        self.session = zenoh.open(conf)
-
-    def put(self, key: str, payload: bytes) -> None:
-        self.session.put(f"{ROOT}/{key}", payload, congestion_control=zenoh.CongestionControl.BLOCK)
-
-    def ask(self, key: str, payload: bytes | None = None, timeout: float = 3.0) -> list[Any]:
-        replies = self.session.get(f"{ROOT}/{key}", payload=payload, timeout=timeout)
-        return [msgpack.unpackb(r.ok.payload.to_bytes()) for r in replies if r.ok is not None]
-
-    def statuses(self) -> dict[str, dict[str, Any]]:
-        return {st["service"]: st for st in self.ask("status/*")}
-
-
-def connect(endpoint: str) -> Client | None:
-    try:
-        return Client(endpoint)
-    except zenoh.ZError:
-        time.sleep(0.5)
-        return None
 
 
 def memory_mb(pid: int) -> dict[str, float]:
@@ -88,7 +54,7 @@ def router_pid(endpoint: str) -> int:
 
 
 class System:
-    def __init__(self, up: subprocess.Popen[bytes], endpoint: str, client: Client) -> None:
+    def __init__(self, up: subprocess.Popen[bytes], endpoint: str, client: BusClient) -> None:
         self.up, self.endpoint, self.client = up, endpoint, client
 
     def pids(self) -> dict[str, int]:
@@ -104,19 +70,15 @@ class System:
 def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
     tmp = tmp_path_factory.mktemp("memory")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    args = ["up", "--listen", endpoint, "--no-live", "--fps", "15", "--state-dir", str(tmp)]
-    with open(tmp / "up.log", "wb") as log:
-        up = subprocess.Popen(
-            [sys.executable, "-m", "ovis.services.cli", *args],
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
-        )
+    up = spawn(
+        ovis_cmd("up", "--listen", endpoint, "--no-live", "--fps", "15", "--state-dir", str(tmp)),
+        tmp / "up.log",
+    )
     client = None
     try:
-        client = wait_for(lambda: connect(endpoint), 30, "the router of ovis up")
+        client = wait_for(lambda: BusClient.connect(endpoint), 30, "the router of ovis up")
         wait_for(
-            lambda: (st := client.statuses().get("calibrator")) and st["calibration_version"] >= 1,
+            lambda: (st := client.status("calibrator")) and st["calibration_version"] >= 1,
             90,
             "the first calibration",
         )
@@ -124,13 +86,8 @@ def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
         yield System(up, endpoint, client)
     finally:
         if client is not None:
-            client.session.close()
-        up.send_signal(signal.SIGTERM)
-        try:
-            up.wait(30)
-        except subprocess.TimeoutExpired:
-            up.kill()
-            up.wait()
+            client.close()
+        stop([up], 30)
 
 
 def forged_frame(seq: int) -> bytes:
@@ -148,7 +105,7 @@ def forged_frame(seq: int) -> bytes:
     )
 
 
-def oversized_everywhere(client: Client) -> None:
+def oversized_everywhere(client: BusClient) -> None:
     """One 30 MB message on every input of every stage."""
     client.put("frames", forged_frame(20_000_000))
     for key in ("binary", "blobs", "truth", "calibration", "source"):
