@@ -25,6 +25,7 @@ import math
 import os
 import re
 import signal
+import socket
 import subprocess
 import threading
 import time
@@ -289,6 +290,15 @@ def test_recalibrate_from_the_page_with_the_token(system) -> None:
         page.wait_for_selector(f"#calibration[data-version='{version}']", timeout=5000)
 
 
+def ws_connect(url: str, source: str = "127.0.0.1"):
+    """A raw WebSocket to the view at ``url`` as its own page opens it (with the view's
+    Origin), from the loopback address ``source`` (a view serves at most
+    --max-clients-per-address sockets to one address)."""
+    host, port = url.removeprefix("http://").rstrip("/").split(":")
+    sock = socket.create_connection((host, int(port)), timeout=10, source_address=(source, 0))
+    return ws_client.connect(url.replace("http", "ws", 1) + "ws", sock=sock, origin=url.rstrip("/"))
+
+
 def _messages(ws, until, timeout: float = 10.0) -> list[dict]:
     """Text messages from a raw WebSocket until ``until(message)``."""
     got = []
@@ -303,15 +313,14 @@ def _messages(ws, until, timeout: float = 10.0) -> list[dict]:
 
 
 def test_recalibration_needs_the_right_token_on_the_server(system) -> None:
-    ws_url = system.url.replace("http", "ws") + "ws"
-    with ws_client.connect(ws_url) as ws:
+    with ws_connect(system.url, source="127.0.0.9") as ws:  # its wait is its own
         ws.send(json.dumps({"type": "recalibrate", "token": "wrong-token-123"}))
         msgs = _messages(ws, lambda m: m["type"] == "recalibration")
         assert msgs[-1]["state"] == "refused" and "wrong operator token" in msgs[-1]["message"]
     with page_of(system, system.lonely_url) as page:
         page.wait_for_selector("#stages tr", timeout=10000)
         assert page.locator("#recalibrate").count() == 0  # no token: no button
-    with ws_client.connect(system.lonely_url.replace("http", "ws") + "ws") as ws:
+    with ws_connect(system.lonely_url) as ws:
         ws.send(json.dumps({"type": "recalibrate", "token": TOKEN}))
         msgs = _messages(ws, lambda m: m["type"] == "recalibration")
         assert msgs[-1]["state"] == "refused" and "read-only" in msgs[-1]["message"]
@@ -332,8 +341,7 @@ def test_a_view_of_an_arena_with_no_stage_says_so(system) -> None:
 
 
 def test_garbage_and_20_clients_leave_the_view_serving(system) -> None:
-    ws_url = system.url.replace("http", "ws") + "ws"
-    with ws_client.connect(ws_url) as ws:
+    with ws_connect(system.url) as ws:
         for junk in (
             b"\x00\xff\x13",
             "not json",
@@ -347,12 +355,12 @@ def test_garbage_and_20_clients_leave_the_view_serving(system) -> None:
             ws.send(junk)
             msgs = _messages(ws, lambda m: m["type"] == "error")
             assert msgs[-1]["message"] and not msgs[-1].get("fatal")
-    # 20 clients at once: each gets its hello, health and pictures.
+    # 20 clients at once (from 5 addresses): each gets its hello, health and pictures.
     results: list[int] = []
     lock = threading.Lock()
 
-    def one() -> None:
-        with ws_client.connect(ws_url) as ws:
+    def one(source: str) -> None:
+        with ws_connect(system.url, source) as ws:
             pictures = 0
             deadline = time.monotonic() + 8
             while time.monotonic() < deadline and pictures < 5:
@@ -361,18 +369,17 @@ def test_garbage_and_20_clients_leave_the_view_serving(system) -> None:
             with lock:
                 results.append(pictures)
 
-    threads = [threading.Thread(target=one) for _ in range(20)]
+    threads = [threading.Thread(target=one, args=(f"127.0.0.{2 + i % 5}",)) for i in range(20)]
     for t in threads:
         t.start()
     for t in threads:
         t.join(30)
     assert results == [5] * 20, results
     # Beyond --max-clients (3 on the read-only view): told so, clearly.
-    lonely_ws = system.lonely_url.replace("http", "ws") + "ws"
     with contextlib.ExitStack() as stack:
         for _ in range(3):
-            stack.enter_context(ws_client.connect(lonely_ws)).recv(timeout=5)
-        with ws_client.connect(lonely_ws) as extra:
+            stack.enter_context(ws_connect(system.lonely_url)).recv(timeout=5)
+        with ws_connect(system.lonely_url) as extra:
             msg = json.loads(extra.recv(timeout=5))
             assert msg["type"] == "error" and msg["fatal"] and "too many viewers" in msg["message"]
     state = get_json(system.url + "api/state")
