@@ -25,7 +25,6 @@ import math
 import os
 import re
 import signal
-import socket
 import subprocess
 import threading
 import time
@@ -39,6 +38,7 @@ import msgspec
 import pytest
 from pipeline_helpers import Recorder
 from real_photos import photo_paths
+from ws_helpers import texts_until, ws_connect
 from zenoh_helpers import client, free_port, ovis_cmd, pids_with, spawn, stop, wait_for
 
 from ovis.common.calibration.file import Calibration
@@ -74,7 +74,6 @@ if not CHROMIUM.exists():
     pytest.skip(reason, allow_module_level=True)
 
 sync_playwright = pytest.importorskip("playwright.sync_api").sync_playwright
-ws_client = pytest.importorskip("websockets.sync.client")
 
 
 def get_json(url: str) -> dict:
@@ -290,39 +289,17 @@ def test_recalibrate_from_the_page_with_the_token(system) -> None:
         page.wait_for_selector(f"#calibration[data-version='{version}']", timeout=5000)
 
 
-def ws_connect(url: str, source: str = "127.0.0.1"):
-    """A raw WebSocket to the view at ``url`` as its own page opens it (with the view's
-    Origin), from the loopback address ``source`` (a view serves at most
-    --max-clients-per-address sockets to one address)."""
-    host, port = url.removeprefix("http://").rstrip("/").split(":")
-    sock = socket.create_connection((host, int(port)), timeout=10, source_address=(source, 0))
-    return ws_client.connect(url.replace("http", "ws", 1) + "ws", sock=sock, origin=url.rstrip("/"))
-
-
-def _messages(ws, until, timeout: float = 10.0) -> list[dict]:
-    """Text messages from a raw WebSocket until ``until(message)``."""
-    got = []
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        data = ws.recv(timeout=max(0.1, deadline - time.monotonic()))
-        if isinstance(data, str):
-            got.append(json.loads(data))
-            if until(got[-1]):
-                return got
-    raise AssertionError(f"no matching message in {timeout} s: {got[-5:]}")
-
-
 def test_recalibration_needs_the_right_token_on_the_server(system) -> None:
     with ws_connect(system.url, source="127.0.0.9") as ws:  # its wait is its own
         ws.send(json.dumps({"type": "recalibrate", "token": "wrong-token-123"}))
-        msgs = _messages(ws, lambda m: m["type"] == "recalibration")
+        msgs = texts_until(ws, lambda m: m["type"] == "recalibration")
         assert msgs[-1]["state"] == "refused" and "wrong operator token" in msgs[-1]["message"]
     with page_of(system, system.lonely_url) as page:
         page.wait_for_selector("#stages tr", timeout=10000)
         assert page.locator("#recalibrate").count() == 0  # no token: no button
     with ws_connect(system.lonely_url) as ws:
         ws.send(json.dumps({"type": "recalibrate", "token": TOKEN}))
-        msgs = _messages(ws, lambda m: m["type"] == "recalibration")
+        msgs = texts_until(ws, lambda m: m["type"] == "recalibration")
         assert msgs[-1]["state"] == "refused" and "read-only" in msgs[-1]["message"]
 
 
@@ -353,7 +330,7 @@ def test_garbage_and_20_clients_leave_the_view_serving(system) -> None:
             "x" * 10000,
         ):
             ws.send(junk)
-            msgs = _messages(ws, lambda m: m["type"] == "error")
+            msgs = texts_until(ws, lambda m: m["type"] == "error")
             assert msgs[-1]["message"] and not msgs[-1].get("fatal")
     # 20 clients at once (from 5 addresses): each gets its hello, health and pictures.
     results: list[int] = []

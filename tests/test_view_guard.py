@@ -16,7 +16,6 @@ import contextlib
 import json
 import os
 import re
-import socket
 import subprocess
 import threading
 import time
@@ -26,10 +25,9 @@ from collections.abc import Iterator
 from types import SimpleNamespace
 
 import pytest
+from websockets.exceptions import ConnectionClosed, InvalidStatus
+from ws_helpers import texts_until, ws_connect
 from zenoh_helpers import free_port, ovis_cmd, spawn, stop, wait_for
-
-ws_client = pytest.importorskip("websockets.sync.client")
-ws_exceptions = pytest.importorskip("websockets.exceptions")
 
 TOKEN = "Qm7vK2xP9dLr4TzW8nHc3sYb6FgJ5uEa"  # 32 random letters and digits
 ALLOWED = "http://example.org:8000"
@@ -86,34 +84,9 @@ def views(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SimpleNamespace]
         assert "Traceback" not in (tmp / name).read_text()
 
 
-def ws_of(url: str) -> str:
-    return url.replace("http://", "ws://") + "ws"
-
-
-@contextlib.contextmanager
-def socket_from(url: str, origin: str | None, source: str = "127.0.0.1") -> Iterator:
-    """A WebSocket to the view at ``url`` from the loopback address ``source``."""
-    host, port = url.removeprefix("http://").rstrip("/").split(":")
-    sock = socket.create_connection((host, int(port)), timeout=10, source_address=(source, 0))
-    with ws_client.connect(ws_of(url), sock=sock, origin=origin, open_timeout=10) as ws:
-        yield ws
-
-
-def texts_until(ws, predicate, timeout: float = 10.0) -> list[dict]:
-    got: list[dict] = []
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        msg = ws.recv(timeout=max(0.1, deadline - time.monotonic()))
-        if isinstance(msg, str):
-            got.append(json.loads(msg))
-            if predicate(got[-1]):
-                return got
-    raise AssertionError(f"nothing matching within {timeout} s: {got[-3:]}")
-
-
 def refused_handshake(url: str, origin: str | None) -> str:
     """The HTTP status and body of a refused WebSocket handshake."""
-    with pytest.raises(ws_exceptions.InvalidStatus) as refused, socket_from(url, origin):
+    with pytest.raises(InvalidStatus) as refused, ws_connect(url, origin=origin):
         pass
     response = refused.value.response
     return f"{response.status_code} {response.body.decode()}"
@@ -137,13 +110,13 @@ def test_other_origins_are_refused_and_an_allowed_one_gets_in(views) -> None:
     # a page of another port of the same machine is another origin
     assert refused_handshake(views.url, views.allowing_url.rstrip("/")).startswith("403")
     for own in (views.origin, views.origin.replace("127.0.0.1", "localhost")):
-        with socket_from(views.url, own) as ws:
+        with ws_connect(views.url, origin=own) as ws:
             assert texts_until(ws, lambda m: m["type"] == "hello")[-1]["operator"] is True
     assert api_status(views.url, "http://evil.example") == 403
     assert api_status(views.url, views.origin) == 200
     assert api_status(views.url, None) == 200  # a program (curl, a script): no Origin
     # --allow-origin lets that origin in, exactly (port 80 is another origin)
-    with socket_from(views.allowing_url, ALLOWED) as ws:
+    with ws_connect(views.allowing_url, origin=ALLOWED) as ws:
         assert texts_until(ws, lambda m: m["type"] == "hello")[-1]["operator"] is False
     assert refused_handshake(views.allowing_url, "http://example.org").startswith("403")
     assert api_status(views.allowing_url, ALLOWED) == 200
@@ -153,9 +126,9 @@ def test_1000_wrong_tokens_are_cut_short_slowed_down_and_barely_logged(views) ->
     lines_before = views.log.read_text().count("operator token")
     # one guess at a time, each answer read (as a guesser must, to learn the result)
     answers: list[dict] = []
-    with socket_from(views.url, views.origin, source="127.0.0.2") as ws:
+    with ws_connect(views.url, "127.0.0.2", views.origin) as ws:
         texts_until(ws, lambda m: m["type"] == "hello")
-        with contextlib.suppress(ws_exceptions.ConnectionClosed):
+        with contextlib.suppress(ConnectionClosed):
             for i in range(1000):
                 ws.send(json.dumps({"type": "recalibrate", "token": f"guess-{i:06d}"}))
                 answers += texts_until(ws, lambda m: m["type"] in ("recalibration", "error"))
@@ -168,24 +141,24 @@ def test_1000_wrong_tokens_are_cut_short_slowed_down_and_barely_logged(views) ->
     assert answers[-1]["message"].startswith("5 operator tokens refused: disconnected")
     # 1000 sent at once, unread: the socket is closed all the same
     t0 = time.monotonic()
-    with socket_from(views.url, views.origin, source="127.0.0.7") as ws:
-        with contextlib.suppress(ws_exceptions.ConnectionClosed):
+    with ws_connect(views.url, "127.0.0.7", views.origin) as ws:
+        with contextlib.suppress(ConnectionClosed):
             for i in range(1000):
                 ws.send(json.dumps({"type": "recalibrate", "token": f"flood-{i:06d}"}))
         last = texts_until(ws, lambda m: m.get("fatal"), timeout=10)[-1]
         assert last["message"].startswith("5 operator tokens refused: disconnected")
-        with pytest.raises(ws_exceptions.ConnectionClosed):
+        with pytest.raises(ConnectionClosed):
             ws.recv(timeout=5)
     assert time.monotonic() - t0 < 10
     # the same address must now wait: even the right token is not compared
-    with socket_from(views.url, views.origin, source="127.0.0.2") as ws:
+    with ws_connect(views.url, "127.0.0.2", views.origin) as ws:
         ws.send(json.dumps({"type": "auth", "token": TOKEN}))
         auth = texts_until(ws, lambda m: m["type"] == "auth")[-1]
         assert not auth["ok"] and re.match(
             r"too many wrong operator tokens from 127\.0\.0\.2: wait \d+ s", auth["message"]
         ), auth
     # the operator, elsewhere, is not slowed down
-    with socket_from(views.url, views.origin) as ws:
+    with ws_connect(views.url, origin=views.origin) as ws:
         ws.send(json.dumps({"type": "auth", "token": TOKEN}))
         assert texts_until(ws, lambda m: m["type"] == "auth")[-1]["ok"] is True
     time.sleep(0.5)
@@ -234,7 +207,7 @@ def test_a_weak_token_is_refused_at_start_and_auto_makes_a_strong_one(views) -> 
         url, token = page[1], page[2]
         assert len(token) >= 32 and re.fullmatch(r"[A-Za-z0-9_-]+", token)
         wait_for(lambda: _serving(url), 30, "the view")
-        with socket_from(url, url.rstrip("/")) as ws:
+        with ws_connect(url, origin=url.rstrip("/")) as ws:
             ws.send(json.dumps({"type": "auth", "token": token}))
             assert texts_until(ws, lambda m: m["type"] == "auth")[-1]["ok"] is True
     finally:
@@ -247,7 +220,7 @@ def test_idle_sockets_never_lock_the_operator_out(views) -> None:
         stack, refusals, lock = contextlib.ExitStack(), [], threading.Lock()
 
         def one() -> None:
-            opened = socket_from(views.url, views.origin, source=source)
+            opened = ws_connect(views.url, source, views.origin)
             ws = opened.__enter__()
             with lock:
                 stack.push(opened.__exit__)
@@ -275,11 +248,11 @@ def test_idle_sockets_never_lock_the_operator_out(views) -> None:
             stack, refusals = hold(source, 8)
             idle.enter_context(stack)
             assert refusals == [], refusals
-        with socket_from(views.url, views.origin) as viewer:
+        with ws_connect(views.url, origin=views.origin) as viewer:
             msg = json.loads(viewer.recv(timeout=10))
             assert msg["fatal"] and msg["message"].startswith("too many viewers (32,"), msg
         t0 = time.monotonic()
-        with socket_from(views.url, views.origin) as operator:
+        with ws_connect(views.url, origin=views.origin) as operator:
             operator.send(json.dumps({"type": "auth", "token": TOKEN}))
             got = texts_until(operator, lambda m: m["type"] == "health")
             assert time.monotonic() - t0 < 5
