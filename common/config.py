@@ -246,11 +246,12 @@ class PinholeRanges(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 class ImageParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Image pipeline settings (paper §3). ``threshold``/``size_filter_cm2`` are calibrated.
 
-    Beyond the paper, for real floors (:mod:`ovis.common.vision.preprocess`):
+    Beyond the paper, for real floors (:mod:`ovis.common.vision.segmentation`):
     ``threshold_mode`` "fixed" (the paper's grey level), "otsu" (Otsu's level of the
     frame), "adaptive" (``threshold`` applied to the local contrast: the frame minus its
-    Gaussian local mean over ``block_px``, plus 128) or "auto" (Otsu's level of that
-    local contrast); ``background``, an image of the empty floor subtracted first (then
+    Gaussian local mean over ``block_px``, by default a window that follows the objects,
+    plus 128) or "auto" (Otsu's level of that local contrast around the objects);
+    ``background``, an image of the empty floor subtracted first (then
     128 is "as the empty floor"); ``roi``, a mask image (non-zero: look here);
     ``max_size_cm2``, the largest object kept.
     """
@@ -261,7 +262,7 @@ class ImageParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     size_filter_cm2: _rng(0.0, 1e6) = 20.0
     perimeter: Literal["kb", "crofton"] = "kb"
     threshold_mode: Literal["fixed", "otsu", "adaptive", "auto"] = "fixed"
-    block_px: Annotated[int, msgspec.Meta(ge=0, le=100001)] = 0  # 0: a third of the frame
+    block_px: Annotated[int, msgspec.Meta(ge=0, le=100001)] = 0  # 0: follows the objects
     background: str | None = None
     roi: str | None = None
     max_size_cm2: Annotated[float, msgspec.Meta(gt=0.0, le=1e9)] | None = None
@@ -532,9 +533,25 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     #: one camera of several (``[[cameras]]``): this process is in that camera's chain
     #: and its topics are ``ovis/<arena>/cam/<camera_name>/…``; None: the one camera
     camera_name: CameraName | None = None
+    #: an MCAP source another tool wrote: the topic of the image channel to read (empty:
+    #: its only image channel); ``ovis up --topic``
+    source_topic: Annotated[str, msgspec.Meta(max_length=4096)] = ""
     #: calibration versions the calibrator keeps in ``state_dir`` (older ones are
     #: deleted when it saves a new one)
     keep_calibrations: Annotated[int, msgspec.Meta(ge=1, le=100000)] = 20
+
+    def __post_init__(self) -> None:
+        if self.source_topic and not self.source.lower().endswith(".mcap"):
+            raise ValueError(
+                f"source_topic {self.source_topic!r} picks a channel of an MCAP file, but "
+                f"the source is {self.source!r}: give an .mcap source or no topic"
+            )
+
+    @property
+    def simulated_source(self) -> bool:
+        """Whether ``source`` is the simulator ("sim" or a simulated grid camera):
+        anything else is a real camera's frames, which need a calibration of their own."""
+        return self.source == "sim" or self.source.startswith("grid:")
 
 
 class CameraSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

@@ -350,6 +350,8 @@ class ObstacleFrame(_Msg, tag="obstacles", kw_only=True):
     robot_plans: list[RobotPlan] = []
     unknown_markers: list[UnknownMarker] = []
     markers_at_border: Annotated[int, msgspec.Meta(ge=0)] = 0
+    #: the capture's stream identity of the frame (Frame.stream): whose run it is
+    stream: str = ""
 
 
 class StreamHealth(_Msg, tag="health", kw_only=True):
@@ -496,6 +498,7 @@ class ServiceStatus(_Msg, tag="status", kw_only=True):
     source_gaps: int = 0  # capture: times its source was lost (the current loss included)
     source_gap_s: float = 0.0  # capture: seconds without its source, in total
     gaps: list[SourceGap] = []  # capture: the latest losses, oldest first
+    stream: str = ""  # the capture's stream identity of the last frame (the capture's own)
 
 
 class ReplayMark(msgspec.Struct, kw_only=True, forbid_unknown_fields=False):

@@ -227,6 +227,9 @@ def main(service: Service) -> None:
             return CalibrateReply(ok=False, frame_seq=seq, error=str(exc))
         finally:
             service.state = "ok"
+        # on the simulator's truth: the simulated camera's calibration (`ovis up` never
+        # takes it for a real camera's)
+        calib = msgspec.structs.replace(calib, simulated=file_points is None)
         problem = calibration_problem(calib, cfg)
         if problem is not None:  # never published: the stages would refuse it anyway
             service.error("calibration", f"calibration on frame {seq}: {problem}")

@@ -34,8 +34,9 @@ def main(service: Service) -> None:
     # at start, all of it before the first frame (which would otherwise take many frame
     # periods and make the next frames queue up behind it); a new calibration's while
     # the frames go on
-    prepare(service.calibration, wait=True)
     service.follow_calibration(prepare)
+    service.await_calibration()  # a real camera's: the calibrator's, not the configured one
+    prepare(service.calibration, wait=True)
     publish = service.publisher(service.topics.blobs)
 
     def handle(payload: bytes, _receipt_ns: int) -> None:

@@ -151,8 +151,31 @@ class Service:
 
     def fits_camera(self, frame: Any, kind: str) -> bool:
         """True if ``frame`` (rows, cols, seq) has the calibrated camera's size; else count
-        and log a ``bad_<kind>`` error."""
-        return not self.refused(f"bad_{kind}", wrong_size(frame, self.calibration.camera, kind))
+        and log a ``bad_<kind>`` error. A real camera's frame needs a calibration: the
+        configured camera (version 0) is the simulator's, not a real camera's."""
+        if self.refused(f"bad_{kind}", wrong_size(frame, self.calibration.camera, kind)):
+            return False
+        return not self.refused("no_calibration", self._uncalibrated(frame.seq, kind))
+
+    def _uncalibrated(self, seq: int, kind: str) -> str | None:
+        """Why a real camera's frame cannot be processed yet (no calibration), or None."""
+        if self.calibration.version > 0 or self.config.service.simulated_source:
+            return None
+        refused = self.follower.problem() if self.follower is not None else None
+        return f"{kind} {seq} not processed: no calibration for this camera" + (
+            f" ({refused})" if refused else " (waiting for the calibrator's)"
+        )
+
+    def await_calibration(self) -> None:
+        """For a real camera's frames, return once the calibrator's calibration is in use
+        (or on stop): a stage says it listens only then, so no frame is refused for the
+        lack of one at start, and nothing is made for the configured camera (version 0:
+        the simulator's)."""
+        if self.follower is None or self.config.service.simulated_source:
+            return
+        self.state = "waiting for the calibration"
+        while self.calibration.version == 0 and not self.stop.wait(0.05):
+            pass
 
     def saw_frame(self, seq: int, stamp_ns: int, stream: str = "") -> None:
         """Count an input frame of the capture's ``stream``; a plausible gap in sequence
@@ -308,6 +331,7 @@ class Service:
         blocked by the processing: when frames come faster than they can be processed,
         the older ones are dropped (counted) instead of queueing up in the network
         stack, and what is processed is always the newest."""
+        self.await_calibration()
         self.state = "waiting for input"
         self.ready()
         while not self.stop.is_set():

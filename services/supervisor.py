@@ -14,6 +14,7 @@ import ctypes
 import logging
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -43,8 +44,13 @@ def die_with_parent() -> None:
 
 
 def _in_child(cpus: list[int]) -> None:
-    """In the child, before it runs: no orphans, and on ``cpus`` if any are given."""
+    """In the child, before it runs: no orphans, its own process group, and on ``cpus``
+    if any are given. In a group of its own, a Ctrl-C in the terminal reaches only the
+    launcher, which stops the children in order (the capture first, what it captured
+    still processed) after asking their last counts: a child stopping by itself at the
+    same moment left the summary counting more frames processed than captured."""
     die_with_parent()
+    os.setpgrp()
     if cpus:
         with contextlib.suppress(OSError):
             os.sched_setaffinity(0, cpus)
@@ -80,6 +86,8 @@ class Supervisor:
         self.events: list[str] = []
         self.stopping = False
         self.counters = CounterTotals()  # every status seen, summed over restarts
+        self._streams: dict[str, set[str]] = {}  # capture stream identities, by child
+        self._host = socket.gethostname()
 
     def start(
         self, name: str, args: list[str], *, standby: bool = False, spare_cpus: Sequence[int] = ()
@@ -183,10 +191,24 @@ class Supervisor:
     def gave_up(self) -> list[str]:
         return [c.gave_up for c in self.children.values() if c.gave_up]
 
+    def owns(self, status: ServiceStatus) -> bool:
+        """Whether ``status`` is one of this supervisor's own processes (its pid on this
+        host): another system's services on the same bus are not counted."""
+        child = self.children.get(status.service)
+        proc = child.proc if child is not None else None
+        return proc is not None and status.pid == proc.pid and status.host == self._host
+
     def record(self, statuses: dict[str, ServiceStatus]) -> None:
-        """Keep the children's latest statuses: their counters survive restarts."""
+        """Keep the children's latest statuses: their counters survive restarts; and
+        the stream identities they report (the capture's: this run's frames)."""
         for status in statuses.values():
             self.counters.record(status)
+            if status.stream:
+                self._streams.setdefault(status.service, set()).add(status.stream)
+
+    def streams(self, name: str) -> set[str]:
+        """The stream identities child ``name`` reported (each start makes a new one)."""
+        return set(self._streams.get(name, ()))
 
     def totals(self) -> dict[str, ServiceTotals]:
         """Each child's counters over all of its processes."""

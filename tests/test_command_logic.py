@@ -221,6 +221,20 @@ def test_live_score_matches_frames_to_truth_in_any_order_and_summarises() -> Non
     assert (s.dropped, s.restarts, s.exit_codes) == ({"capture": 1}, {"pose": 1}, {"capture": 0})
 
 
+def test_a_closed_live_score_counts_no_frame_that_came_after_the_capture_count() -> None:
+    """`ovis up` closes its score before it asks the capture for its count: a frame
+    processed after that is not counted, so processed never exceeds captured."""
+    run = _truth_run(2, seed=5)
+    live, base = LiveScore(), time.time_ns()
+    live.add_obstacles(_frame(0, run[0][0], base), base + 2_000_000)
+    live.close()
+    live.add_obstacles(_frame(1, run[1][0], base), base + 4_000_000)
+    status = ServiceStatus(service="capture", pid=1, host="h", started_ns=0, state="ok",
+                           frames_out=1)  # fmt: skip
+    s = live.summary({"capture": status}, {"capture": 0}, 1.0)
+    assert (s.frames_captured, s.frames_processed) == (1, 1) and live.latest.seq == 0
+
+
 def test_live_score_keeps_a_bounded_backlog() -> None:
     live = LiveScore()
     for seq in range(KEEP + 10):

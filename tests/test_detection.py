@@ -109,3 +109,44 @@ def test_detect_equals_blobs_then_pose_as_the_services_split_it(cfg) -> None:
         blobs = find_blobs(frame, split.image, cfg.camera, cfg.pose.obstacle_height_cm)
         assert whole.detect(frame, stamp_s=0.1 * k) == split.from_blobs(blobs, stamp_s=0.1 * k)
         arena.step()
+
+
+def test_the_floor_on_the_object_side_of_the_threshold_is_not_an_object(cfg) -> None:
+    """A threshold below the floor's grey: the floor is one blob touching the border and
+    covering most of the frame — the background, not an obstacle (it was one before)."""
+    frame, _ = Arena(cfg, 3).render()
+    for level in (60, 5):
+        image = msgspec.structs.replace(cfg.image, threshold=level, size_filter_cm2=25.0)
+        assert Detector(cfg.camera, image, cfg.pose).detect(frame).objects == []
+
+
+def _components(binary: np.ndarray):
+    from ovis.common.vision.labeling import label_components
+
+    return label_components(binary.astype(np.uint8))
+
+
+def test_background_is_a_border_blob_over_half_the_frame() -> None:
+    from ovis.common.vision.objects import background
+
+    frame = np.zeros((40, 50), np.uint8)
+    frame[:, :26] = 1  # touches the border, 52 % of the frame
+    frame[10:20, 35:45] = 1  # an object
+    assert background(_components(frame)).tolist() == [True, False]
+    frame[:, 25] = 0  # 50 % exactly: not "more than half"
+    assert not background(_components(frame)).any()
+    inside = np.zeros((40, 50), np.uint8)
+    inside[1:39, 1:49] = 1  # 91 % of the frame, not touching the border: an object
+    assert not background(_components(inside)).any()
+
+
+def test_smallest_object_follows_the_objects_not_the_frame() -> None:
+    from ovis.common.vision.objects import MIN_OBJECT_PX, smallest_object_px, typical_area_px
+
+    coins = np.array([1000.0] * 10 + [2000.0] * 5)
+    specks = np.array([3.0] * 50 + [60.0] * 5)
+    assert typical_area_px(np.concatenate([coins, specks])) == 1000.0  # specks hardly count
+    assert smallest_object_px(np.concatenate([coins, specks])) == 50.0
+    assert smallest_object_px(np.concatenate([coins * 4, specks])) == 200.0  # 2× closer
+    assert smallest_object_px(np.array([100.0, 90.0])) == MIN_OBJECT_PX  # small objects
+    assert smallest_object_px(np.zeros(0)) == MIN_OBJECT_PX

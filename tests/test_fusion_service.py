@@ -32,6 +32,8 @@ from ovis.common.messages import (
 from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena, measure
 
 CELL = (100.0, 75.0)
+#: The simulated cameras' frame period (30 frames/s).
+PERIOD_NS = 1_000_000_000 // 30
 
 
 def _write(path: Path, data: dict) -> Path:
@@ -47,22 +49,28 @@ def _base(endpoint: str, tmp: Path) -> dict:
 
 
 class Collector:
-    """Every message on a key, decoded, with its receipt time."""
+    """Every message on a key, decoded. Zenoh's thread only keeps the payload: decoding
+    there would hold this process's interpreter (and start its garbage collections)
+    while the test publishes the cameras' frames."""
 
     def __init__(self, session, key: str, kind) -> None:
-        self.items: list = []
+        self._kind = kind
+        self._payloads: list[bytes] = []
+        self._decoded: list = []
         self._lock = threading.Lock()
 
         def on(sample) -> None:
-            msg = decode(sample.payload.to_bytes(), kind)
+            payload = sample.payload.to_bytes()
             with self._lock:
-                self.items.append(msg)
+                self._payloads.append(payload)
 
         self._sub = session.declare_subscriber(key, on)
 
     def snapshot(self) -> list:
         with self._lock:
-            return list(self.items)
+            fresh, self._payloads = self._payloads, []
+            self._decoded += [decode(p, self._kind) for p in fresh]
+            return list(self._decoded)
 
 
 def test_a_real_camera_chain_on_its_own_topics_is_fused_into_the_world(tmp_path: Path) -> None:
@@ -158,7 +166,11 @@ def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
                 )
                 for s in specs
             }
-            start = time.monotonic()
+            # Frame f is captured at start + f periods by the cameras' clock, whenever this
+            # process gets to publish it: a pause here (a garbage collection, the machine's
+            # load) then delays frames, as a slow network would, but does not squeeze the
+            # stamps of the frames it publishes next into one matching window.
+            start, start_ns = time.monotonic(), time.time_ns()
             for f in range(frames):
                 truth = scene.objects(f)
                 if f == recalibrated_at:
@@ -167,7 +179,7 @@ def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
                         encode(recalibration),
                         encoding=ENCODING,
                     )
-                stamp = time.time_ns()
+                stamp = start_ns + f * PERIOD_NS
                 seen_ids: set[int] = set()
                 payloads = {}
                 for s in specs:  # the cameras capture at once, then publish
@@ -179,7 +191,7 @@ def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
                 for name, payload in payloads.items():
                     pubs[name].put(payload)
                 sent_truth[stamp] = (truth, seen_ids)
-                time.sleep(max(0.0, start + (f + 1) / 30.0 - time.monotonic()))
+                time.sleep(max(0.0, start + (f + 1) * PERIOD_NS / 1e9 - time.monotonic()))
             wait_for(lambda: len(world.snapshot()) >= frames - 2, 10, "every world frame")
     finally:
         stop(procs[1:])

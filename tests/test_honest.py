@@ -1,5 +1,6 @@
 """Honest results on real data: sizes from the image, implausible calibrations refused,
-no truth lines without truth, and `ovis up` failing when nothing is processed."""
+no truth lines without truth (`ovis up` refusing a real source without a calibration of
+its own, and its exit codes: tests/test_up_start.py)."""
 
 from __future__ import annotations
 
@@ -89,19 +90,6 @@ def _up(tmp_path: Path, *args: str) -> tuple[int, dict | None, str]:
     out, _ = proc.communicate(timeout=120)
     text = out.decode().strip()
     return proc.returncode, json.loads(text) if text else None, err.read_text()
-
-
-def test_up_fails_when_frames_arrive_and_none_is_processed(tmp_path: Path) -> None:
-    photos = tmp_path / "photos"
-    photos.mkdir()
-    for p in photo_paths()[:4]:
-        shutil.copy(p, photos / p.name)
-    code, summary, err = _up(tmp_path, "--source", str(photos))
-    assert code == 1, (summary, err)
-    assert summary is not None and summary["frames_captured"] > 0
-    assert summary["frames_processed"] == 0 and summary["truth_frames"] == 0
-    last = [ln for ln in err.splitlines() if ln.startswith("error: ")][-1]
-    assert "frames captured, none processed" in last and "logs in" in last
 
 
 def test_up_with_a_calibration_processes_a_folder_without_truth(tmp_path: Path) -> None:

@@ -104,7 +104,14 @@ def _obstacle_frame(**kw: Any) -> ObstacleFrame:
         frame_age_ms=16.543,
         calibration_version=3,
         robot=_detected(
-            1, "robot", x_cm=98.241, y_cm=30.626, heading_deg=-12.5, elongation=1.8, vx_cm_s=3.0
+            1,
+            "robot",
+            x_cm=98.241,
+            y_cm=30.626,
+            heading_deg=-12.5,
+            elongation=1.8,
+            vx_cm_s=3.0,
+            heading_resolved=True,
         ),
         obstacles=obstacles,
         planner=[
@@ -395,10 +402,23 @@ def test_a_plain_msgpack_encoder_is_understood(name: str) -> None:
 def test_obstacle_map_holds_objects_and_planner_as_maps() -> None:
     wire = msgpack.unpackb(encode(_obstacle_frame()), raw=False)
     assert wire["robot"]["kind"] == "robot" and wire["robot"]["heading_deg"] == -12.5
+    assert wire["robot"]["heading_resolved"] is True
+    assert wire["obstacles"][0]["heading_resolved"] is False
     assert [o["id"] for o in wire["obstacles"]] == [2, 3]
     assert wire["obstacles"][0]["heading_deg"] is None
     assert wire["planner"][1] == {"obstacle_id": 3, "distance_cm": 101.9, "angle_deg": 35.25}
     assert set(wire["obstacles"][0]) == set(DetectedObject.__struct_fields__)
+
+
+def test_an_object_from_an_older_sender_has_its_heading_unresolved() -> None:
+    """`heading_resolved` is new (at the end, default false): an obstacle map without it
+    decodes, and the heading then counts as an axis."""
+    wire = msgpack.unpackb(encode(_obstacle_frame()), raw=False)
+    for obj in (wire["robot"], *wire["obstacles"]):
+        del obj["heading_resolved"]
+    old = decode(msgpack.packb(wire, use_bin_type=True), ObstacleFrame)
+    assert old.robot is not None and old.robot.heading_resolved is False
+    assert old.robot.heading_deg == -12.5
 
 
 def test_bytes_travel_as_msgpack_bin() -> None:
@@ -764,6 +784,7 @@ detected_objects = st.builds(
     elongation=SIZE,
     vx_cm_s=COORD,
     vy_cm_s=COORD,
+    heading_resolved=st.booleans(),
 )
 planner_entries = st.builds(
     PlannerEntry,

@@ -862,6 +862,7 @@ def _measure(lb: Lab, sub2: Records, arenas: list[str]) -> dict[str, Any]:
     }
 
 
+@pytest.mark.processes_kept_by_the_module  # arenas a3 and a4 join the lab (stopped with it)
 def test_arenas_keep_their_key_spaces_and_scale_out(lab) -> None:
     from ovis.common.messages import Frame, encode
 

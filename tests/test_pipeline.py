@@ -379,3 +379,61 @@ def test_exit_descriptions() -> None:
     assert describe_exit(3) == "exit code 3"
     assert describe_exit(-9) == "killed by SIGKILL"
     assert describe_exit(-200) == "killed by signal 200"
+
+
+# --- ids across kinds, live and offline ------------------------------------------------------
+
+
+def _true_calibration_file(folder, version: int = 1) -> Calibration:
+    """The calibration of an `ovis simulate` folder's true camera and configuration (its
+    points.toml [config]), what a perfect GA finds."""
+    from ovis.common.config import config_from_dict, load_points
+
+    cfg = config_from_dict(load_points(folder / "points.toml").config)
+    return msgspec.structs.replace(calibration_from_config(cfg), version=version)
+
+
+def test_ids_are_unique_across_kinds_live_and_offline(tmp_path) -> None:
+    """`ovis simulate --robots 4` frames through `ovis detect` and through the stages, the
+    pose stage's detector started (as services/pose.py does) from a configuration without
+    robots and handed the robots' calibration afterwards (the order that numbered the
+    obstacles 1–6 beside robots 1–4): the same ids both ways, none shared by two objects,
+    and every planner entry names one object of its kind."""
+    import json
+
+    from test_cli import ovis
+
+    from ovis.common.world.marker_search import BlobMarkers
+
+    folder = tmp_path / "sim"
+    ovis("simulate", "--out", str(folder), "--frames", "6", "--seed", "2929", "--robots", "4")
+    calib = _true_calibration_file(folder)
+    path = tmp_path / "calib.json"
+    from ovis.common.calibration.file import save_calibration
+
+    save_calibration(path, calib)
+    frames = sorted(folder.glob("frame_*.png"))
+    offline = json.loads(
+        ovis("detect", *map(str, frames), "--calibration", str(path), "--json").stdout
+    )
+    plain = msgspec.structs.replace(calib.pose, robots=[])
+    detector = Detector(calib.camera, calib.image, plain)  # the configuration's, version 0
+    detector.recalibrate(calib.camera, calib.image, calib.pose)  # then the calibration
+    fps = 30.0
+    for k, (png, off) in enumerate(zip(frames, offline, strict=True)):
+        image = cv2.imread(str(png), cv2.IMREAD_GRAYSCALE)
+        frame = Frame.from_image(image, seq=k, stamp_ns=round(1e18 + k * 1e9 / fps))
+        binary = _wire(binary_frame(frame, as_gray(image), calib), BinaryFrame)
+        blobs = _wire(blob_list(binary, calib, 0.0, BlobMarkers()), BlobList)
+        out = obstacle_frame(blobs, detector, calib.version, "a", frame.stamp_ns)
+        live = _wire(out, ObstacleFrame)
+        robots = [r.id for r in live.robots]
+        obstacles = [o.id for o in live.obstacles]
+        assert robots == [1, 2, 3, 4] and len(obstacles) == 3
+        assert not set(robots) & set(obstacles)
+        assert robots == [r["id"] for r in off["robots"]]
+        assert obstacles == [o["id"] for o in off["objects"] if o["kind"] == "obstacle"]
+        kinds = {**dict.fromkeys(robots, "robot"), **dict.fromkeys(obstacles, "obstacle")}
+        for plan in live.robot_plans:
+            assert all(kinds[e.target_id] == e.target_kind for e in plan.entries)
+        assert all(kinds[e.obstacle_id] == "obstacle" for e in live.planner)

@@ -35,6 +35,16 @@ def test_tracker_keeps_ids_through_motion_and_crossing_order() -> None:
     assert ids2.tolist() == [1]
 
 
+def test_tracker_says_which_displacements_are_measured() -> None:
+    """A new obstacle's displacement (0) is not measured; a tracked one's is."""
+    t = Tracker(gate_cm=5.0)
+    first = t.track(np.array([[0.0, 0.0]]))
+    assert first.tracked.tolist() == [False] and first.step.tolist() == [[0.0, 0.0]]
+    second = t.track(np.array([[1.0, 0.0], [30.0, 0.0]]))
+    assert second.tracked.tolist() == [True, False]
+    assert second.step.tolist() == [[1.0, 0.0], [0.0, 0.0]]
+
+
 def test_tracker_gives_new_ids_beyond_the_gate_and_never_reuses() -> None:
     t = Tracker(gate_cm=5.0)
     t.update(np.array([[0.0, 0.0]]))
@@ -44,6 +54,21 @@ def test_tracker_gives_new_ids_beyond_the_gate_and_never_reuses() -> None:
     assert ids.size == 0
     ids, _ = t.update(np.array([[0.5, 0.0]]))
     assert ids.tolist() == [3]  # the track was lost: a new id, never an old one
+
+
+def test_reserved_ids_are_never_given_to_obstacles() -> None:
+    """A calibration that configures robots 2 and 7 while obstacles 1–3 are tracked: the
+    one holding 2 gets a new id above the robots', the others keep theirs, and new
+    obstacles skip every id a robot has or had."""
+    t = Tracker(gate_cm=5.0)
+    t.update(np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]]))
+    t.reserve({2, 7})
+    ids, _ = t.update(np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0]]))
+    assert ids.tolist() == [1, 8, 3, 9]
+    t.reserve({10})
+    ids, _ = t.update(np.array([[40.0, 0.0], [50.0, 0.0]]))
+    assert ids.tolist() == [11, 12]
+    assert ROBOT_ID in t.reserved and {2, 7, 10} <= t.reserved
 
 
 def _dense_optimum(a: np.ndarray, b: np.ndarray, gate: float) -> tuple[int, float]:

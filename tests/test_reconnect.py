@@ -78,6 +78,11 @@ def test_a_video_that_ends_with_loop_off_is_lost_for_good_and_says_so(tmp_path: 
     write_video(video, frames=8)
     cfg = tmp_path / "cfg.toml"
     cfg.write_text(f'[service]\nsource = "{video}"\nloop = false\nfps = 4.0\n')
+    # no calibrator here: the pose stage runs on the simulator's settings (a real source's
+    # stages listen only once a calibrator hands them a calibration); what it is checked
+    # for is how it passes the capture's word on into the stream's health
+    pose_cfg = tmp_path / "pose.toml"
+    pose_cfg.write_text("[service]\nfps = 4.0\n")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")
     procs = []
@@ -99,7 +104,14 @@ def test_a_video_that_ends_with_loop_off_is_lost_for_good_and_says_so(tmp_path: 
             for stage in ("pose", "capture"):  # the capture last: its frames are all seen
                 procs.append(
                     spawn(
-                        ovis_cmd("run", stage, "--connect", endpoint, "--config", str(cfg)),
+                        ovis_cmd(
+                            "run",
+                            stage,
+                            "--connect",
+                            endpoint,
+                            "--config",
+                            str(cfg if stage == "capture" else pose_cfg),
+                        ),
                         tmp_path / f"{stage}.log",
                     )
                 )

@@ -56,8 +56,9 @@ def _obstacles_of(path: Path) -> list[ObstacleFrame]:
 
 
 def _without_timing(m: ObstacleFrame) -> ObstacleFrame:
-    """The message minus when it was published (not an output of the pipeline)."""
-    return msgspec.structs.replace(m, published_ns=0, frame_age_ms=0.0)
+    """The message minus when it was published and the run's stream identity (not
+    outputs of the pipeline: a replayed frame's stream is the replaying run's)."""
+    return msgspec.structs.replace(m, published_ns=0, frame_age_ms=0.0, stream="")
 
 
 def _by_predecessor(msgs: list[ObstacleFrame]) -> dict[int, tuple[int | None, ObstacleFrame]]:

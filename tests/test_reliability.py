@@ -260,6 +260,7 @@ def test_a_flood_of_frames_is_dropped_not_queued(pipeline) -> None:
     _still_correct(pipeline.rec, injected_seq=0)
 
 
+@pytest.mark.processes_kept_by_the_module  # the new router replaces the pipeline's
 def test_stages_survive_a_router_restart(pipeline) -> None:
     procs, tmp, endpoint = pipeline.procs, pipeline.tmp, pipeline.endpoint
     rec: Recorder = pipeline.rec
@@ -276,25 +277,29 @@ def test_stages_survive_a_router_restart(pipeline) -> None:
 def test_frames_that_stop_are_reported_as_no_data(pipeline) -> None:
     session: zenoh.Session = pipeline.session
     health: list[StreamHealth] = []
-    session.declare_subscriber(
+    # on the module's session: undeclared at the end (its thread would run on otherwise)
+    sub = session.declare_subscriber(
         TOPICS.health, lambda s: health.append(decode(s.payload.to_bytes(), StreamHealth))
     )
-    wait_for(lambda: any(h.state == "ok" for h in health), 10, "health 'ok' while frames flow")
-    watch = subprocess.Popen(
-        ovis_cmd("watch", "--connect", pipeline.endpoint, "--duration", "12"),
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    time.sleep(3)
-    capture = pipeline.procs["capture"]
-    capture.send_signal(signal.SIGKILL)  # the camera is gone: no more frames
-    capture.wait()
-    t0 = time.monotonic()
-    stalled = wait_for(
-        lambda: next((h for h in health if h.state == "stalled"), None),
-        10,
-        "a 'stalled' health message",
-    )
+    try:
+        wait_for(lambda: any(h.state == "ok" for h in health), 10, "health 'ok' while flowing")
+        watch = subprocess.Popen(
+            ovis_cmd("watch", "--connect", pipeline.endpoint, "--duration", "12"),
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        time.sleep(3)
+        capture = pipeline.procs["capture"]
+        capture.send_signal(signal.SIGKILL)  # the camera is gone: no more frames
+        capture.wait()
+        t0 = time.monotonic()
+        stalled = wait_for(
+            lambda: next((h for h in health if h.state == "stalled"), None),
+            10,
+            "a 'stalled' health message",
+        )
+    finally:
+        sub.undeclare()
     assert time.monotonic() - t0 < 1.5 + 0.5 + 3.0  # timeout + period + slack
     assert stalled.seconds_since_frame >= 1.5 and stalled.last_seq >= 0
     out, _ = watch.communicate(timeout=30)

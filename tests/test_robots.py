@@ -4,6 +4,7 @@ Kalman filter, the detector on simulated arenas against ground truth, bad input.
 from __future__ import annotations
 
 import cmath
+import itertools
 import math
 import time
 
@@ -24,13 +25,21 @@ from ovis.common.config import (
     config_from_dict,
     load_config,
 )
-from ovis.common.messages import BinaryFrame, BlobList, Frame, MessageError, decode, encode
+from ovis.common.messages import (
+    BinaryFrame,
+    BlobList,
+    Frame,
+    MessageError,
+    ObstacleFrame,
+    decode,
+    encode,
+)
 from ovis.common.pipeline.stages import binary_frame, blob_list, obstacle_frame
-from ovis.common.sim.arena import Arena
+from ovis.common.sim.arena import Arena, SimObject
 from ovis.common.sim.scenes import marked_scene
 from ovis.common.vision.markers import Markers, find_markers, marker_cells
 from ovis.common.vision.preprocess import as_gray
-from ovis.common.world.detection import Detector
+from ovis.common.world.detection import DetectedObject, Detector
 from ovis.common.world.marker_search import BlobMarkers
 from ovis.common.world.planner import planner_inputs, wrap_deg
 from ovis.common.world.plans import robot_plans
@@ -42,6 +51,8 @@ from ovis.common.world.robots import (
     marker_poses,
     poses_of,
 )
+from ovis.common.world.unmarked import UnmarkedRobot
+from ovis.services.cli.watching import format_obstacles
 
 
 def _robot(i: int, marker: int | None = None, **kw) -> dict:
@@ -354,6 +365,10 @@ def test_a_robot_out_of_view_is_kept_with_its_age_then_dropped() -> None:
     assert tracker.update(Markers.none(), cam, 0.6)[0] == []  # dropped after 0.5 s
     back, _ = tracker.update(_markers([0], square), cam, 0.7)
     assert len(back) == 1 and back[0].age_s == 0.0  # a new filter
+    # one sighting (then a prediction) is no velocity; a second sighting is
+    assert [r.velocity_measured for r in (seen[0], kept[0], back[0])] == [False] * 3
+    again, _ = tracker.update(_markers([0], square), cam, 0.8)
+    assert again[0].velocity_measured and (again[0].vx_cm_s, again[0].vy_cm_s) == (0.0, 0.0)
 
 
 def test_unknown_marker_is_reported_not_tracked() -> None:
@@ -569,3 +584,207 @@ def test_the_stages_search_the_markers_where_the_detector_does(scene) -> None:
     fields = msgspec.msgpack.decode(encode(binary))
     with pytest.raises(MessageError, match="median holds 3 bytes"):
         decode(msgspec.msgpack.encode({**fields, "median": b"abc"}), BinaryFrame)
+
+
+# ------------------------------------------------------------------ the unmarked robot
+
+
+def _track(robot: UnmarkedRobot, steps, fps: float = 30.0, start: int = 0) -> list:
+    """Feed (x, y, axis) per frame at ``fps``; the motions published."""
+    return [robot.update(x, y, a, (start + k) / fps) for k, (x, y, a) in enumerate(steps)]
+
+
+def test_unmarked_heading_keeps_to_one_end_until_the_robot_moves() -> None:
+    """Standing still with its axis wobbling across ±90° (where the axis's own range
+    wraps): one end kept, no 180° jump, not resolved; then 1 cm forwards along −y
+    resolves it to −90°, the end it drives towards."""
+    robot = UnmarkedRobot(PoseConfig())
+    still = _track(robot, [(0.0, 0.0, a) for a in (89.0, -89.5, 89.8, -88.0, 90.0)])
+    assert [m.resolved for m in still] == [False] * 5
+    assert [round(m.heading_deg, 1) for m in still] == [89.0, 90.5, 89.8, 92.0, 90.0]
+    moving = _track(robot, [(0.0, -0.4 * k, 89.0) for k in range(1, 6)], start=5)
+    assert [m.resolved for m in moving] == [False, False, True, True, True]
+    assert [round(m.heading_deg) for m in moving[2:]] == [-91, -91, -91]
+
+
+def test_unmarked_heading_turns_round_with_the_motion_not_in_place() -> None:
+    """Driving +x, then back along −x (the simulator's robot turns round at a wall): the
+    heading follows at the first frame back and the velocity is that frame's step, not
+    the old one; turning in place through 360° the heading follows the axis smoothly;
+    drifting sideways says nothing about the front."""
+    robot = UnmarkedRobot(PoseConfig())
+    out = _track(robot, [(1.5 * k, 0.0, 0.0) for k in range(8)])
+    out += _track(robot, [(1.5 * (6 - k), 0.0, 0.0) for k in range(5)], start=8)
+    assert [m.heading_deg for m in out[1:]] == [0.0] * 7 + [180.0] * 5
+    assert all(m.resolved for m in out[1:])
+    assert out[7].vx_cm_s == pytest.approx(45.0, abs=1.0)
+    assert out[8].vx_cm_s == pytest.approx(-45.0, abs=1.0) and out[-1].vx_cm_s < -44.0
+    spin = _track(robot, [(3.0, 0.0, (5.0 * k + 90.0) % 180.0 - 90.0) for k in range(73)], start=13)
+    steps = np.diff([m.heading_deg for m in spin])
+    assert (np.abs(wrap_deg(steps) - 5.0) < 1e-9).all()
+    side = UnmarkedRobot(PoseConfig())
+    drift = _track(side, [(0.0, 0.5 * k, 0.0) for k in range(10)])
+    assert not any(m.resolved for m in drift) and {m.heading_deg for m in drift} == {0.0}
+
+
+def test_unmarked_track_starts_again_after_the_timeout_or_a_jump() -> None:
+    pose = PoseConfig(robot_timeout_s=0.5, track_gate_cm=10.0)
+    robot = UnmarkedRobot(pose)
+    assert _track(robot, [(1.5 * k, 0.0, 0.0) for k in range(4)])[-1].resolved
+    assert not robot.update(6.0, 0.0, 0.0, 4 / 30 + 0.6).resolved  # not seen for 0.6 s
+    assert _track(robot, [(6.0 + 1.5 * k, 0.0, 0.0) for k in range(1, 3)], start=23)[-1].resolved
+    jump = robot.update(40.0, 0.0, 0.0, 25 / 30)  # 31 cm from where it was expected
+    assert not jump.resolved and (jump.vx_cm_s, jump.vy_cm_s) == (0.0, 0.0)
+    assert not jump.velocity_measured  # a new track: one position, no velocity yet
+    assert robot.update(41.5, 0.0, 0.0, 26 / 30).velocity_measured
+
+
+def test_unmarked_velocity_is_measured_from_the_second_frame() -> None:
+    robot = UnmarkedRobot(PoseConfig())
+    out = _track(robot, [(1.5 * k, 0.0, 0.0) for k in range(3)])
+    assert [m.velocity_measured for m in out] == [False, True, True]
+    assert (out[0].vx_cm_s, out[0].vy_cm_s) == (0.0, 0.0) and out[2].vx_cm_s > 20.0
+
+
+def test_filter_takes_a_position_without_a_heading() -> None:
+    f = RobotFilter.start(PoseConfig(), 0.0, 0.0, 30.0, 0.0)
+    heading = (list(f.heading), f.value[2], f.rate[2])
+    for k in range(1, 30):
+        f.predict(k / 30.0)
+        f.update(k, -0.5 * k, None)
+    assert f.rate[:2] == pytest.approx([30.0, -15.0], abs=0.05)
+    assert f.value[2] == heading[1] and f.rate[2] == heading[2]
+    assert f.heading != heading[0]  # predicted on, never corrected
+    assert f.seen_s == pytest.approx(29 / 30.0)
+
+
+def _unmarked_scores(pairs: list, fps: float) -> dict[str, float]:
+    """Published robot against the true one, frame by frame: the share of frames whose
+    heading is within 10° of the truth once the robot has moved 2 cm; the flips (the
+    heading turning by over 90° more or less than the truth between two resolved frames);
+    and the mean velocity error (cm/s) against the true step of each frame (the
+    simulator moves its robot by its velocity each frame), from the track's second frame."""
+    start = pairs[0][1]
+    moved = within = flips = 0
+    errors = []
+    for (r0, t0), (r, t) in itertools.pairwise(pairs):
+        if moved or math.hypot(t.x_cm - start.x_cm, t.y_cm - start.y_cm) >= 2.0:
+            moved += 1
+            within += abs(wrap_deg(r.heading_deg - t.heading_deg)) <= 10.0
+        if r0.heading_resolved and r.heading_resolved:
+            turned = wrap_deg(r.heading_deg - r0.heading_deg)
+            flips += abs(wrap_deg(turned - wrap_deg(t.heading_deg - t0.heading_deg))) > 90.0
+        true_v = ((t.x_cm - t0.x_cm) * fps, (t.y_cm - t0.y_cm) * fps)
+        errors.append(math.hypot(r.vx_cm_s - true_v[0], r.vy_cm_s - true_v[1]))
+    return {"within": within / moved, "flips": flips, "velocity": float(np.mean(errors))}
+
+
+def _published(seed: int, frames: int, live: bool):
+    """Per frame of a default arena: the objects published (robot first), by
+    Detector.detect or through the stages (capture stamps ``1/fps`` apart, the obstacle
+    frame encoded and decoded), and the truth."""
+    cfg = load_config()
+    fps = cfg.simulator.fps
+    calib = msgspec.structs.replace(calibration_from_config(cfg), version=1)
+    detector = Detector(cfg.camera, cfg.image, cfg.pose)
+    for k, (image, truth) in enumerate(Arena(cfg, seed).frames(frames)):
+        if live:
+            frame = Frame.from_image(image, seq=k, stamp_ns=round(1e18 + k * 1e9 / fps))
+            blobs = blob_list(binary_frame(frame, as_gray(image), calib), calib, 0.0)
+            out = obstacle_frame(blobs, detector, 1, "a", frame.stamp_ns)
+            out = decode(encode(out), ObstacleFrame)
+            yield [out.robot, *out.obstacles], truth, out
+        else:
+            yield detector.detect(image, stamp_s=k / fps).objects, truth, None
+
+
+def _unmarked_run(seed: int, frames: int, live: bool) -> tuple[list, float]:
+    """The (published, true) robot of each frame of a default arena (:func:`_published`)."""
+    pairs = [
+        (next(o for o in found if o.kind == "robot"),
+         next(o for o in truth.objects if o.kind == "robot"))
+        for found, truth, _ in _published(seed, frames, live)
+    ]  # fmt: skip
+    return pairs, load_config().simulator.fps
+
+
+@pytest.mark.parametrize("live", [False, True], ids=["offline", "live"])
+def test_no_velocity_is_published_before_it_is_measured(live: bool) -> None:
+    """The first frame of every track: velocity 0 and said not measured, and `ovis watch`
+    shows "–"; from the second frame on: measured, within 5 cm/s of the truth's step
+    (the simulator moves everything by its velocity each frame)."""
+    runs = list(_published(29004, 3, live))
+    fps = load_config().simulator.fps
+    for k, (found, truth, message) in enumerate(runs):
+        assert len(found) == len(truth.objects) >= 2
+        assert all(o.velocity_measured == (k > 0) for o in found)
+        if k == 0:
+            assert all((o.vx_cm_s, o.vy_cm_s) == (0.0, 0.0) for o in found)
+        else:
+            before = runs[k - 1][1].objects
+            for o in found:
+                t = min(truth.objects, key=lambda t: math.hypot(t.x_cm - o.x_cm, t.y_cm - o.y_cm))
+                t0 = next(b for b in before if b.id == t.id)
+                step = ((t.x_cm - t0.x_cm) * fps, (t.y_cm - t0.y_cm) * fps)
+                assert math.hypot(o.vx_cm_s - step[0], o.vy_cm_s - step[1]) < 5.0
+        if message is not None:
+            shown = format_obstacles(message).splitlines()[1:]
+            assert len(shown) == len(found)
+            assert all(("v – cm/s" in line) == (k == 0) for line in shown), shown
+
+
+@pytest.mark.parametrize("live", [False, True], ids=["offline", "live"])
+def test_unmarked_robot_heading_and_velocity_on_unseen_seeds(live: bool) -> None:
+    """The rectangular robot with no marker, 300 frames of two unseen seeds, as
+    Detector.detect and as the pose stage see it: heading within 10° of the truth in
+    ≥ 95 % of the frames once it has moved 2 cm, no flip once resolved, velocity error
+    mean ≤ 2 cm/s (the simulator's robot turns round at walls: its true heading jumps)."""
+    for seed in (29001, 29002):
+        pairs, fps = _unmarked_run(seed, 300, live)
+        scores = _unmarked_scores(pairs, fps)
+        assert scores["within"] >= 0.95 and scores["flips"] == 0, scores
+        assert scores["velocity"] <= 2.0, scores
+        assert all(r.heading_resolved for r, _ in pairs[3:])
+
+
+def test_unmarked_robot_over_a_sequence_in_ovis_detect(tmp_path) -> None:
+    """`ovis detect` over 60 `ovis simulate` frames: the frame times come from the
+    simulator's rate (its points.toml) without --fps, and from --fps when given."""
+    import json
+
+    from test_cli import ovis
+
+    from ovis.common.calibration.file import save_calibration
+    from ovis.common.config import config_from_dict, load_points
+
+    folder = tmp_path / "sim"
+    ovis("simulate", "--out", str(folder), "--frames", "60", "--seed", "29003")
+    cfg = config_from_dict(load_points(folder / "points.toml").config)
+    save_calibration(tmp_path / "c.json", calibration_from_config(cfg))
+    frames = [str(p) for p in sorted(folder.glob("frame_*.png"))]
+    args = ("detect", *frames, "--calibration", str(tmp_path / "c.json"), "--json")
+    found = json.loads(ovis(*args).stdout)
+    truth = json.loads((folder / "truth.json").read_text())["frames"]
+    assert [f["stamp_s"] for f in found[:3]] == pytest.approx([0.0, 1 / 30, 2 / 30])
+    pairs = [
+        (
+            msgspec.convert(next(o for o in f["objects"] if o["kind"] == "robot"), DetectedObject),
+            msgspec.convert(next(o for o in t["objects"] if o["kind"] == "robot"), SimObject),
+        )
+        for f, t in zip(found, truth, strict=True)
+    ]
+    scores = _unmarked_scores(pairs, 30.0)
+    assert scores["within"] >= 0.95 and scores["flips"] == 0 and scores["velocity"] <= 2.0
+    measured = [[o["velocity_measured"] for o in f["objects"]] for f in found]
+    assert not any(measured[0]) and all(all(m) for m in measured[1:])
+    text = ovis("detect", *frames[:2], "--calibration", str(tmp_path / "c.json")).stdout
+    said = [line for line in text.splitlines() if line.startswith("robot 0:")]
+    assert len(said) == 2
+    assert "velocity –" in said[0] and "velocity (" in said[1], said
+    slow = json.loads(ovis(*args, "--fps", "15").stdout)
+    speed = [
+        np.mean([math.hypot(o["vx_cm_s"], o["vy_cm_s"]) for f in run[1:] for o in f["objects"]
+                 if o["kind"] == "robot"])
+        for run in (slow, found)
+    ]  # fmt: skip
+    assert speed[0] / speed[1] == pytest.approx(0.5, abs=0.02)  # frames twice as far apart

@@ -236,7 +236,9 @@ def test_counts_pictures_and_health_update(system) -> None:
         page.wait_for_selector("#picture[data-kind=camera]", timeout=5000)
         page.wait_for_timeout(500)
         shot = system.tmp / "view.png"
-        page.screenshot(path=str(shot), full_page=True)
+        # written here: given a path, Playwright writes it on a thread of its event loop's
+        # executor, a thread that then stays for the module
+        shot.write_bytes(page.screenshot(full_page=True))
         # Robots are labelled on the picture; the calibration's control points are not
         # drawn on these live frames (the calibration was made on an earlier one).
         log = page.evaluate("() => window.ovisView.pictureLog.filter(p => p.kind === 'camera')")

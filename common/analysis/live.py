@@ -15,7 +15,14 @@ import numpy as np
 from ovis.common.analysis.evaluation import TrackingScore
 from ovis.common.messages import ObstacleFrame, ServiceStatus, SourceGap, TruthFrame
 
-__all__ = ["UNSCORED_SHARE", "LiveScore", "RunSummary", "position_error_flag"]
+__all__ = [
+    "SOURCE_LOST",
+    "UNSCORED_SHARE",
+    "LiveScore",
+    "RunSummary",
+    "position_error_flag",
+    "with_verdict",
+]
 
 
 class Counts(Protocol):
@@ -60,6 +67,10 @@ class RunSummary(msgspec.Struct):
     source_gaps: int = 0
     source_gap_s: float = 0.0
     gaps: list[SourceGap] = []
+    #: `ovis up`'s exit code (0 frames processed with a calibration, 3 nothing usable
+    #: came out, 1 a process failed) and why it is not 0
+    exit_code: int = 0
+    reason: str = ""
 
 
 #: The position error is flagged when the objects missed plus spurious exceed this share
@@ -84,11 +95,20 @@ class LiveScore:
         self.latest: ObstacleFrame | None = None
         self.latency_ms: list[float] = []
         self.frames = 0
+        #: latencies by the capture's stream identity: a run counts only its own
+        self._by_stream: dict[str, list[float]] = collections.defaultdict(list)
         self.truth_frames = 0
         self.score = TrackingScore()
         self._truth: collections.OrderedDict[int, TruthFrame] = collections.OrderedDict()
         self._pending: collections.OrderedDict[int, ObstacleFrame] = collections.OrderedDict()
         self._lock = threading.Lock()
+        self._closed = False
+
+    def close(self) -> None:
+        """Count no more obstacle frames: every frame counted was captured before any
+        count the capture gives after this (processed never exceeds captured)."""
+        with self._lock:
+            self._closed = True
 
     def add_truth(self, truth: TruthFrame) -> None:
         with self._lock:
@@ -99,7 +119,11 @@ class LiveScore:
     def add_obstacles(self, msg: ObstacleFrame, received_ns: int) -> None:
         """An obstacle frame that arrived at ``received_ns`` (its latency from capture)."""
         with self._lock:
-            self.latency_ms.append((received_ns - msg.stamp_ns) / 1e6)
+            if self._closed:
+                return
+            latency = (received_ns - msg.stamp_ns) / 1e6
+            self.latency_ms.append(latency)
+            self._by_stream[msg.stream].append(latency)
             self.latest = msg
             self.frames += 1
             _keep(self._pending, msg.seq, msg)
@@ -123,11 +147,14 @@ class LiveScore:
         duration: float,
         restarts: dict[str, int] | None = None,
         totals: Mapping[str, Counts] | None = None,
+        streams: set[str] | None = None,
     ) -> RunSummary:
         """The run's summary, with the services' last statuses and exit codes; counts
-        from ``totals`` (over every process of a service) where given."""
+        from ``totals`` (over every process of a service) where given; frames only of
+        the capture ``streams`` given (the run's own), else of every stream."""
         with self._lock:
-            lat = np.asarray(self.latency_ms)
+            own = [v for k, v in self._by_stream.items() if not streams or k in streams]
+            lat = np.concatenate([np.asarray(v) for v in own]) if own else np.zeros(0)
             err = np.asarray(self.score.position_error_cm)
             score = self.score
         versions = [s.calibration_version for s in statuses.values()]
@@ -137,7 +164,7 @@ class LiveScore:
         return RunSummary(
             duration_s=round(duration, 2),
             frames_captured=captured.frames_out if captured else 0,
-            frames_processed=self.frames,
+            frames_processed=int(lat.size),
             latency_ms_p50=float(np.percentile(lat, 50)) if lat.size else None,
             latency_ms_p99=float(np.percentile(lat, 99)) if lat.size else None,
             latency_ms_max=float(lat.max()) if lat.size else None,
@@ -155,15 +182,69 @@ class LiveScore:
             restarts={n: r for n, r in (restarts or {}).items() if r},
             truth_frames=self.truth_frames,
             health={
-                n: f"{s.state}: {s.reason}"
+                n: f"{s.state}: {s.reason or s.last_error}".rstrip(": ")
                 for n, s in statuses.items()
-                if s.state in ("degraded", "failing", "source lost")
+                if s.state != "ok"
             },
             position_error_flag=position_error_flag(score.matched, score.missed, score.spurious),
             source_gaps=source.source_gaps if source else 0,
             source_gap_s=source.source_gap_s if source else 0.0,
             gaps=source.gaps if source else [],
         )
+
+
+#: The capture's states that say its source is gone (the last one: it did not come back).
+SOURCE_LOST = ("source lost",)
+#: The stages of the frame path, in order: the first one that says why is the reason.
+FRAME_PATH = ("capture", "preprocess", "label", "pose", "calibrator")
+
+
+def _why(summary: RunSummary) -> str:
+    """What the services said was wrong, frame path first (their health, else errors)."""
+    names = sorted(summary.health.keys() | summary.errors.keys(), key=_path_order)
+    said = []
+    for n in names:
+        if n in summary.health:
+            said.append(f"{n} {summary.health[n]}")
+        else:
+            said.append(f"{n}: " + ", ".join(f"{k} x{c}" for k, c in summary.errors[n].items()))
+    return "; ".join(said)
+
+
+def _path_order(name: str) -> tuple[int, str]:
+    return (FRAME_PATH.index(name) if name in FRAME_PATH else len(FRAME_PATH), name)
+
+
+def with_verdict(
+    summary: RunSummary, capture: ServiceStatus | None, failures: list[str]
+) -> RunSummary:
+    """The summary with `ovis up`'s exit code and its reason: 3 when no frame was
+    processed or the capture's source was lost at the end, 1 when a process failed
+    (``failures``: why), else 0. Nothing processed is never "ok": the health says so."""
+    health = dict(summary.health)
+    lost = capture is not None and capture.state in SOURCE_LOST
+    if summary.frames_processed == 0:
+        if capture is None:
+            reason = "no frame was captured: the capture never answered (not started yet, or dead)"
+        elif summary.frames_captured == 0:
+            source = capture.reason or capture.last_error or f"its state: {capture.state}"
+            reason = f"no frame was captured: {source}"
+        else:
+            why = _why(summary) or "no stage said why"
+            reason = f"{summary.frames_captured} frames captured, none processed: {why}"
+        code = 3
+        reason = "; ".join([reason, *failures])
+        health["run"] = "no frame processed"
+    elif failures:
+        code, reason = 1, "; ".join(failures)
+    elif lost:
+        assert capture is not None
+        code = 3
+        why = capture.reason or capture.last_error
+        reason = f"the source was lost (and not back at the end): {why}"
+    else:
+        code, reason = 0, ""
+    return msgspec.structs.replace(summary, exit_code=code, reason=reason, health=health)
 
 
 def _keep(store: collections.OrderedDict, seq: int, item: object) -> None:

@@ -62,7 +62,8 @@ from ovis.common.calibration.refine import (
 from ovis.common.camera.projection import back_project, pixel_footprint_cm2, project
 from ovis.common.config import CameraModel, ConfigError, ControlPoint, OvisConfig
 from ovis.common.vision.labeling import label_components
-from ovis.common.vision.preprocess import as_gray, segment, smooth
+from ovis.common.vision.preprocess import as_gray, smooth
+from ovis.common.vision.segmentation import segment
 
 __all__ = [
     "CheckSet",

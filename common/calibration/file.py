@@ -104,6 +104,9 @@ class Calibration(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     #: that a version is only compared with versions of the same store ("" in files made
     #: by ``ovis calibrate`` and before epochs existed)
     epoch: str = ""
+    #: made on the simulator's ground truth (the calibrator with points "simulator"): the
+    #: simulated camera's, never taken for a real camera's (``ovis up`` checks it)
+    simulated: bool = False
 
     def __post_init__(self) -> None:
         for name in ("dipe_px", "dipe_mm", "dipe_max_px", "dipe_max_mm"):

@@ -40,14 +40,8 @@ from ovis.common.config import (
     OvisConfig,
 )
 from ovis.common.vision.labeling import label_components
-from ovis.common.vision.preprocess import (
-    as_gray,
-    binarize,
-    otsu_level,
-    prepare,
-    read_mask,
-    smooth,
-)
+from ovis.common.vision.preprocess import as_gray, binarize, read_mask, smooth
+from ovis.common.vision.segmentation import prepare
 
 __all__ = [
     "INFEASIBLE",
@@ -134,7 +128,9 @@ class CalibrationProblem:
         if img.background:
             background = read_mask(img.background, gray.shape, "background")
         #: what the threshold applies to (background subtracted, local contrast)
-        self.prepared = prepare(self.smoothed, img.threshold_mode, img.block_px, background)
+        self.prepared = prepare(
+            self.smoothed, img.threshold_mode, img.block_px, background, img.polarity
+        )
         self.roi = None if not img.roi else read_mask(img.roi, gray.shape, "region-of-interest")
         self.points = list(points)
         self.points_xyz = np.array([[p.x_cm, p.y_cm, p.z_cm] for p in points], dtype=np.float64)
@@ -148,7 +144,7 @@ class CalibrationProblem:
         "otsu" and "auto" modes (the level is computed, not searched)."""
         mode = self.config.image.threshold_mode
         if mode in ("otsu", "auto"):
-            level = float(otsu_level(self.prepared))
+            level = float(self.prepared.level(mode, 0))
             return level, level
         return tuple(self.config.calibration.threshold)  # type: ignore[return-value]
 
@@ -160,7 +156,7 @@ class CalibrationProblem:
         """Blobs (area, centroid) of the smoothed frame at one threshold, cached."""
         table = self._tables.get(threshold)
         if table is None:
-            binary = binarize(self.prepared, threshold, self.config.image.polarity)
+            binary = binarize(self.prepared.image, threshold, self.config.image.polarity)
             if self.roi is not None:
                 binary &= (self.roi > 0).astype(np.uint8)
             comp = label_components(binary)

@@ -164,4 +164,5 @@ class StageCounters:
                 calibration_epoch=calibration_epoch,
                 seq_jumps=self.seq_jumps,
                 stream_restarts=self.stream_restarts,
+                stream=self.stream,
             )

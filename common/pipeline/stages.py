@@ -178,4 +178,5 @@ def obstacle_frame(
         robot_plans=det.robot_plans,
         unknown_markers=det.unknown_markers,
         markers_at_border=det.markers_at_border,
+        stream=msg.stream,
     )

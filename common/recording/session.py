@@ -251,6 +251,9 @@ class SessionReader:
         self.cut: str | None = None
         self.messages_read = 0
         self.metadata: dict[str, dict[str, str]] = {}
+        #: the schema and channel records read so far, by id
+        self.schemas: dict[int, Schema] = {}
+        self.channels: dict[int, Channel] = {}
         self.complete = False
         if not self.path.is_file():
             raise RecordingError(f"{self.path} does not exist (or is not a file)")
@@ -264,8 +267,7 @@ class SessionReader:
 
     def __iter__(self) -> Iterator[RecordedMessage]:
         size = self.path.stat().st_size
-        schemas: dict[int, Schema] = {}
-        channels: dict[int, Channel] = {}
+        schemas, channels = self.schemas, self.channels
         with open(self.path, "rb") as fh:
             records = StreamReader(fh, validate_crcs=True, record_size_limit=size).records
             while True:

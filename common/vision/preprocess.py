@@ -17,15 +17,12 @@ Every function takes and returns ``(H, W) uint8`` arrays and runs as one OpenCV 
 
 from __future__ import annotations
 
-import functools
 import operator
 from typing import Literal
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-
-from ovis.common.config import ImageParams
 
 __all__ = [
     "ImageError",
@@ -36,11 +33,8 @@ __all__ = [
     "local_contrast",
     "otsu_level",
     "paper_median",
-    "prepare",
-    "segment",
     "smooth",
     "subtract_background",
-    "threshold_level",
 ]
 
 MedianMode = Literal["paper", "ordinary", "none"]
@@ -206,17 +200,14 @@ ThresholdMode = Literal["fixed", "otsu", "adaptive", "auto"]
 NEUTRAL = 128
 
 
-def auto_block_px(shape: tuple[int, ...]) -> int:
-    """Default local-mean window: an odd number near a third of the frame's shorter side."""
-    return max(3, (min(shape[:2]) // 3) | 1)
-
-
 def local_contrast(gray: GrayImage, block_px: int) -> GrayImage:
     """``gray − its Gaussian local mean (σ = block/6) + 128``, clipped to uint8: uneven
-    lighting removed, 128 where a pixel equals its surroundings."""
+    lighting removed, 128 where a pixel equals its surroundings. The window ``block_px``
+    comes from :func:`ovis.common.vision.segmentation.follow_objects` by default."""
     gray = _require_gray(gray)
-    block = block_px or auto_block_px(gray.shape)
-    mean = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), block / 6.0)
+    if block_px < 1:
+        raise ValueError(f"block_px: expected a window of at least 1 pixel, got {block_px}")
+    mean = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), block_px / 6.0)
     return np.clip(gray - mean + NEUTRAL, 0, 255).astype(np.uint8)
 
 
@@ -231,34 +222,15 @@ def subtract_background(gray: GrayImage, background: GrayImage) -> GrayImage:
     return np.clip(gray.astype(np.int16) - background + NEUTRAL, 0, 255).astype(np.uint8)
 
 
-def prepare(
-    gray: GrayImage,
-    mode: ThresholdMode,
-    block_px: int = 0,
-    background: GrayImage | None = None,
-) -> GrayImage:
-    """The image the threshold applies to: the frame, less the background if given, as
-    local contrast for the "adaptive" and "auto" modes."""
-    out = gray if background is None else subtract_background(gray, background)
-    if mode in ("adaptive", "auto"):
-        out = local_contrast(out, block_px)
-    return out
-
-
-def otsu_level(prepared: GrayImage) -> int:
-    """Otsu's threshold of an image (``cv2.THRESH_OTSU``), as a paper-style level
-    (``pixel >= level`` is an object for bright polarity)."""
-    level, _ = cv2.threshold(_require_gray(prepared), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+def otsu_level(prepared: GrayImage, where: NDArray[np.bool_] | None = None) -> int:
+    """Otsu's threshold (``cv2.THRESH_OTSU``) of an image, or of its pixels ``where`` is
+    true when some are, as a paper-style level (``pixel >= level`` is an object for
+    bright polarity)."""
+    values = _require_gray(prepared)
+    if where is not None and where.any():
+        values = np.ascontiguousarray(values[where]).reshape(1, -1)
+    level, _ = cv2.threshold(values, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     return int(level) + 1  # OpenCV marks pixel > level
-
-
-def threshold_level(prepared: GrayImage, mode: ThresholdMode, threshold: int) -> int:
-    """The level used: ``threshold`` for "fixed"/"adaptive", Otsu's for "otsu"/"auto"."""
-    if mode in ("otsu", "auto"):
-        return otsu_level(prepared)
-    if mode in ("fixed", "adaptive"):
-        return int(threshold)
-    raise ValueError(f"threshold mode: expected fixed, otsu, adaptive or auto, got {mode!r}")
 
 
 def read_mask(path: str, shape: tuple[int, int], what: str) -> GrayImage:
@@ -272,29 +244,6 @@ def read_mask(path: str, shape: tuple[int, int], what: str) -> GrayImage:
             f"{shape[1]}x{shape[0]}"
         )
     return image
-
-
-@functools.lru_cache(maxsize=8)
-def _cached_mask(path: str, shape: tuple[int, int], what: str) -> GrayImage:
-    image = read_mask(path, shape, what)
-    image.setflags(write=False)
-    return image
-
-
-def segment(smoothed: GrayImage, params: ImageParams) -> NDArray[np.uint8]:
-    """Object pixels (1) of a smoothed frame under ``params``: background subtracted,
-    local contrast, the mode's level, polarity, region of interest (see
-    :class:`~ovis.common.config.ImageParams`)."""
-    shape = smoothed.shape
-    background = None
-    if params.background:
-        background = _cached_mask(params.background, shape, "background")
-    prepared = prepare(smoothed, params.threshold_mode, params.block_px, background)
-    level = threshold_level(prepared, params.threshold_mode, params.threshold)
-    binary = binarize(prepared, min(255, level), params.polarity)
-    if params.roi:
-        binary &= (_cached_mask(params.roi, shape, "region-of-interest") > 0).astype(np.uint8)
-    return binary
 
 
 def parse_threshold(text: str) -> dict[str, object]:

@@ -1,7 +1,8 @@
 """One frame → robot and obstacles on the floor, and the motion planner's inputs.
 
 The paper's pipeline (§3) with a calibration: median step, binarization, 8-connected
-labeling, size filter A^f (cm² on the floor, through the camera), Koplowitz–Bruckstein
+labeling, size filter A^f (cm² on the floor, through the camera; the background is never
+an object, :mod:`ovis.common.vision.objects`), Koplowitz–Bruckstein
 perimeter and compactness (eq. 13); then each blob's centroid is back-projected onto the
 plane of its class's top face (robot or obstacle height) to get its world position, its
 radius is that of the disk of equal floor area, and the orientation of non-circular
@@ -23,8 +24,10 @@ from ovis.common.camera.projection import PixelJacobian, pixel_footprint_cm2, pi
 from ovis.common.config import CameraModel, ImageParams, PinholeParams, PoseConfig
 from ovis.common.vision.labeling import filter_components, label_components
 from ovis.common.vision.markers import Markers
+from ovis.common.vision.objects import background
 from ovis.common.vision.perimeter import perimeter
-from ovis.common.vision.preprocess import ImageError, as_gray, segment, smooth
+from ovis.common.vision.preprocess import ImageError, as_gray, smooth
+from ovis.common.vision.segmentation import segment
 from ovis.common.vision.shape import compactness, orientation
 from ovis.common.world.marker_search import (
     marker_search_image,
@@ -34,8 +37,9 @@ from ovis.common.world.marker_search import (
 )
 from ovis.common.world.planner import planner_inputs
 from ovis.common.world.plans import RobotPlan, robot_plans
-from ovis.common.world.pose import ROBOT_ID, Tracker, pick_robot
+from ovis.common.world.pose import ROBOT_ID, Tracker, pick_robot, robot_ids
 from ovis.common.world.robots import RobotState, RobotTracker, UnknownMarker
+from ovis.common.world.unmarked import UnmarkedRobot
 
 __all__ = [
     "Blobs",
@@ -86,6 +90,13 @@ class DetectedObject(msgspec.Struct):
     elongation: NonNegative = 1.0
     vx_cm_s: Finite = 0.0
     vy_cm_s: Finite = 0.0
+    #: whether ``heading_deg`` is the robot's front (a marker's, or an unmarked robot's
+    #: resolved from its motion, :mod:`ovis.common.world.unmarked`); false: an axis, either
+    #: end (obstacles, and an unmarked robot that has not moved yet)
+    heading_resolved: bool = False
+    #: whether ``vx_cm_s``/``vy_cm_s`` are measured: the object tracked over two frames'
+    #: capture times; false in its first frame (they are then 0, not a measurement)
+    velocity_measured: bool = False
 
 
 class PlannerEntry(msgspec.Struct):
@@ -200,10 +211,14 @@ def measure_blobs_and_maps(
     min_area_px: float = 0.0,
     tables: PlaneTables | None = None,
 ) -> tuple[Blobs, list[PixelJacobian]]:
-    """:func:`measure_blobs` (size filter on ``planes_cm[0]``), and the pixel → plane map
+    """:func:`measure_blobs` (size filter on ``planes_cm[0]``, never the background:
+    :func:`~ovis.common.vision.objects.background`), and the pixel → plane map
     at every kept blob on each of ``planes_cm``, all from one back-projection (the size
     filter needs the first anyway; the pose wants the obstacle and the robot plane)."""
     comp = label_components(binary, min_area_px=min_area_px)
+    behind = background(comp)
+    if behind.any():
+        comp = filter_components(comp, ~behind)
     maps = plane_maps(comp.row, comp.col, camera, planes_cm, tables)
     footprint = maps[0].area_cm2
     keep = (footprint > 0) & (comp.area_px * footprint >= params.size_filter_cm2)
@@ -285,11 +300,14 @@ class _MarkedFrame(NamedTuple):
         z: NDArray[np.float64],
         heading: NDArray[np.object_],
         vel: NDArray[np.float64],
+        resolved: NDArray[np.bool_],
+        measured: NDArray[np.bool_],
     ) -> None:
         """Write each robot's id and filtered pose into its blob's columns (in place)."""
         for robot, k in zip(self.robots, self.rep, strict=True):
             if k >= 0:
                 ids[k], z[k], heading[k] = robot.id, robot.z_cm, robot.heading_deg
+                resolved[k], measured[k] = True, robot.velocity_measured
                 xy[k] = robot.x_cm, robot.y_cm
                 vel[k] = robot.vx_cm_s, robot.vy_cm_s
 
@@ -312,9 +330,10 @@ class Detector:
         self.camera = camera
         self.image = image
         self.pose = pose
-        first_obstacle = max((r.id for r in pose.robots), default=ROBOT_ID) + 1
-        self.tracker = Tracker(pose.track_gate_cm, _next_id=first_obstacle)
+        self.tracker = Tracker(pose.track_gate_cm)
+        self.tracker.reserve(robot_ids(pose))
         self.robots = RobotTracker(pose)
+        self.unmarked = UnmarkedRobot(pose)
         self.tables = PlaneTables()
         self._last_stamp: float | None = None
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
@@ -322,10 +341,14 @@ class Detector:
         self.top_side_cm = top_side_cm(pose, camera)
 
     def recalibrate(self, camera: CameraModel, image: ImageParams, pose: PoseConfig) -> None:
-        """Use a new calibration; obstacle and robot identities are kept."""
+        """Use a new calibration; obstacle and robot identities are kept, except that an
+        obstacle holding an id a newly configured robot has gets a new one (ids are unique
+        across kinds, :meth:`Tracker.reserve`)."""
         self.camera, self.image, self.pose = camera, image, pose
         self.tracker.gate_cm = pose.track_gate_cm
+        self.tracker.reserve(robot_ids(pose))
         self.robots.reconfigure(pose)
+        self.unmarked.pose = pose
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
         self.marker_side_px = marker_side_px(pose, camera)
         self.top_side_cm = top_side_cm(pose, camera)
@@ -402,6 +425,7 @@ class Detector:
         dt = now - self._last_stamp if self._last_stamp is not None else 1.0
         self._last_stamp = now
         marked = _MarkedFrame.none(n)
+        robot = -1  # the unmarked robot's blob
         if pose.robots:
             marked = self._marked(markers or Markers.none(), top, now)
             is_robot = marked.owner >= 0
@@ -423,12 +447,22 @@ class Detector:
         vel = np.zeros((n, 2))
         xy = np.empty((n, 2))
         xy[:, 0], xy[:, 1] = j.x_cm, j.y_cm
-        ids[obstacle], step = self.tracker.update(xy[obstacle])
-        vel[obstacle] = step / dt if dt > 0 else 0.0
+        track = self.tracker.track(xy[obstacle])
+        ids[obstacle] = track.ids
+        measured = np.zeros(n, dtype=bool)
+        if dt > 0:
+            vel[obstacle], measured[obstacle] = track.step / dt, track.tracked
         shown = heading.astype(object)
         shown[elongation < ROUND_ELONGATION] = None
+        resolved = np.zeros(n, dtype=bool)
         if pose.robots:  # each robot's blob where its marker and filter put it
-            marked.fill(ids, xy, z, shown, vel)
+            marked.fill(ids, xy, z, shown, vel, resolved, measured)
+        elif robot >= 0 and ok[robot]:  # the unmarked robot: heading oriented, velocity
+            x, y = xy[robot].tolist()
+            motion = self.unmarked.update(x, y, shown[robot], now)
+            shown[robot], resolved[robot] = motion.heading_deg, motion.resolved
+            vel[robot] = motion.vx_cm_s, motion.vy_cm_s
+            measured[robot] = motion.velocity_measured
         # Objects in id order (the robot first), built column by column.
         out = np.arange(n)[ok]
         out = out[ids[out].argsort(kind="stable")]
@@ -449,6 +483,8 @@ class Detector:
             "elongation": elongation,
             "vx_cm_s": vel[:, 0],
             "vy_cm_s": vel[:, 1],
+            "heading_resolved": resolved,
+            "velocity_measured": measured,
         }
         fields = DetectedObject.__struct_fields__  # positional: in field order
         objects = list(map(DetectedObject, *(columns[f][out].tolist() for f in fields)))

@@ -1,13 +1,15 @@
 """Detection without a calibration: blobs in pixels only (no floor positions).
 
 The same pipeline as :mod:`ovis.common.world.detection` up to the labelling — smoothing,
-background, threshold mode, region of interest — with the size limits in pixels. Useful
-before a camera is calibrated, to choose the threshold, and on any photo.
+background, threshold mode, region of interest — with the size limits in pixels, by
+default those of :mod:`ovis.common.vision.objects` (they follow the blobs, not the
+frame's size). Useful before a camera is calibrated, to choose the threshold, and on any
+photo.
 """
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, NamedTuple
 
 import msgspec
 import numpy as np
@@ -15,14 +17,13 @@ from numpy.typing import NDArray
 
 from ovis.common.config import ImageParams
 from ovis.common.vision.labeling import filter_components, label_components
+from ovis.common.vision.objects import MIN_OBJECT_PX, background, smallest_object_px
 from ovis.common.vision.perimeter import perimeter
-from ovis.common.vision.preprocess import as_gray, segment, smooth
+from ovis.common.vision.preprocess import as_gray, smooth
+from ovis.common.vision.segmentation import segmentation
 from ovis.common.vision.shape import compactness
 
-__all__ = ["DEFAULT_MIN_AREA_FRACTION", "PixelObject", "default_min_area_px", "detect_pixels"]
-
-#: Without a calibration, blobs smaller than this fraction of the frame are specks.
-DEFAULT_MIN_AREA_FRACTION = 1e-3
+__all__ = ["PixelDetection", "PixelObject", "detect_pixels"]
 
 NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=1e12)]
 
@@ -38,9 +39,16 @@ class PixelObject(msgspec.Struct):
     compactness: NonNegative
 
 
-def default_min_area_px(shape: tuple[int, ...]) -> float:
-    """The default smallest blob: :data:`DEFAULT_MIN_AREA_FRACTION` of the frame."""
-    return DEFAULT_MIN_AREA_FRACTION * shape[0] * shape[1]
+class PixelDetection(NamedTuple):
+    """The objects of a frame (largest first), the smallest area kept (px), how many
+    blobs were left out as the background, the local-contrast window (px, 0: none) and
+    the threshold level used."""
+
+    objects: list[PixelObject]
+    min_area_px: float
+    background: int
+    window_px: int = 0
+    level: int = 0
 
 
 def detect_pixels(
@@ -49,13 +57,18 @@ def detect_pixels(
     *,
     min_area_px: float | None = None,
     max_area_px: float | None = None,
-) -> list[PixelObject]:
-    """Blobs of ``image`` under ``params`` whose area lies in [min, max] pixels (min
-    defaults to :func:`default_min_area_px`), largest first."""
+) -> PixelDetection:
+    """Blobs of ``image`` under ``params`` whose area lies in [min, max] pixels, never the
+    background (:mod:`ovis.common.vision.objects`); min defaults to
+    :func:`~ovis.common.vision.objects.smallest_object_px` of the frame's blobs."""
     gray = as_gray(image)
-    binary = segment(smooth(gray, params.median), params)
-    lo = default_min_area_px(gray.shape) if min_area_px is None else min_area_px
-    comp = label_components(binary, min_area_px=lo)
+    seg = segmentation(smooth(gray, params.median), params)
+    comp = label_components(
+        seg.binary, min_area_px=MIN_OBJECT_PX if min_area_px is None else min_area_px
+    )
+    behind = background(comp)
+    comp = filter_components(comp, ~behind)
+    lo = smallest_object_px(comp.area_px) if min_area_px is None else min_area_px
     keep = comp.area_px >= lo
     if max_area_px is not None:
         keep &= comp.area_px <= max_area_px
@@ -63,7 +76,7 @@ def detect_pixels(
     perim = perimeter(comp, params.perimeter)
     comp_c = compactness(comp.area_px, perim)
     order = np.argsort(-comp.area_px, kind="stable")
-    return [
+    objects = [
         PixelObject(
             id=k,
             row=float(comp.row[i]),
@@ -74,3 +87,4 @@ def detect_pixels(
         )
         for k, i in enumerate(order.tolist())
     ]
+    return PixelDetection(objects, lo, int(behind.sum()), seg.block_px, seg.level)

@@ -5,8 +5,10 @@
   and floor area within ``robot_area_cm2``. Obstacles are every other blob.
 * :class:`Tracker`: keeps an obstacle's id while it moves, by an optimal assignment of
   this frame's obstacles to the last frame's (positions predicted with their velocity),
-  within a gate of ``track_gate_cm``; an unmatched obstacle gets a new id. The robot
-  always has id 0.
+  within a gate of ``track_gate_cm``; an unmatched obstacle gets a new id. Ids are
+  unique across kinds: the unmarked robot always has id 0, a marked robot its configured
+  id, and an obstacle an id no robot has or had (:meth:`Tracker.reserve`), live and
+  offline alike.
 * :func:`gated_assignment`: that assignment. For a few obstacles, one dense
   ``linear_sum_assignment``. For many: when every track's nearest detection within
   the gate is a different one (the usual case: obstacles move little between frames),
@@ -19,6 +21,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,9 +30,14 @@ from scipy.spatial import cKDTree
 
 from ovis.common.config import PoseConfig
 
-__all__ = ["ROBOT_ID", "Tracker", "gated_assignment", "pick_robot"]
+__all__ = ["ROBOT_ID", "TrackStep", "Tracker", "gated_assignment", "pick_robot", "robot_ids"]
 
 ROBOT_ID = 0
+
+
+def robot_ids(pose: PoseConfig) -> set[int]:
+    """The ids robots use under ``pose``: the unmarked robot's and every marked robot's."""
+    return {ROBOT_ID, *(r.id for r in pose.robots)}
 
 
 def pick_robot(
@@ -104,12 +112,22 @@ def _optimal(cost: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.i
     return r[ok].astype(np.int64), c[ok].astype(np.int64)
 
 
+class TrackStep(NamedTuple):
+    """One frame of :class:`Tracker`: each obstacle's id, displacement (cm per frame) and
+    whether it continues a track (its displacement measured)."""
+
+    ids: NDArray[np.int64]
+    step: NDArray[np.float64]
+    tracked: NDArray[np.bool_]
+
+
 @dataclass
 class Tracker:
     """Frame-to-frame identities of obstacles on the floor (world cm).
 
     Tracks are arrays (ids, positions, velocities); an update is one
-    :func:`gated_assignment`, whatever the number of obstacles.
+    :func:`gated_assignment`, whatever the number of obstacles. New ids are never one of
+    the ``reserved`` (the robots'), so an id names one object whatever its kind.
     """
 
     gate_cm: float = 20.0
@@ -117,6 +135,26 @@ class Tracker:
     _xy: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
     _velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
     _next_id: int = ROBOT_ID + 1
+    reserved: set[int] = field(default_factory=lambda: {ROBOT_ID})
+
+    def reserve(self, ids: set[int]) -> None:
+        """Keep ``ids`` for robots from now on (a calibration that adds marked robots): new
+        obstacles are numbered above them, and a tracked obstacle holding one of them gets
+        a new id."""
+        self.reserved |= ids
+        self._next_id = max(self._next_id, max(self.reserved) + 1)
+        taken = np.isin(self._ids, list(ids))
+        if taken.any():
+            self._ids[taken] = self._fresh(int(taken.sum()))
+
+    def _fresh(self, n: int) -> list[int]:
+        """``n`` new ids: the next ones not reserved."""
+        out: list[int] = []
+        while len(out) < n:
+            if self._next_id not in self.reserved:
+                out.append(self._next_id)
+            self._next_id += 1
+        return out
 
     def update(self, xy: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
         """Assign ids to this frame's obstacle centres (N, 2); return (ids, displacements).
@@ -124,6 +162,12 @@ class Tracker:
         Displacements are in cm per frame (0 for a new obstacle). Tracks not seen this
         frame are dropped.
         """
+        step = self.track(xy)
+        return step.ids, step.step
+
+    def track(self, xy: NDArray[np.float64]) -> TrackStep:
+        """:meth:`update`, and which obstacles continue a track (their displacement is
+        measured; a new one's 0 is not)."""
         xy = np.array(xy, dtype=np.float64).reshape(-1, 2)  # a copy: kept as the tracks
         ids = np.full(xy.shape[0], -1, dtype=np.int64)
         step = np.zeros(xy.shape)
@@ -134,7 +178,6 @@ class Tracker:
         new = ids < 0
         fresh = int(new.sum())
         if fresh:
-            ids[new] = range(self._next_id, self._next_id + fresh)
-            self._next_id += fresh
+            ids[new] = self._fresh(fresh)
         self._ids, self._xy, self._velocity = ids, xy, step
-        return ids.copy(), step.copy()
+        return TrackStep(ids.copy(), step.copy(), ~new)

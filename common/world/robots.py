@@ -75,6 +75,9 @@ class RobotState(msgspec.Struct, kw_only=True):
     yaw_rate_deg_s: Finite
     age_s: NonNegative
     radius_cm: NonNegative
+    #: whether ``vx_cm_s``/``vy_cm_s``/``yaw_rate_deg_s`` come from the marker seen at two
+    #: capture times; false on a robot's first sighting (they are then 0, not measured)
+    velocity_measured: bool = False
 
 
 class UnknownMarker(msgspec.Struct, kw_only=True):
@@ -161,6 +164,13 @@ class RobotFilter:
     heading: list[float]
     stamp_s: float
     seen_s: float
+    start_s: float  # the first measurement's stamp
+
+    @property
+    def rate_measured(self) -> bool:
+        """Whether the velocity comes from measurements at two capture times (before
+        the second, it is the start's 0, not a measurement)."""
+        return self.seen_s > self.start_s
 
     @classmethod
     def start(
@@ -172,6 +182,7 @@ class RobotFilter:
         return cls(
             accel, noise, [x, y, wrap_angle_deg(heading)], [0.0, 0.0, 0.0],
             [noise[0], 0.0, _V0_SIGMA**2], [noise[1], 0.0, _W0_SIGMA**2], stamp_s, stamp_s,
+            stamp_s,
         )  # fmt: skip
 
     @property
@@ -193,8 +204,9 @@ class RobotFilter:
         self.heading = _predicted(self.heading, dt, self.accel_var[1], q)
         self.stamp_s = stamp_s
 
-    def update(self, x: float, y: float, heading: float) -> None:
-        """Fold in one marker measurement taken at the current stamp."""
+    def update(self, x: float, y: float, heading: float | None) -> None:
+        """Fold in one measurement taken at the current stamp (a marker's; without a
+        heading, the position alone: an unmarked robot's centre)."""
         value, rate = self.value, self.rate
         (k0, k1), self.position = _corrected(self.position, self.noise_var[0])
         dx, dy = x - value[0], y - value[1]
@@ -202,11 +214,13 @@ class RobotFilter:
         value[1] += k0 * dy
         rate[0] += k1 * dx
         rate[1] += k1 * dy
+        self.seen_s = self.stamp_s
+        if heading is None:
+            return
         (k0, k1), self.heading = _corrected(self.heading, self.noise_var[1])
         turn = wrap_angle_deg(heading - value[2])
         value[2] = wrap_angle_deg(value[2] + k0 * turn)
         rate[2] += k1 * turn
-        self.seen_s = self.stamp_s
 
 
 def _predicted(
@@ -350,4 +364,5 @@ def _state(robot: RobotSpec, f: RobotFilter, age: float) -> RobotState:
         yaw_rate_deg_s=yaw_rate,
         age_s=age,
         radius_cm=robot.radius_cm,
+        velocity_measured=f.rate_measured,
     )

@@ -9,11 +9,22 @@ see one).
 from __future__ import annotations
 
 import os
+import signal
 import sys
 
-import typer
 
-from ovis.services.cli.errors import UserError
+def _quit_quietly(signum: int, _frame: object) -> None:
+    raise SystemExit(128 + signum)
+
+
+# Ctrl-C while the commands load ends the process quietly (no traceback); each command
+# then has Python's own handler back (see main), or installs its own.
+if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+    signal.signal(signal.SIGINT, _quit_quietly)
+
+import typer  # noqa: E402
+
+from ovis.services.cli.errors import UserError  # noqa: E402
 
 app = typer.Typer(
     name="ovis",
@@ -62,6 +73,8 @@ def main() -> None:
     from ovis.services.memory import guard_memory
 
     guard_memory()  # before Zenoh's threads start: frames are allocated per message
+    if signal.getsignal(signal.SIGINT) is _quit_quietly:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         app()  # click itself handles usage errors, --help and Ctrl-C, then exits
     except UserError as exc:

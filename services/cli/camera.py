@@ -512,64 +512,6 @@ def locate(
         print(f"row {f['row']:g}, col {f['col']:g} -> x {f['x_cm']:.3f} cm, y {f['y_cm']:.3f} cm")
 
 
-def hand_over_calibration(path: Path, cfg) -> str:
-    """`ovis up --calibration`: check the file (and, for a folder or video source, that
-    its frames are the calibration's size), store it as the newest version in the state
-    folder, and say so."""
-    from ovis.common.calibration.file import load_calibration
-    from ovis.common.calibration.store import CalibrationStore
-
-    calib = load_calibration(path)
-    size = _source_size(cfg)
-    cam = calib.camera
-    if size is not None and size != (cam.cols, cam.rows):
-        raise UserError(
-            f"{cfg.service.source} delivers {size[0]}x{size[1]} frames but {path} is for "
-            f"{cam.cols}x{cam.rows}; calibrate on a frame of this source"
-        )
-    saved = CalibrationStore(cfg.service.state_dir).save(calib)
-    return (
-        f"ovis up: calibration {path} stored as version {saved.version} in {cfg.service.state_dir}"
-    )
-
-
-def _source_size(cfg) -> tuple[int, int] | None:
-    """(width, height) of a folder's or video's first frame (None for live sources)."""
-    source = cfg.service.source
-    if source == "sim" or not Path(source).exists():
-        return None
-    from ovis.common.capture.sources import SourceError, open_source
-
-    try:
-        src = open_source(source, cfg, loop=False)
-        try:
-            image, _ = src.read()
-        finally:
-            src.close()
-    except SourceError as exc:
-        raise UserError(str(exc)) from None
-    return image.shape[1], image.shape[0]
-
-
-def nothing_processed(summary, log_dir: Path) -> str:
-    """Why `ovis up` must fail when frames arrived and none came out ('' when fine)."""
-    if summary.frames_captured == 0 or summary.frames_processed > 0:
-        return ""
-    errors = "; ".join(
-        f"{svc}: {', '.join(f'{k} x{n}' for k, n in errs.items())}"
-        for svc, errs in summary.errors.items()
-    )
-    why = errors or (
-        "no calibration (version 0): give --calibration CALIB.json or a points file"
-        if summary.calibration_version < 1
-        else "no stage reported an error"
-    )
-    return (
-        f"{summary.frames_captured} frames captured, none processed: {why}; see the logs in "
-        f"{log_dir}"
-    )
-
-
 def with_image_flags(
     params,
     *,
@@ -618,7 +560,7 @@ def detect_without_calibration(images: list[Path], flags: dict, *, json: bool, o
 
     from ovis.common.config import ImageParams
     from ovis.common.vision.imageio import read_image
-    from ovis.common.world.pixels import default_min_area_px, detect_pixels
+    from ovis.common.world.pixels import detect_pixels
     from ovis.services.cli.ui import emit_json
 
     size_filter, max_size = flags.pop("size_filter"), flags.pop("max_size")
@@ -627,18 +569,30 @@ def detect_without_calibration(images: list[Path], flags: dict, *, json: bool, o
     for i, path in enumerate(images):
         frame = read_image(path)
         found = detect_pixels(frame, params, min_area_px=size_filter, max_area_px=max_size)
-        results.append({"image": str(path), "objects": found})
+        results.append(
+            {
+                "image": str(path),
+                "objects": found.objects,
+                "min_area_px": found.min_area_px,
+                "background_blobs": found.background,
+                "window_px": found.window_px,
+                "level": found.level,
+            }
+        )
         if overlay is not None:
-            _draw_pixel_objects(frame, found, overlay, i, len(images))
+            _draw_pixel_objects(frame, found.objects, overlay, i, len(images))
     if json:
         emit_json(results[0] if len(results) == 1 else results)
         return
     con = Console(highlight=False)
     for r, path in zip(results, images, strict=True):
-        lo = size_filter if size_filter is not None else default_min_area_px(read_image(path).shape)
+        behind = r["background_blobs"]
         t = Table(
             title=f"{path}: {len(r['objects'])} object(s), pixels only (no calibration; "
-            f"threshold {params.threshold_mode}, smallest {lo:.0f} px)",
+            f"threshold {params.threshold_mode}: {_threshold_said(r)}, smallest "
+            f"{r['min_area_px']:.0f} px"
+            + (f"; {behind} background blob left out" if behind else "")
+            + ")",
             title_justify="left",
         )
         for col in ("id", "row", "col", "area px", "perim px", "compact."):
@@ -653,6 +607,13 @@ def detect_without_calibration(images: list[Path], flags: dict, *, json: bool, o
                 f"{o.compactness:.3f}",
             )
         con.print(t)
+
+
+def _threshold_said(r: dict) -> str:
+    """The level, and the local-contrast window when there is one."""
+    if r["window_px"]:
+        return f"level {r['level']}, local window {r['window_px']} px"
+    return f"level {r['level']}"
 
 
 def _draw_pixel_objects(frame, found, overlay: Path, index: int, count: int) -> None:

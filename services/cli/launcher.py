@@ -8,6 +8,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
 
@@ -16,16 +17,19 @@ import typer
 
 from ovis.services.cli.errors import UserError
 from ovis.services.cli.options import (
+    CONNECT_S,
     DEFAULT_ENDPOINT,
     STARTUP_S,
     ArenaOpt,
     ConfigOpt,
     ConnectOpt,
+    ConnectTimeoutOpt,
     JsonOpt,
     SummaryJsonOpt,
     arena_topics,
     config_with_options,
     stop_on_signals,
+    time_left,
 )
 
 __all__ = ["register"]
@@ -145,9 +149,20 @@ def up(
             help="'sim' (default), a folder, a video, 'camera:N', a stream URL, a SESSION.mcap."
         ),
     ] = None,
-    listen: Annotated[str, typer.Option(help="Endpoint of the router.")] = DEFAULT_ENDPOINT,
+    listen: Annotated[
+        str,
+        typer.Option(
+            help="Endpoint of its own router: it must be free (one system per run; taken: "
+            "exit code 2)."
+        ),
+    ] = DEFAULT_ENDPOINT,
     duration: Annotated[
-        float | None, typer.Option(min=0.0, help="Stop after this many seconds (default: Ctrl-C).")
+        float | None,
+        typer.Option(
+            min=0.0,
+            help="Stop this many seconds after the capture starts (once the other stages "
+            "listen; default: Ctrl-C).",
+        ),
     ] = None,
     config: ConfigOpt = None,
     arena: ArenaOpt = None,
@@ -163,8 +178,9 @@ def up(
     calibration: Annotated[
         Path | None,
         typer.Option(
-            help="Calibration JSON (`ovis calibrate`) for the live services: stored as the "
-            "newest version in the state folder before they start.",
+            help="Calibration JSON (`ovis calibrate`) for the live services: checked "
+            "against the source's frame size (scaled to the same aspect ratio), stored as "
+            "the newest version in the state folder before they start.",
             dir_okay=False,
         ),
     ] = None,
@@ -202,26 +218,43 @@ def up(
     seed: Annotated[
         int | None, typer.Option(min=0, help="Simulated scene seed ([service] seed).")
     ] = None,
+    topic: Annotated[
+        str | None,
+        typer.Option(
+            help="--source X.mcap written by another tool: the topic of its image channel "
+            "to read ([service] source_topic); needed when it has several."
+        ),
+    ] = None,
 ) -> None:
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
 
+    First, with nothing started yet, it checks that the router's endpoint (--listen) is
+    free (else another system runs there), that the source delivers a frame, and that
+    there is a calibration for it: a real source (anything but 'sim') needs its own,
+    from --calibration, the session file, or the state folder's newest if it is not the
+    simulator's; its size must be the frames' (same aspect ratio: scaled, and said so).
+    A failed check is one line and exit code 2.
+
     A process that dies is restarted (at once, then after a back-off of 1 s doubling to
-    10 s, at most --max-restarts a minute) and the reason logged. Ctrl-C or SIGTERM (or --duration)
-    stops everything cleanly; logs of each process are in a temporary folder named at the
-    start.
+    10 s, at most --max-restarts a minute) and the reason logged. Ctrl-C or SIGTERM (or
+    --duration) stops everything cleanly; logs of each process are in a temporary folder
+    named at the start. Exit code 0: frames were processed with a calibration; 3: none
+    was, or the source was lost at the end (the summary's "reason" says why); 1: a
+    process failed.
     """
     if cameras is not None:
         given = [f"--{n}" for n, v in (("source", source), ("calibration", calibration),
-                 ("record", record), ("view", view or None), ("arena", arena)) if v]  # fmt: skip
+                 ("record", record), ("view", view or None), ("arena", arena),
+                 ("topic", topic)) if v]  # fmt: skip
         if given:
             raise UserError(f"--cameras runs the simulated grid: not with {', '.join(given)}")
         from ovis.services.cli.multicam_up import up_cameras
+        from ovis.services.cli.startup import check_endpoint
 
+        check_endpoint(listen)  # one system per run
         return up_cameras(cameras, config=config, listen=listen, duration=duration, json=json,
                           seed=seed, fps=fps, max_restarts=max_restarts, pin=pin)  # fmt: skip
-    from ovis.services.cli.watching import LiveView, summary_table
-
     cfg = config_with_options(
         config,
         connect=[listen],
@@ -230,18 +263,24 @@ def up(
         fps=fps,
         state_dir=state_dir,
         seed=seed,
+        source_topic=topic,
     )
     topics = arena_topics(cfg)
     cpus = _cpus(pin) or []
+    if record is not None and record.exists():
+        raise UserError(f"{record} exists; give --record another name (nothing was started)")
+    from ovis.services.cli import startup
+
+    # Before anything starts: the endpoint, the source and its frame size, the calibration.
+    startup.check_endpoint(listen)
+    size = startup.source_size(cfg)
     from ovis.services.cli.recording import prepare_recorded_source
 
     recorded = prepare_recorded_source(cfg)  # a session file: its calibration, or why not
-    if record is not None and record.exists():
-        raise UserError(f"{record} exists; give --record another name (nothing was started)")
-    if calibration is not None:
-        from ovis.services.cli.camera import hand_over_calibration
-
-        print(hand_over_calibration(calibration, cfg), file=sys.stderr if json else sys.stdout)
+    calib, said = startup.calibration_for_run(cfg, calibration, size)
+    out = sys.stderr if json else sys.stdout
+    for line in said:
+        print(f"ovis up: {line}", file=out)
     log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-"))
     cfg_path = log_dir / "config.toml"
     from ovis.common.config import dump_toml
@@ -249,13 +288,13 @@ def up(
     from ovis.services.placement import cpus_option, off_path_cpus
 
     # The services share the router's machine: they talk to each other directly.
-    services_cfg = msgspec.structs.replace(cfg, zenoh=local_peers(cfg.zenoh))
+    services_cfg = startup.services_config(cfg, calib)
+    services_cfg = msgspec.structs.replace(services_cfg, zenoh=local_peers(cfg.zenoh))
     cfg_path.write_text(dump_toml(services_cfg))
     from ovis.services.supervisor import Supervisor
 
     fleet = Supervisor(log_dir, max_restarts=max_restarts)
     stop = stop_on_signals()
-    out = sys.stderr if json else sys.stdout
     print(
         f"ovis up: arena {topics.arena}, router {listen}, frame path on cores "
         f"{','.join(map(str, cpus)) or 'any'}, logs in {log_dir}",
@@ -264,7 +303,11 @@ def up(
     if recorded:
         print(f"ovis up: {recorded}", file=out)
     fleet.start("router", ["router", "--listen", listen])
-    time.sleep(0.5)
+    try:
+        _wait_router(fleet, listen, stop)
+    except UserError:
+        fleet.stop()
+        raise
     if view:
         from ovis.services.cli.view import DEFAULT_LISTEN
         from ovis.services.placement import off_path_option
@@ -285,11 +328,54 @@ def up(
         fleet.start("recorder", ["record", "--connect", listen, "--arena", topics.arena,
                                  "--out", str(record)])  # fmt: skip
         downstream = (*downstream, "recorder")
+    summary = _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir,
+                   duration=duration, live=live, json=json)  # fmt: skip
+    if json:
+        sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
+    else:
+        from rich.console import Console
+
+        from ovis.services.cli.watching import summary_table
+
+        Console(highlight=False).print(summary_table(summary))
+    if summary.exit_code:
+        raise UserError(f"{summary.reason}; see the logs in {log_dir}", summary.exit_code)
+
+
+#: How long the router may take to say it listens.
+ROUTER_START_S = 10.0
+
+
+def _wait_router(fleet, listen: str, stop) -> None:
+    """Wait until the router says it listens; exit 2 when it dies first (its endpoint
+    was taken after the check, or cannot be listened on)."""
+    log = fleet.log_dir / "router.log"
+    deadline = time.monotonic() + ROUTER_START_S
+    while not stop.is_set() and time.monotonic() < deadline:
+        text = log.read_text(errors="replace") if log.exists() else ""
+        if "listening on" in text:
+            return
+        if fleet.children["router"].proc.poll() is not None:
+            last = (text.strip().splitlines()[-1:] or ["(no output)"])[0]
+            raise UserError(
+                f"the router could not listen on {listen} ({last.removeprefix('error: ')}); "
+                "give --listen tcp/127.0.0.1:PORT with a free port"
+            )
+        stop.wait(0.05)
+
+
+def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, duration, live, json):
+    """Run the started system until ``stop`` or ``duration``: the capture once the other
+    stages listen, the live view, the supervision; then stop it and sum up (only this
+    run's processes and frames)."""
+    from ovis.common.analysis.live import with_verdict
     from ovis.common.config import ZenohConfig
     from ovis.services.bus import open_session
+    from ovis.services.cli.watching import LiveView
 
-    live_view = LiveView(topics, cfg)
+    live_view = LiveView(topics, cfg, accept=fleet.owns)
     started = time.monotonic()
+    statuses: dict = {}
     try:
         with open_session(ZenohConfig(connect=[listen])) as session:
             live_view.attach(session)
@@ -303,42 +389,40 @@ def up(
                 )
             if not stop.is_set():
                 start("capture")
-            polling = _poll_counters(fleet, session, topics)
+            # --duration counts from here: a slow start (a loaded machine) takes no frames away.
+            stop_polling = _poll_counters(fleet, session, topics)
             live_view.run(
                 stop,
-                until=(started + duration) if duration is not None else None,
+                until=(time.monotonic() + duration) if duration is not None else None,
                 live=live and not json,
                 supervise=fleet.supervise,
                 quiet=json,
             )
-            polling.set()
+            stop_polling()
+            # the frames processed, then the capture's count: never more processed than captured
+            live_view.score.close()
             statuses = live_view.poll_status(session)
             fleet.record(statuses)
     finally:
         codes = fleet.stop(sources=("capture",))  # what it captured is still processed
     summary = live_view.score.summary(
-        statuses, codes, time.monotonic() - started, fleet.restarts(), fleet.totals()
+        statuses,
+        codes,
+        time.monotonic() - started,
+        fleet.restarts(),
+        fleet.totals(),
+        streams=fleet.streams("capture"),
     )
-    if json:
-        sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
-    else:
-        from rich.console import Console
-
-        Console(highlight=False).print(summary_table(summary))
-    from ovis.services.cli.camera import nothing_processed
-
-    idle = nothing_processed(summary, log_dir)
-    if idle:
-        raise UserError(idle, 1)
     bad = [n for n, c in codes.items() if c not in (0, -signal.SIGTERM)]
-    if bad or fleet.gave_up():
-        reasons = "; ".join(fleet.gave_up()) or f"process(es) {', '.join(bad)} exited abnormally"
-        raise UserError(f"{reasons}; see the logs in {log_dir}", 1)
+    failures = fleet.gave_up() or [f"process(es) {', '.join(bad)} exited abnormally"] * bool(bad)
+    return with_verdict(summary, statuses.get("capture"), failures)
 
 
-def _poll_counters(fleet, session, topics, period_s: float = 1.0) -> threading.Event:
-    """Every ``period_s`` until the event returned is set, give the supervisor the
-    stages' statuses (a thread): their counters then survive a restart in its totals."""
+def _poll_counters(fleet, session, topics, period_s: float = 1.0) -> Callable[[], None]:
+    """Every ``period_s`` until the function returned is called, give the supervisor the
+    stages' statuses (a thread): their counters then survive a restart in its totals.
+    The function returns once the thread recorded its last statuses (an older one
+    recorded after the final count would lower it)."""
     import zenoh
 
     from ovis.services.cli.watching import query_statuses
@@ -348,12 +432,18 @@ def _poll_counters(fleet, session, topics, period_s: float = 1.0) -> threading.E
     def poll() -> None:
         while not done.wait(period_s):
             try:
-                fleet.record(query_statuses(session, topics, timeout=period_s))
+                fleet.record(query_statuses(session, topics, timeout=period_s, accept=fleet.owns))
             except zenoh.ZError:  # the session is closing
                 return
 
-    threading.Thread(target=poll, name="status-poll", daemon=True).start()
-    return done
+    thread = threading.Thread(target=poll, name="status-poll", daemon=True)
+    thread.start()
+
+    def stop() -> None:
+        done.set()
+        thread.join()
+
+    return stop
 
 
 def _wait_listening(fleet, session, topics, stages: tuple[str, ...], stop) -> set[str]:
@@ -379,25 +469,30 @@ def watch(
     json: JsonOpt = False,
     count: Annotated[int | None, typer.Option(min=1, help="Stop after N frames.")] = None,
     duration: Annotated[float | None, typer.Option(min=0.0, help="Stop after S seconds.")] = None,
+    timeout: ConnectTimeoutOpt = CONNECT_S,
 ) -> None:
     """Subscribe to the obstacle topic and print each frame's objects and planner inputs.
 
     Also follows the pose service's health topic: when frames stop, it says "no data"
     (instead of going quiet). With --json, one JSON object per line, as published:
-    "type" is "obstacles" for a frame, "health" for the stream's state.
+    "type" is "obstacles" for a frame, "health" for the stream's state. With no router
+    answering within --timeout: exit code 4 and why. Ctrl-C or SIGTERM ends it at any
+    moment, also while it waits for the router.
     """
+    stop = stop_on_signals()  # first: nothing below may block before it is in place
     from ovis.common.messages import ObstacleFrame, StreamHealth, decode
-    from ovis.services.bus import open_session
+    from ovis.services.bus import client_session
     from ovis.services.cli.watching import format_health, format_obstacles
     from ovis.services.inbox import Inbox
 
     cfg = config_with_options(config, connect=connect, arena=arena)
     topics = arena_topics(cfg)
     box = Inbox(depth=64)
-    stop = stop_on_signals()
     seen = 0
     deadline = time.monotonic() + duration if duration is not None else None
-    with open_session(cfg.zenoh) as session:
+    with client_session(cfg.zenoh, timeout, stop, wait_s=time_left(timeout)) as session:
+        if session is None:  # stopped while waiting for the router
+            return
         session.declare_subscriber(topics.obstacles, lambda s: box.put(s.payload.to_bytes()))
         session.declare_subscriber(topics.health, lambda s: box.put(s.payload.to_bytes()))
         while not stop.is_set() and (count is None or seen < count):
@@ -427,7 +522,9 @@ def recalibrate(
     arena: ArenaOpt = None,
     frame: Annotated[int | None, typer.Option(min=0, help="Frame sequence number.")] = None,
     seed: Annotated[int | None, typer.Option(min=0, help="GA seed.")] = None,
-    timeout: Annotated[float, typer.Option(min=0.1, help="Seconds to wait for it.")] = 60.0,
+    timeout: Annotated[
+        float, typer.Option(min=0.1, help="Seconds to wait for the calibration.")
+    ] = 60.0,
     json: JsonOpt = False,
     cancel: Annotated[
         bool, typer.Option("--cancel", help="Cancel the calibration that runs instead.")
@@ -437,16 +534,27 @@ def recalibrate(
 
     Shows the new calibration's DIPE, parameters and version. While a calibration runs,
     the calibrator answers at once that it is busy (progress and ETA); --cancel stops it.
+    With no router answering within 5 s: exit code 4. Ctrl-C or SIGTERM ends it at any
+    moment (exit code 130).
     """
+    stop = stop_on_signals()  # first: nothing below may block before it is in place
     from ovis.common.calibration.file import dipe_text
     from ovis.common.messages import CalibrateReply, CalibrateRequest, decode, encode
-    from ovis.services.bus import open_session
+    from ovis.services.bus import client_session, interruptible
 
     cfg = config_with_options(config, connect=connect, arena=arena)
     topics = arena_topics(cfg)
     request = encode(CalibrateRequest(frame_seq=frame, seed=seed, cancel=cancel))
-    with open_session(cfg.zenoh, wait=False) as session:
-        replies = list(session.get(topics.calibrate, payload=request, timeout=timeout))
+    with client_session(cfg.zenoh, CONNECT_S, stop, wait_s=time_left(CONNECT_S)) as session:
+        replies = (
+            None
+            if session is None
+            else interruptible(
+                stop, lambda: list(session.get(topics.calibrate, payload=request, timeout=timeout))
+            )
+        )
+    if replies is None:
+        raise UserError("interrupted before the calibrator answered", 130)
     if not replies:
         raise UserError(
             f"no calibrator is alive on {topics.calibrate} (connect: "
@@ -483,15 +591,26 @@ def status(
     config: ConfigOpt = None,
     arena: ArenaOpt = None,
     json: JsonOpt = False,
+    timeout: ConnectTimeoutOpt = CONNECT_S,
 ) -> None:
-    """Which services are alive (Zenoh liveliness), their frame rates, drops and errors."""
-    from ovis.services.bus import open_session
+    """Which services are alive (Zenoh liveliness), their frame rates, drops and errors.
+
+    With no router answering within --timeout: exit code 4 and why. Ctrl-C or SIGTERM
+    ends it at any moment (exit code 130)."""
+    stop = stop_on_signals()  # first: nothing below may block before it is in place
+    from ovis.services.bus import client_session, interruptible
     from ovis.services.cli.watching import collect_status, status_table
 
     cfg = config_with_options(config, connect=connect, arena=arena)
     topics = arena_topics(cfg)
-    with open_session(cfg.zenoh, wait=False) as session:
-        report = collect_status(session, topics)
+    with client_session(cfg.zenoh, timeout, stop, wait_s=time_left(timeout)) as session:
+        report = (
+            None
+            if session is None
+            else interruptible(stop, lambda: collect_status(session, topics))
+        )
+    if report is None:
+        raise UserError("interrupted before the services answered", 130)
     if json:
         sys.stdout.write(msgspec.json.encode(report).decode() + "\n")
         return

@@ -379,14 +379,23 @@ def detect(
     ] = None,
     size_filter: Annotated[
         float | None,
-        typer.Option(min=0.0, help="Smallest object: cm² with a calibration, px without."),
+        typer.Option(
+            min=0.0,
+            help="Smallest object: cm² with a calibration (default: its size filter), px "
+            "without (default: 1/20 of the typical object's area, at least 16 px).",
+        ),
     ] = None,
     max_size: Annotated[
         float | None,
         typer.Option(min=0.0, help="Largest object: cm² with a calibration, px without."),
     ] = None,
     block_px: Annotated[
-        int | None, typer.Option(min=3, help="Local-contrast window (px) for auto/adaptive.")
+        int | None,
+        typer.Option(
+            min=3,
+            help="Local-contrast window (px) for auto/adaptive. Default: four times the "
+            "typical object's width.",
+        ),
     ] = None,
     polarity: Annotated[
         str | None, typer.Option(help="'bright' objects on a dark floor, or 'dark'.")
@@ -413,14 +422,15 @@ def detect(
         ),
     ] = None,
     fps: Annotated[
-        float,
+        float | None,
         typer.Option(
             min=1e-3,
             max=1e4,
-            help="Frame rate of the frames, for velocities in cm/s (`ovis simulate` "
-            "frames: simulator.fps, 30); default 1, the paper's Δt = 1 s.",
+            help="Frame rate of the frames, for velocities in cm/s. Default: the "
+            "simulator's for `ovis simulate` frames (the points.toml beside them), else 1 "
+            "(the paper's Δt = 1 s).",
         ),
-    ] = 1.0,
+    ] = None,
 ) -> None:
     """Find the robot and the obstacles in frames; compute the planner's inputs.
 
@@ -451,10 +461,11 @@ def detect(
     if goal_angle is not None and not np.isfinite(goal_angle):
         raise UserError("--goal-angle must be a finite number of degrees")
     detector = Detector(calib.camera, calib.image, calib.pose)
+    rate, rate_from = _frame_rate(images, fps)
     results = []
     for i, path in enumerate(images):
         frame = read_image(path)
-        det = detector.detect(frame, goal_xy=goal_xy, goal_angle_deg=goal_angle, stamp_s=i / fps)
+        det = detector.detect(frame, goal_xy=goal_xy, goal_angle_deg=goal_angle, stamp_s=i / rate)
         results.append((path, frame, det))
         if overlay is not None:
             from ovis.common.analysis.plots import draw_detections, save_png
@@ -464,11 +475,37 @@ def detect(
                 target = overlay.with_name(f"{overlay.stem}_{i:04d}{overlay.suffix or '.png'}")
             save_png(target, draw_detections(frame, det))
     if json:
-        payload = [{"image": str(p), **msgspec.to_builtins(d)} for p, _, d in results]
+        payload = [
+            {"image": str(p), "stamp_s": i / rate, **msgspec.to_builtins(d)}
+            for i, (p, _, d) in enumerate(results)
+        ]
         emit_json(payload[0] if len(payload) == 1 else payload)
         return
     for path, _, det in results:
         print_detection(path, det)
+    if len(images) > 1:
+        console().print(f"frames 1/{rate:g} s apart ({rate_from}): velocities in cm/s over them")
+
+
+def _frame_rate(images: list[Path], fps: float | None) -> tuple[float, str]:
+    """The frames' rate (per s) and where it comes from: ``--fps``; else, for frames
+    written by `ovis simulate` (its truth.json and points.toml beside them), the
+    simulator's; else 1, the paper's Δt = 1 s."""
+    from ovis.common.config import ConfigError, config_from_dict, load_points
+
+    if fps is not None:
+        return fps, "--fps"
+    folder = images[0].parent
+    points = folder / "points.toml"
+    together = all(p.parent == folder for p in images)
+    if together and (folder / "truth.json").is_file() and points.is_file():
+        try:
+            cfg = load_points(points).config
+        except ConfigError:
+            cfg = None
+        if cfg is not None:
+            return config_from_dict(cfg).simulator.fps, f"simulator.fps of {points}"
+    return 1.0, "no --fps: the paper's Δt = 1 s"
 
 
 def plan(

@@ -5,8 +5,10 @@ command module imports another's internals."""
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
+import time
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -15,11 +17,13 @@ import typer
 from ovis.services.cli.errors import UserError
 
 __all__ = [
+    "CONNECT_S",
     "DEFAULT_ENDPOINT",
     "STARTUP_S",
     "ArenaOpt",
     "ConfigOpt",
     "ConnectOpt",
+    "ConnectTimeoutOpt",
     "JsonOpt",
     "OfflineConfigOpt",
     "PaperPresetOpt",
@@ -28,11 +32,31 @@ __all__ = [
     "arena_topics",
     "config_with_options",
     "stop_on_signals",
+    "time_left",
 ]
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 #: `ovis up` starts the capture once the other stages are alive, or after this long.
 STARTUP_S = 30.0
+#: Seconds a client command (watch, status, recalibrate) waits for a router to answer.
+CONNECT_S = 5.0
+
+
+def _process_age_s() -> float:
+    """Seconds since this process started (Linux: /proc; elsewhere 0)."""
+    try:
+        with open("/proc/self/stat", encoding="ascii") as fh:
+            fields = fh.read().rsplit(")", 1)[1].split()
+        started = int(fields[19]) / os.sysconf("SC_CLK_TCK")
+        return max(0.0, time.clock_gettime(time.CLOCK_BOOTTIME) - started)
+    except (OSError, ValueError, IndexError, AttributeError):
+        return 0.0
+
+
+#: When the process started (monotonic clock): a client's --timeout counts from here.
+STARTED = time.monotonic() - _process_age_s()
+#: Of a client's --timeout, what is kept to say why it gives up and exit.
+EXIT_MARGIN_S = 0.5
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")]
 PaperPresetOpt = Annotated[str, typer.Option(help="'default' (640x480) or 'paper' (192x192).")]
@@ -59,6 +83,14 @@ PresetOpt = Annotated[
 ConnectOpt = Annotated[
     list[str] | None,
     typer.Option(help=f"Zenoh endpoint to connect to (repeatable); default {DEFAULT_ENDPOINT}."),
+]
+ConnectTimeoutOpt = Annotated[
+    float,
+    typer.Option(
+        "--timeout",
+        min=0.1,
+        help="Seconds to wait for a router to answer; then exit code 4 with the reason.",
+    ),
 ]
 ArenaOpt = Annotated[
     str | None, typer.Option(help="Arena name: key expressions are rooted at ovis/<arena>/.")
@@ -88,3 +120,10 @@ def stop_on_signals() -> threading.Event:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     return stop
+
+
+def time_left(timeout_s: float) -> float:
+    """What is left of ``timeout_s`` counted from the process's start, less
+    :data:`EXIT_MARGIN_S` (at least a tenth of a second): a client gives up within its
+    --timeout, start-up and exit included."""
+    return max(0.1, timeout_s - (time.monotonic() - STARTED) - EXIT_MARGIN_S)

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import threading
 import time
@@ -217,9 +218,39 @@ def _status_line(rec: Any, elapsed: float) -> str:
     )
 
 
+TopicOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--topic",
+        help="An MCAP written by another tool: the topic of the image channel to read "
+        "(foxglove.CompressedImage/RawImage, sensor_msgs/msg/CompressedImage/Image); "
+        "needed when it has several.",
+    ),
+]
+
+
+def _image_channel(path: Path | str, topic: str | None) -> str | None:
+    """For a file another tool wrote: which channel's images become frames and their
+    size (its first image read, so a file ovis cannot use is refused before anything
+    starts); None for an ovis recording. RecordingError saying why not."""
+    from ovis.common.recording.foreign import choose_channel, first_image
+
+    info = choose_channel(path, topic)
+    if info is None:
+        return None
+    image = first_image(path, info)
+    colour = "grey" if image.ndim == 2 else "BGR"
+    return f"frames from {info.describe()}: {image.shape[1]}x{image.shape[0]} {colour}"
+
+
 def replay(
     session_file: Annotated[
-        Path, typer.Argument(help="Session file (.mcap) written by `ovis record`.", dir_okay=False)
+        Path,
+        typer.Argument(
+            help="Session file (.mcap) written by `ovis record`, or an MCAP with an image "
+            "channel written by another tool (Foxglove, ROS 2).",
+            dir_okay=False,
+        ),
     ],
     connect: ConnectOpt = None,
     config: ConfigOpt = None,
@@ -253,30 +284,41 @@ def replay(
             "services, which refuse frames stamped an hour away from their clock)."
         ),
     ] = "auto",
+    topic: TopicOpt = None,
 ) -> None:
     """Publish a recorded session back on the bus at its recorded pace.
 
     Each bus message goes out on its recorded key exactly as it travelled; frames are
     rebuilt bit-exact. With --only capture, a pipeline started with the recording's
     calibration (ovis up --source SESSION.mcap does both) processes the recorded images
-    again and publishes the same obstacles.
+    again and publishes the same obstacles. An MCAP written by another tool gives the
+    images of its image channel (--topic picks one) as frames on ovis/<arena>/frames,
+    at the pace of their log times. See docs/recording.md.
     """
     from ovis.common.messages import Topics
     from ovis.common.recording.pacing import parse_speed
-    from ovis.common.recording.session import RecordingError, SessionReader
+    from ovis.common.recording.session import RecordingError
     from ovis.services.bus import open_session
-    from ovis.services.replay import Replayer
+    from ovis.services.replay import FLUSH_S, DeliveryCheck, Replayer
 
     try:
         pace = parse_speed(speed)
         if arena is not None:
             Topics(arena)
-        SessionReader(session_file)  # not a session: say so before connecting
+        images = _image_channel(session_file, topic)  # unusable: say so before connecting
     except ValueError as exc:  # RecordingError too
         raise UserError(str(exc)) from None
     cfg = config_with_options(config, connect=connect)
+    if images is not None:
+        print(images, file=sys.stderr)
+        arena = arena or cfg.service.arena  # a foreign file names no arena
     stop = stop_on_signals()
-    with open_session(cfg.zenoh, wait=False) as session:
+    with contextlib.ExitStack() as sessions:
+        # sees the replay's messages come back: declared before the replay's session opens
+        checker = sessions.enter_context(open_session(cfg.zenoh, wait=False))
+        delivered = DeliveryCheck(checker)
+        sessions.callback(delivered.close)
+        session = sessions.enter_context(open_session(cfg.zenoh, wait=False))
         try:
             player = Replayer(
                 session,
@@ -287,6 +329,7 @@ def replay(
                 arena=arena,
                 stamps=stamps,
                 stop=stop,
+                topic=topic,
             )
         except (RecordingError, ValueError) as exc:
             raise UserError(str(exc)) from None
@@ -308,30 +351,48 @@ def replay(
         finally:
             done.set()
             progress.done()
-            player.close()
+            arrived = player.close(delivered)  # every message sent before the process ends
+    if not arrived:
+        print(
+            f"warning: the last messages did not come back through the router within "
+            f"{FLUSH_S:g} s: the last ones may not have reached their subscribers",
+            file=sys.stderr,
+        )
     if report.cut:
         print(f"warning: {report.cut}", file=sys.stderr)
     if report.shift_s:
         print(f"frame stamps moved by {report.shift_s:.0f} s (--stamps)", file=sys.stderr)
+    if report.skipped:
+        print(
+            f"warning: {report.skipped} messages could not be published (the last: "
+            f"{report.skip_reason})",
+            file=sys.stderr,
+        )
     topics = ", ".join(f"{k.rsplit('/', 1)[-1]} {n}" for k, n in sorted(report.by_topic.items()))
-    print(f"replayed {report.messages} messages ({topics or 'none'}) in {report.passes} pass(es)")
+    print(
+        f"replayed {report.messages} messages ({topics or 'none'}) in {report.passes} pass(es)"
+        + (f" from {report.channel}" if report.channel else "")
+    )
 
 
 def prepare_recorded_source(cfg: Any) -> str | None:
-    """For ``ovis up --source SESSION.mcap``: check the file, and give the calibrator the
-    recording's calibration unless its state folder holds one; None for other sources."""
+    """For ``ovis up --source SESSION.mcap``: check the file (for one another tool wrote:
+    its image channel, ``source_topic``, and its first image), and give the calibrator
+    the recording's calibration unless its state folder holds one; None for other
+    sources."""
     from ovis.common.recording.calibration import adopt_recorded_calibration
-    from ovis.common.recording.session import RecordingError, SessionReader
+    from ovis.common.recording.session import RecordingError
     from ovis.services.replay import is_recording
 
     source = cfg.service.source
     if not is_recording(source):
         return None
     try:
-        SessionReader(source)
-        return adopt_recorded_calibration(source, cfg.service.state_dir)
+        images = _image_channel(source, cfg.service.source_topic or None)
+        adopted = adopt_recorded_calibration(source, cfg.service.state_dir)
     except RecordingError as exc:
         raise UserError(str(exc)) from None
+    return adopted if images is None else f"{images}; {adopted}"
 
 
 def register(app: typer.Typer) -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ovis.services.cli.ui import console, table
+from ovis.services.cli.ui import console, table, velocity_text
 
 __all__ = ["print_accuracy", "print_calibration", "print_detection"]
 
@@ -167,10 +167,24 @@ def print_accuracy(calib, con=None) -> None:
         con.print(f"- {note}")
 
 
+def _unmarked_motion(robot) -> str:
+    """The unmarked robot's heading (and whether it is its front) and velocity."""
+    if robot.heading_deg is None:
+        heading = "none (a round blob)"
+    elif robot.heading_resolved:
+        heading = f"{robot.heading_deg:.1f} deg (its front, from its motion)"
+    else:
+        heading = f"{robot.heading_deg:.1f} deg (either end: it has not moved yet)"
+    if not robot.velocity_measured:
+        return f"heading {heading}, velocity – (not measured yet)"
+    return f"heading {heading}, velocity {velocity_text(robot)} cm/s"
+
+
 def print_detection(path: Path, det) -> None:
     con = console()
     columns = ("id", "kind", "row", "col", "area px", "perim px", "compact.")
-    t = table(f"{path}: {len(det.objects)} object(s)", (*columns, "X cm", "Y cm", "r cm"))
+    world = ("X cm", "Y cm", "r cm", "v cm/s")
+    t = table(f"{path}: {len(det.objects)} object(s)", (*columns, *world))
     for o in det.objects:
         t.add_row(
             str(o.id),
@@ -183,8 +197,12 @@ def print_detection(path: Path, det) -> None:
             f"{o.x_cm:.2f}",
             f"{o.y_cm:.2f}",
             f"{o.radius_cm:.2f}",
+            velocity_text(o),
         )
     con.print(t)
+    robot = next((o for o in det.objects if o.kind == "robot"), None)
+    if robot is not None and not det.robots:  # the unmarked robot
+        con.print(f"robot {robot.id}: {_unmarked_motion(robot)}")
     if det.robots or det.unknown_markers:
         from ovis.services.cli.robots import print_robots
 

@@ -11,8 +11,10 @@ def print_robots(det: Any, con: Any) -> None:
     """Each robot's pose, heading, velocity and age; its planner inputs; unknown markers."""
     from rich.table import Table
 
+    from ovis.services.cli.ui import velocity_text
+
     t = Table(title="robots", title_justify="left")
-    for col in ("id", "name", "marker", "X cm", "Y cm", "heading °", "vx cm/s", "vy cm/s", "age s"):
+    for col in ("id", "name", "marker", "X cm", "Y cm", "heading °", "v cm/s", "age s"):
         t.add_column(col, justify="right")
     for r in det.robots:
         t.add_row(
@@ -22,8 +24,7 @@ def print_robots(det: Any, con: Any) -> None:
             f"{r.x_cm:.2f}",
             f"{r.y_cm:.2f}",
             f"{r.heading_deg:.1f}",
-            f"{r.vx_cm_s:.1f}",
-            f"{r.vy_cm_s:.1f}",
+            velocity_text(r),
             f"{r.age_s:.2f}",
         )
     con.print(t)

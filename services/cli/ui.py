@@ -10,7 +10,18 @@ from typing import Any
 
 import msgspec
 
-__all__ = ["calibrate_with_progress", "console", "emit_json", "progress", "table"]
+__all__ = [
+    "NOT_MEASURED",
+    "calibrate_with_progress",
+    "console",
+    "emit_json",
+    "progress",
+    "table",
+    "velocity_text",
+]
+
+#: Shown for a number the system has not measured (a velocity before a second frame).
+NOT_MEASURED = "–"
 
 
 def console():
@@ -95,3 +106,11 @@ def calibrate_with_progress(frame, points, cfg, *, source: str, show: bool = Tru
 
     with bar:
         return run_calibration(frame, points, cfg, on_generation=on_generation, source=source)[0]
+
+
+def velocity_text(obj: Any) -> str:
+    """An object's or robot's velocity as "(vx, vy)" cm/s, or :data:`NOT_MEASURED` before
+    it is measured (``velocity_measured`` false: seen in one frame only)."""
+    if not getattr(obj, "velocity_measured", False):
+        return NOT_MEASURED
+    return f"({obj.vx_cm_s:+.1f}, {obj.vy_cm_s:+.1f})"

@@ -22,7 +22,7 @@ from ovis.common.messages import (
     TruthFrame,
     decode,
 )
-from ovis.services.cli.ui import table
+from ovis.services.cli.ui import table, velocity_text
 
 __all__ = [
     "LiveView",
@@ -47,13 +47,17 @@ def format_obstacles(msg: ObstacleFrame) -> str:
         lines.append("  robot: not found")
     else:
         r = msg.robot
-        lines.append(f"  R    x {r.x_cm:7.2f}  y {r.y_cm:7.2f}  r {r.radius_cm:5.2f} cm")
+        lines.append(
+            f"  R    x {r.x_cm:7.2f}  y {r.y_cm:7.2f}  r {r.radius_cm:5.2f} cm  "
+            f"v {velocity_text(r)} cm/s"
+        )
     plan = {p.obstacle_id: p for p in msg.planner}
     for o in msg.obstacles:
         p = plan.get(o.id)
         extra = f"   distance {p.distance_cm:7.2f} cm  angle {p.angle_deg:+7.1f}°" if p else ""
         lines.append(
-            f"  O{o.id:<3d} x {o.x_cm:7.2f}  y {o.y_cm:7.2f}  r {o.radius_cm:5.2f} cm" + extra
+            f"  O{o.id:<3d} x {o.x_cm:7.2f}  y {o.y_cm:7.2f}  r {o.radius_cm:5.2f} cm  "
+            f"v {velocity_text(o)} cm/s" + extra
         )
     if not msg.obstacles:
         lines.append("  no obstacles")
@@ -66,7 +70,7 @@ def format_health(msg: StreamHealth) -> str:
     ago = f"the last frame ({msg.last_seq}) came {since:.1f} s ago" if since else "no frame yet"
     if msg.state == "source lost":
         return f"NO DATA: source lost ({msg.reason}); {ago}"
-    return f"NO DATA: frames {msg.state}; {ago}"
+    return f"NO DATA: frames {msg.state}; {ago}" + (f"; {msg.reason}" if msg.reason else "")
 
 
 class ServiceReport(msgspec.Struct):
@@ -87,9 +91,13 @@ def alive_services(session: zenoh.Session, topics: Topics, timeout: float = 1.5)
 
 
 def query_statuses(
-    session: zenoh.Session, topics: Topics, timeout: float = 1.5
+    session: zenoh.Session,
+    topics: Topics,
+    timeout: float = 1.5,
+    accept: Callable[[ServiceStatus], bool] | None = None,
 ) -> dict[str, ServiceStatus]:
-    """The status replies of the arena's services, by name (a bad reply is skipped)."""
+    """The status replies of the arena's services, by name (a bad reply is skipped, and
+    one that ``accept`` refuses: another system's process)."""
     statuses: dict[str, ServiceStatus] = {}
     for reply in session.get(topics.status_all, timeout=timeout):
         if reply.ok is None:
@@ -98,16 +106,20 @@ def query_statuses(
             st = decode(reply.ok.payload.to_bytes(), ServiceStatus)
         except MessageError:
             continue
-        statuses[st.service] = st
+        if accept is None or accept(st):
+            statuses[st.service] = st
     return statuses
 
 
 def collect_status(
-    session: zenoh.Session, topics: Topics, timeout: float = 1.5
+    session: zenoh.Session,
+    topics: Topics,
+    timeout: float = 1.5,
+    accept: Callable[[ServiceStatus], bool] | None = None,
 ) -> list[ServiceReport]:
     """Liveliness tokens and status replies of every service of the arena."""
     alive = alive_services(session, topics, timeout)
-    statuses = query_statuses(session, topics, timeout)
+    statuses = query_statuses(session, topics, timeout, accept)
     names = list(STAGES) + sorted((alive | set(statuses)) - set(STAGES))
     return [ServiceReport(n, n in alive, statuses.get(n) if n in alive else None) for n in names]
 
@@ -137,8 +149,8 @@ def status_table(report: list[ServiceReport], topics: Topics):
             continue
         errors = ", ".join(f"{k} {v}" for k, v in s.errors.items()) or "0"
         state = s.state
-        if s.state in ("degraded", "failing", "source lost"):
-            state = f"[red]{s.state}[/]: {s.reason}"
+        if s.state != "ok":  # any other state is not ok (waiting, source lost, …)
+            state = f"[red]{s.state}[/]" + (f": {s.reason}" if s.reason else "")
         t.add_row(
             r.service,
             "yes",
@@ -158,10 +170,16 @@ class LiveView:
     """Subscribes to obstacles (and the simulator's truth) and shows the newest frame;
     the numbers are kept by :class:`~ovis.common.analysis.live.LiveScore`."""
 
-    def __init__(self, topics: Topics, config: Any) -> None:
+    def __init__(
+        self,
+        topics: Topics,
+        config: Any,
+        accept: Callable[[ServiceStatus], bool] | None = None,
+    ) -> None:
         self.topics = topics
         self.config = config
         self.score = LiveScore()
+        self.accept = accept  # whose statuses count (None: everyone's)
 
     def attach(self, session: zenoh.Session) -> None:
         session.declare_subscriber(self.topics.obstacles, self._on_obstacles)
@@ -218,7 +236,8 @@ class LiveView:
                 stop.wait(0.1)  # the supervisor's tick: a dead stage restarts this soon
 
     def poll_status(self, session: zenoh.Session) -> dict[str, ServiceStatus]:
-        return {r.service: r.status for r in collect_status(session, self.topics) if r.status}
+        reports = collect_status(session, self.topics, accept=self.accept)
+        return {r.service: r.status for r in reports if r.status}
 
 
 def summary_table(s: RunSummary):
@@ -252,8 +271,10 @@ def summary_table(s: RunSummary):
     t.add_row("errors", errs or "0")
     t.add_row("restarts", ", ".join(f"{k} {v}" for k, v in s.restarts.items()) or "0")
     health = "\n".join(f"[red]{k} {v}[/]" for k, v in s.health.items())
-    t.add_row("health", health or "ok")
+    t.add_row("health", health or ("ok" if s.frames_processed else "[red]no frame processed[/]"))
     t.add_row("source lost", format_gaps(s))
+    if s.exit_code:
+        t.add_row("exit code", f"[red]{s.exit_code}: {s.reason}[/]")
     return t
 
 
