@@ -18,8 +18,8 @@ heaps. So the thresholds are fitted to the largest message a process accepts
 its own and unmapped when freed, and a heap keeps at most :data:`KEPT_MESSAGES` such
 messages free at its top; and :func:`guard_memory` gives back the free blocks left
 inside the heaps (``malloc_trim``) shortly after a stage refuses an oversized message,
-and whenever the process's resident memory has grown by :data:`GROWTH_BYTES` since it
-last looked.
+and whenever the process's resident memory, or the memory its heaps hold free, has
+grown by :data:`GROWTH_BYTES` since it last gave memory back.
 """
 
 from __future__ import annotations
@@ -103,6 +103,37 @@ def give_back_freed_memory() -> bool:
     return True
 
 
+class _MallInfo2(ctypes.Structure):
+    """glibc's ``struct mallinfo2`` (glibc 2.33 and later)."""
+
+    _fields_ = [
+        (name, ctypes.c_size_t)
+        for name in (
+            "arena",
+            "ordblks",
+            "smblks",
+            "hblks",
+            "hblkhd",
+            "usmblks",
+            "fsmblks",
+            "uordblks",
+            "fordblks",
+            "keepcost",
+        )
+    ]
+
+
+def free_held_bytes() -> int | None:
+    """The memory glibc's heaps hold free (``mallinfo2``: free chunks and fast bins),
+    resident or not; None where the C library cannot say."""
+    info = _glibc("mallinfo2")
+    if info is None:
+        return None
+    info.restype = _MallInfo2
+    held = info()
+    return int(held.fordblks + held.fsmblks)
+
+
 def resident_bytes() -> int:
     """This process's resident memory (0 where /proc is unavailable)."""
     try:
@@ -115,8 +146,10 @@ def resident_bytes() -> int:
 class MemoryGuard:
     """Gives freed memory back (:func:`give_back_freed_memory`) from a thread of its
     own: :data:`TRIM_DELAY_S` after :meth:`request` (once for all the requests made
-    meanwhile), and whenever the resident memory is :data:`GROWTH_BYTES` above the
-    lowest seen since the last trim."""
+    meanwhile), and whenever, since it last looked, the resident memory or the memory
+    the heaps hold free (what a large message left when it was let go, maybe after the
+    last trim) has grown by :data:`GROWTH_BYTES` above the least seen since its last
+    trim."""
 
     def __init__(
         self,
@@ -143,19 +176,19 @@ class MemoryGuard:
         self._asked.set()
 
     def _run(self) -> None:
-        floor = resident_bytes()
+        floor = (resident_bytes(), free_held_bytes() or 0)
         while True:
             asked = self._asked.wait(self.period_s)
             if asked:
                 time.sleep(self.delay_s)
                 self._asked.clear()
-            now = resident_bytes()
-            if asked or now > floor + self.growth_bytes:
+            now = (resident_bytes(), free_held_bytes() or 0)
+            if asked or any(n > f + self.growth_bytes for n, f in zip(now, floor, strict=True)):
                 give_back_freed_memory()
                 self.trims += 1
-                floor = resident_bytes()
-            else:
-                floor = min(floor, now)
+                now = (resident_bytes(), free_held_bytes() or 0)
+                floor = now
+            floor = (min(floor[0], now[0]), min(floor[1], now[1]))
 
 
 #: The guard of this process (started by :func:`guard_memory`).

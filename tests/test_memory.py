@@ -58,3 +58,31 @@ def test_thresholds_fitted_to_a_stage_camera_still_take_no_page_fault_per_frame(
     fitted = _faults(str(max(PayloadLimits.of(camera))))
     assert fitted["kept"] is True
     assert fitted["faults_per_frame"] < 2
+
+
+BURST = """
+import json, time
+from ovis.services.memory import guard_memory, resident_bytes
+guard = guard_memory()
+time.sleep(1.5)  # the guard's first looks: the start's own memory
+start = resident_bytes()
+burst = [bytearray(1 << 20) for _ in range(200)]  # 1 MiB blocks: from the heaps
+pin = bytearray(1 << 10)  # above them: freed, they are not the heap's top (not trimmed)
+peak = resident_bytes()
+del burst
+time.sleep(0.2)
+freed = resident_bytes()
+time.sleep(2.5)
+print(json.dumps({"start": start, "peak": peak, "freed": freed, "after": resident_bytes()}))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc_trim")
+def test_the_memory_guard_gives_back_what_a_burst_left() -> None:
+    """200 MiB allocated and freed in heap-sized blocks stay resident (the thresholds
+    keep freed blocks), until the guard sees the heaps hold them free and trims."""
+    out = subprocess.run([sys.executable, "-c", BURST], capture_output=True, text=True, check=True)
+    mb = {k: v / 2**20 for k, v in json.loads(out.stdout).items()}
+    assert mb["peak"] - mb["start"] > 190, mb
+    assert mb["freed"] - mb["start"] > 150, mb  # kept by the heaps at first
+    assert mb["after"] - mb["start"] < 20, mb
