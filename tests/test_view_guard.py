@@ -185,6 +185,16 @@ def test_a_weak_token_is_refused_at_start_and_auto_makes_a_strong_one(views) -> 
     assert weak.returncode == 2 and time.monotonic() - t0 < 10, weak
     assert "the operator token (16 characters) is worth at most" in weak.stderr, weak.stderr
     assert "128 are needed: use `--operator-token auto`" in weak.stderr
+    # `ovis up --view` checks it before it starts anything
+    up = subprocess.run(
+        ovis_cmd("up", "--view", "--listen", f"tcp/127.0.0.1:{free_port()}", "--no-live"),
+        capture_output=True,
+        text=True,
+        timeout=30,
+        env=dict(os.environ, OVIS_OPERATOR_TOKEN="0123456789abcdef"),
+    )
+    assert up.returncode == 2, up
+    assert up.stderr.startswith("error: OVIS_OPERATOR_TOKEN: the operator token (16 char"), up
     log = views.tmp / "auto.log"
     auto = spawn(
         ovis_cmd(

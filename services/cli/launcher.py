@@ -269,6 +269,11 @@ def up(
     cpus = _cpus(pin) or []
     if record is not None and record.exists():
         raise UserError(f"{record} exists; give --record another name (nothing was started)")
+    if view and (token := os.environ.get("OVIS_OPERATOR_TOKEN")) and token != "auto":
+        from ovis.common.view.guard import token_problem
+
+        if problem := token_problem(token):  # the view would refuse it at its start
+            raise UserError(f"OVIS_OPERATOR_TOKEN: {problem} (nothing was started)")
     from ovis.services.cli import startup
 
     # Before anything starts: the endpoint, the source and its frame size, the calibration.
