@@ -536,6 +536,9 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     #: an MCAP source another tool wrote: the topic of the image channel to read (empty:
     #: its only image channel); ``ovis up --topic``
     source_topic: Annotated[str, msgspec.Meta(max_length=4096)] = ""
+    #: calibration versions the calibrator keeps in ``state_dir`` (older ones are
+    #: deleted when it saves a new one)
+    keep_calibrations: Annotated[int, msgspec.Meta(ge=1, le=100000)] = 20
 
     def __post_init__(self) -> None:
         if self.source_topic and not self.source.lower().endswith(".mcap"):

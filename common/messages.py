@@ -150,6 +150,7 @@ class FrameHeader(_Msg, tag="frame", kw_only=True):
     rows: Side
     cols: Side
     stream: str = ""
+    channels: Literal[1, 3] = 1
 
 
 class MarkerCorners(msgspec.Struct):

@@ -21,6 +21,7 @@ the current generation.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import msgspec
@@ -30,7 +31,7 @@ from ovis.common.calibration.file import Calibration, dipe_text
 from ovis.common.calibration.ga import GenerationStats
 from ovis.common.calibration.problem import InfeasibleCalibrationError, calibrate
 from ovis.common.calibration.rejected import save_rejected
-from ovis.common.calibration.store import CalibrationStore
+from ovis.common.calibration.store import CalibrationStore, StoreWriteError
 from ovis.common.calibration.validity import calibration_problem
 from ovis.common.config import ControlPoint, load_points
 from ovis.common.messages import (
@@ -40,11 +41,13 @@ from ovis.common.messages import (
     CalibrationUpdate,
     Frame,
     FrameHeader,
+    ServiceStatus,
     TruthFrame,
     encode,
 )
 from ovis.common.pipeline.candidate import judge_candidate
 from ovis.common.pipeline.following import label
+from ovis.common.pipeline.limits import frame_payload_problem
 from ovis.common.pipeline.recalibration import (
     CalibrationCancelledError,
     CalibrationJob,
@@ -54,6 +57,7 @@ from ovis.common.pipeline.recalibration import (
     points_for,
     too_big,
 )
+from ovis.common.pipeline.saving import cannot_save_status, cannot_save_text
 from ovis.common.vision.preprocess import ImageError
 from ovis.services.inbox import Inbox
 from ovis.services.service import Service
@@ -66,13 +70,18 @@ def initial_calibration(
     keeper: FrameKeeper,
     job: CalibrationJob,
     run_calibration: Callable[[CalibrateRequest], CalibrateReply],
+    answer_next: Callable[[float], bool],
 ) -> None:
     """Calibrate on the newest usable frame once frames flow, retrying every
-    ``INITIAL_RETRY_S`` until it works (a scene may be infeasible for a while); queries
-    meanwhile are answered "busy"."""
+    ``INITIAL_RETRY_S`` until it works (a scene may be infeasible, the disk full, for a
+    while); queries meanwhile are answered (``answer_next``: "busy" while it runs, and
+    one that calibrates is the first calibration)."""
     service.log.info("no saved calibration: calibrating on the first usable frame")
+    said, next_try = "", 0.0
     while not service.stop.is_set():
-        if not keeper.first_frame.wait(0.2) or not job.claim():
+        if answer_next(0.2):
+            return
+        if time.monotonic() < next_try or not keeper.first_frame.is_set() or not job.claim():
             continue
         try:
             reply = run_calibration(CalibrateRequest())
@@ -80,21 +89,33 @@ def initial_calibration(
             job.done()
         if reply.ok:
             return
-        service.log.warning("initial calibration failed: %s; retrying", reply.error)
-        service.stop.wait(INITIAL_RETRY_S)
+        if reply.error != said:  # a state that lasts (a full disk) is said once
+            service.log.warning("initial calibration failed: %s; retrying", reply.error)
+            said = reply.error
+        next_try = time.monotonic() + INITIAL_RETRY_S
 
 
 def main(service: Service) -> None:
     cfg = service.config
-    store = CalibrationStore(cfg.service.state_dir)
-    saved, problems = store.latest()
-    for problem in problems:
+    store = CalibrationStore(cfg.service.state_dir, keep=cfg.service.keep_calibrations)
+    saved, problems = store.latest(lambda calib: calibration_problem(calib, cfg))
+    for problem in problems:  # the newest valid version is used: these were newer
         service.error("bad_saved_calibration", f"skipped {problem}")
-    epoch = store.epoch()
-    if saved is not None and service.refused(
-        "bad_saved_calibration", calibration_problem(saved, cfg)
-    ):
-        saved = None
+    try:
+        epoch = store.epoch()
+    except StoreWriteError as exc:  # the status says so while it lasts (store.problem)
+        epoch = ""
+        service.error("cannot_save", f"cannot save: {exc}")
+    rejected = [""]  # why the last candidate was refused, until one is published
+
+    def amend_status(status: ServiceStatus) -> ServiceStatus:
+        """What the counters cannot say: the store cannot save, or a refused candidate."""
+        status = cannot_save_status(status, store.problem)
+        if rejected[0] and status.state == "ok":
+            return msgspec.structs.replace(status, state="rejected candidate", reason=rejected[0])
+        return status
+
+    service.amend_status = amend_status
     if saved is not None:
         service.calibration = msgspec.structs.replace(saved, epoch=saved.epoch or epoch)
         service.log.info("loaded calibration %s from %s", label(service.calibration), store.folder)
@@ -105,14 +126,18 @@ def main(service: Service) -> None:
 
     def on_frame(sample: zenoh.Sample) -> None:
         # Only the header is decoded here (cheap); the image when a calibration needs it.
-        payload = sample.payload.to_bytes()
-        header = service.decode(payload, FrameHeader, "frame")
-        if header is not None:
+        # A frame is kept only if it has the camera's size and as many bytes as it says.
+        payload = service.take(sample.payload, "frame", "frame")
+        header = None if payload is None else service.decode(payload, FrameHeader, "frame")
+        if payload is None or header is None:
+            return
+        camera = service.calibration.camera
+        if not service.refused("bad_frame", frame_payload_problem(header, len(payload), camera)):
             service.saw_frame(header.seq, header.stamp_ns, header.stream)
             keeper.add_frame(header.seq, payload)
 
     def on_truth(sample: zenoh.Sample) -> None:
-        truth = service.decode(sample.payload.to_bytes(), TruthFrame, "truth")
+        truth = service.receive(sample.payload, "small", TruthFrame, "truth")
         if truth is not None:
             keeper.add_truth(truth)
 
@@ -122,7 +147,9 @@ def main(service: Service) -> None:
     publish = service.publisher(service.topics.calibration, drop=False)
 
     def on_current(query: zenoh.Query) -> None:
-        if service.calibration.version > 0:
+        if service.fits(query.payload, "small", "calibration_query") and (
+            service.calibration.version > 0
+        ):
             query.reply(
                 service.topics.calibration,
                 encode(CalibrationUpdate(calibration=service.calibration)),
@@ -130,12 +157,6 @@ def main(service: Service) -> None:
             )
 
     service.session.declare_queryable(service.topics.calibration, on_current)
-    rejected = [""]  # why the last candidate was refused, until one is published
-    service.amend_status = lambda status: (
-        msgspec.structs.replace(status, state="rejected candidate", reason=rejected[0])
-        if rejected[0] and status.state == "ok"
-        else status
-    )
 
     def refuse(calib: Calibration, seq: int, problem: str) -> CalibrateReply:
         """Keep a candidate the gate refused aside; the reply says why."""
@@ -160,8 +181,8 @@ def main(service: Service) -> None:
         """Every query is answered at once here (bad, too big, cancel, busy), or
         accepted for the loop, which answers when the calibration is done."""
         try:
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            request = CalibrateRequest()
+            payload = service.take(query.payload, "small", "calibrate_request")
+            request = CalibrateRequest() if payload == b"" else None
             if payload:
                 request = service.decode(payload, CalibrateRequest, "calibrate_request")
             if request is None:
@@ -182,6 +203,13 @@ def main(service: Service) -> None:
         except Exception as exc:  # never let a query kill the calibrator
             service.error("processing", f"calibrate query failed: {type(exc).__name__}: {exc}")
 
+    def not_saved(seq: int | None, problem: str) -> CalibrateReply:
+        """The reply (and the count) when the store cannot be written: no calibration
+        is used that a restart would lose."""
+        text = cannot_save_text(problem, label(service.calibration))
+        service.error("cannot_save", f"calibration refused: {text}")
+        return CalibrateReply(ok=False, frame_seq=-1 if seq is None else seq, error=text)
+
     def after_generation(stats: GenerationStats) -> None:
         if service.stop.is_set():
             job.cancel("the calibrator is stopping")
@@ -192,6 +220,8 @@ def main(service: Service) -> None:
         problem = too_big(run_cfg)
         if problem is not None:
             return CalibrateReply(ok=False, error=problem)
+        if (problem := store.writable()) is not None:  # said at once, not after the GA
+            return not_saved(None, problem)
         picked = keeper.pick(request.frame_seq)
         if picked.seq is None:
             return CalibrateReply(ok=False, error=picked.error)
@@ -238,7 +268,10 @@ def main(service: Service) -> None:
         problem = judge_candidate(calib, current, image, request.force)
         if problem is not None:
             return refuse(calib, seq, problem)
-        calib = store.save(calib)
+        try:
+            calib = store.save(calib)
+        except StoreWriteError as exc:
+            return not_saved(seq, str(exc))
         service.calibration = calib
         rejected[0] = ""
         publish(CalibrationUpdate(calibration=calib))
@@ -252,20 +285,28 @@ def main(service: Service) -> None:
         )
         return calibrate_reply(calib, seq, str(store.path(calib.version)))
 
+    def answer_next(timeout: float) -> bool:
+        """Run the query accepted next (waiting up to ``timeout`` for one) and answer it;
+        True when it made a calibration."""
+        item = accepted.get(timeout=timeout)
+        if item is None:
+            return False
+        query, request = item
+        try:
+            reply = run_calibration(request)
+            reply_to(query, reply)
+            return reply.ok
+        except Exception as exc:
+            service.error("processing", f"calibrate query failed: {type(exc).__name__}: {exc}")
+            return False
+        finally:
+            job.done()
+            del query, item  # the reply is final when the query is dropped
+
     service.session.declare_queryable(service.topics.calibrate, on_calibrate)
     service.state = "ok" if service.calibration.version > 0 else "no calibration"
     service.ready()
     if saved is None and cfg.service.auto_calibrate:
-        initial_calibration(service, keeper, job, run_calibration)
+        initial_calibration(service, keeper, job, run_calibration, answer_next)
     while not service.stop.is_set():
-        item = accepted.get(timeout=0.2)
-        if item is None:
-            continue
-        query, request = item
-        try:
-            reply_to(query, run_calibration(request))
-        except Exception as exc:
-            service.error("processing", f"calibrate query failed: {type(exc).__name__}: {exc}")
-        finally:
-            job.done()
-            del query, item  # the reply is final when the query is dropped
+        answer_next(0.2)

@@ -109,7 +109,7 @@ def follow_calibrations(service: Service, accuracy: dict[str, AccuracyMap]) -> N
     for name in accuracy:
 
         def on_sample(sample: zenoh.Sample, name: str = name) -> None:
-            update = service.decode(sample.payload.to_bytes(), CalibrationUpdate, "calibration")
+            update = service.receive(sample.payload, "small", CalibrationUpdate, "calibration")
             if update is None or update.calibration.version <= versions[name]:
                 return
             versions[name] = update.calibration.version
@@ -142,7 +142,9 @@ def main(service: Service) -> None:
     for name in models:
 
         def on_sample(sample: zenoh.Sample, name: str = name) -> None:
-            inbox.put((name, sample.payload.to_bytes()))
+            payload = service.take(sample.payload, "blobs", "obstacles")
+            if payload is not None:
+                inbox.put((name, payload))
 
         service.session.declare_subscriber(service.topics.of_camera(name).obstacles, on_sample)
     publish = service.publisher(service.topics.world)

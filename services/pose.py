@@ -50,7 +50,7 @@ def main(service: Service) -> None:
     news = threading.Event()  # the source was lost or is back: publish the health now
 
     def on_source(sample: zenoh.Sample) -> None:
-        msg = service.decode(sample.payload.to_bytes(), SourceState, "source")
+        msg = service.receive(sample.payload, "small", SourceState, "source")
         if msg is not None and source.hear(msg, time.monotonic()):
             news.set()
 

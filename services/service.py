@@ -41,9 +41,11 @@ from ovis.common.pipeline.following import (
     identity,
     label,
 )
+from ovis.common.pipeline.limits import Input, PayloadLimits, oversized
 from ovis.common.pipeline.stages import wrong_size
 from ovis.services.bus import open_session
 from ovis.services.inbox import Inbox
+from ovis.services.memory import GUARD, keep_freed_memory
 from ovis.services.placement import pin_to_cpus
 
 __all__ = ["Service", "run"]
@@ -76,15 +78,51 @@ class Service:
 
     # --- inputs -------------------------------------------------------------------
     def inbox(self, key: str, depth: int | None = None) -> Inbox:
-        """Subscribe ``key`` into a newest-wins inbox of (payload bytes, receipt ns)."""
+        """Subscribe ``key`` into a newest-wins inbox of (payload bytes, receipt ns); a
+        payload larger than its kind may be (:meth:`take`) is refused unread."""
         box = Inbox(depth or self.config.service.queue_depth)
         self._inboxes.append(box)
+        kinds: dict[str, Input] = {
+            self.topics.frames: "frame",
+            self.topics.binary: "binary",
+            self.topics.blobs: "blobs",
+        }
+        kind = kinds.get(key, "small")
+        what = key.rsplit("/", 1)[-1] if kind == "small" else kind  # as bad_<what> is named
 
         def on_sample(sample: zenoh.Sample) -> None:
-            box.put((sample.payload.to_bytes(), time.time_ns()))
+            payload = self.take(sample.payload, kind, what)
+            if payload is not None:
+                box.put((payload, time.time_ns()))
 
         self.session.declare_subscriber(key, on_sample)
         return box
+
+    def fits(self, payload: zenoh.ZBytes | None, kind: Input, what: str) -> bool:
+        """False when a received payload is larger than a message of ``kind`` may be
+        with this camera (:mod:`ovis.common.pipeline.limits`): it is counted
+        (``oversized_<what>``) and logged, and the memory Zenoh took to receive it is
+        given back shortly after (:data:`~ovis.services.memory.GUARD`)."""
+        size = 0 if payload is None else len(payload)
+        problem = oversized(size, kind, what, self.calibration.camera)
+        if self.refused(f"oversized_{what}", problem):
+            GUARD.request()
+        return problem is None
+
+    def take(self, payload: zenoh.ZBytes | None, kind: Input, what: str) -> bytes | None:
+        """The bytes of a received payload (none: empty), or None when it does not
+        :meth:`fit <fits>` (it is then never copied)."""
+        if not self.fits(payload, kind, what):
+            return None
+        return b"" if payload is None else payload.to_bytes()
+
+    def receive(
+        self, payload: zenoh.ZBytes | None, kind: Input, expected: Any, what: str
+    ) -> Any | None:
+        """A received payload :meth:`taken <take>` and :meth:`decoded <decode>`, or None
+        (refused, counted and logged)."""
+        data = self.take(payload, kind, what)
+        return None if data is None else self.decode(data, expected, what)
 
     def decode(self, payload: bytes, expected: Any, what: str) -> Any | None:
         """Decode a payload, or count and log why not (``bad_<what>``) and return None."""
@@ -176,7 +214,7 @@ class Service:
         ask = threading.Event()
 
         def on_push(sample: zenoh.Sample) -> None:
-            if self.decode(sample.payload.to_bytes(), CalibrationUpdate, "calibration"):
+            if self.receive(sample.payload, "small", CalibrationUpdate, "calibration"):
                 ask.set()
 
         self.session.declare_subscriber(self.topics.calibration, on_push)
@@ -203,7 +241,7 @@ class Service:
         for reply in self.session.get(self.topics.calibration, timeout=timeout):
             if reply.ok is None:
                 continue
-            update = self.decode(reply.ok.payload.to_bytes(), CalibrationUpdate, "calibration")
+            update = self.receive(reply.ok.payload, "small", CalibrationUpdate, "calibration")
             if update is not None:
                 answers[identity(update.calibration)] = update.calibration
         if len(answers) > 1:
@@ -259,6 +297,7 @@ class Service:
 
     def _on_status(self, query: zenoh.Query) -> None:
         try:
+            self.fits(query.payload, "small", "status_query")  # none is expected
             query.reply(
                 self.topics.status(self.name),
                 encode(self.status()),
@@ -337,6 +376,7 @@ def run(name: str, config: OvisConfig, main: Callable[[Service], None]) -> int:
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
     pinned = pin_to_cpus(config.service.cpus, log)  # before Zenoh starts its threads
+    keep_freed_memory(max(PayloadLimits.of(config.camera)))  # … and allocates
     with open_session(config.zenoh) as session:
         service = Service(name, config, session)
 

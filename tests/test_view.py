@@ -38,6 +38,7 @@ import msgspec
 import pytest
 from pipeline_helpers import Recorder
 from real_photos import photo_paths
+from ws_helpers import texts_until, ws_connect
 from zenoh_helpers import client, free_port, ovis_cmd, pids_with, spawn, stop, wait_for
 
 from ovis.common.calibration.file import Calibration
@@ -73,7 +74,6 @@ if not CHROMIUM.exists():
     pytest.skip(reason, allow_module_level=True)
 
 sync_playwright = pytest.importorskip("playwright.sync_api").sync_playwright
-ws_client = pytest.importorskip("websockets.sync.client")
 
 
 def get_json(url: str) -> dict:
@@ -291,31 +291,17 @@ def test_recalibrate_from_the_page_with_the_token(system) -> None:
         page.wait_for_selector(f"#calibration[data-version='{version}']", timeout=5000)
 
 
-def _messages(ws, until, timeout: float = 10.0) -> list[dict]:
-    """Text messages from a raw WebSocket until ``until(message)``."""
-    got = []
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        data = ws.recv(timeout=max(0.1, deadline - time.monotonic()))
-        if isinstance(data, str):
-            got.append(json.loads(data))
-            if until(got[-1]):
-                return got
-    raise AssertionError(f"no matching message in {timeout} s: {got[-5:]}")
-
-
 def test_recalibration_needs_the_right_token_on_the_server(system) -> None:
-    ws_url = system.url.replace("http", "ws") + "ws"
-    with ws_client.connect(ws_url) as ws:
+    with ws_connect(system.url, source="127.0.0.9") as ws:  # its wait is its own
         ws.send(json.dumps({"type": "recalibrate", "token": "wrong-token-123"}))
-        msgs = _messages(ws, lambda m: m["type"] == "recalibration")
+        msgs = texts_until(ws, lambda m: m["type"] == "recalibration")
         assert msgs[-1]["state"] == "refused" and "wrong operator token" in msgs[-1]["message"]
     with page_of(system, system.lonely_url) as page:
         page.wait_for_selector("#stages tr", timeout=10000)
         assert page.locator("#recalibrate").count() == 0  # no token: no button
-    with ws_client.connect(system.lonely_url.replace("http", "ws") + "ws") as ws:
+    with ws_connect(system.lonely_url) as ws:
         ws.send(json.dumps({"type": "recalibrate", "token": TOKEN}))
-        msgs = _messages(ws, lambda m: m["type"] == "recalibration")
+        msgs = texts_until(ws, lambda m: m["type"] == "recalibration")
         assert msgs[-1]["state"] == "refused" and "read-only" in msgs[-1]["message"]
 
 
@@ -334,8 +320,7 @@ def test_a_view_of_an_arena_with_no_stage_says_so(system) -> None:
 
 
 def test_garbage_and_20_clients_leave_the_view_serving(system) -> None:
-    ws_url = system.url.replace("http", "ws") + "ws"
-    with ws_client.connect(ws_url) as ws:
+    with ws_connect(system.url) as ws:
         for junk in (
             b"\x00\xff\x13",
             "not json",
@@ -347,14 +332,14 @@ def test_garbage_and_20_clients_leave_the_view_serving(system) -> None:
             "x" * 10000,
         ):
             ws.send(junk)
-            msgs = _messages(ws, lambda m: m["type"] == "error")
+            msgs = texts_until(ws, lambda m: m["type"] == "error")
             assert msgs[-1]["message"] and not msgs[-1].get("fatal")
-    # 20 clients at once: each gets its hello, health and pictures.
+    # 20 clients at once (from 5 addresses): each gets its hello, health and pictures.
     results: list[int] = []
     lock = threading.Lock()
 
-    def one() -> None:
-        with ws_client.connect(ws_url) as ws:
+    def one(source: str) -> None:
+        with ws_connect(system.url, source) as ws:
             pictures = 0
             deadline = time.monotonic() + 8
             while time.monotonic() < deadline and pictures < 5:
@@ -363,18 +348,17 @@ def test_garbage_and_20_clients_leave_the_view_serving(system) -> None:
             with lock:
                 results.append(pictures)
 
-    threads = [threading.Thread(target=one) for _ in range(20)]
+    threads = [threading.Thread(target=one, args=(f"127.0.0.{2 + i % 5}",)) for i in range(20)]
     for t in threads:
         t.start()
     for t in threads:
         t.join(30)
     assert results == [5] * 20, results
     # Beyond --max-clients (3 on the read-only view): told so, clearly.
-    lonely_ws = system.lonely_url.replace("http", "ws") + "ws"
     with contextlib.ExitStack() as stack:
         for _ in range(3):
-            stack.enter_context(ws_client.connect(lonely_ws)).recv(timeout=5)
-        with ws_client.connect(lonely_ws) as extra:
+            stack.enter_context(ws_connect(system.lonely_url)).recv(timeout=5)
+        with ws_connect(system.lonely_url) as extra:
             msg = json.loads(extra.recv(timeout=5))
             assert msg["type"] == "error" and msg["fatal"] and "too many viewers" in msg["message"]
     state = get_json(system.url + "api/state")

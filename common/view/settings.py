@@ -7,6 +7,8 @@ from typing import Annotated
 
 import msgspec
 
+from ovis.common.view.guard import canonical_origin, token_problem
+
 __all__ = ["ViewSettings", "parse_listen", "view_settings"]
 
 _LISTEN = re.compile(
@@ -28,10 +30,25 @@ class ViewSettings(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     jpeg_quality: Annotated[int, msgspec.Meta(ge=10, le=100)] = 80
     #: browsers served at once; more are told to come back later
     max_clients: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 32
-    #: when set, the page offers recalibration to whoever gives this token
-    operator_token: Annotated[str, msgspec.Meta(min_length=8, max_length=256)] | None = None
+    #: when set, the page offers recalibration to whoever gives this token (strong
+    #: enough: see ovis.common.view.guard.token_problem)
+    operator_token: Annotated[str, msgspec.Meta(min_length=1, max_length=256)] | None = None
     #: how long a recalibration may take, s
     recalibrate_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 300.0
+    #: sockets one client (address) may hold; the operator's token gets in beyond
+    max_clients_per_address: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 8
+    #: origins (scheme://host[:port]) besides the view's own whose pages may use it
+    allow_origins: Annotated[list[str], msgspec.Meta(max_length=64)] = []
+
+    def __post_init__(self) -> None:
+        if self.operator_token is not None and (problem := token_problem(self.operator_token)):
+            raise ValueError(f"operator_token: {problem}")
+        for origin in self.allow_origins:
+            if canonical_origin(origin) is None:
+                raise ValueError(
+                    f"allow_origins: {origin!r} is not an origin such as "
+                    "https://ovis.example.org or http://10.0.0.5:8080"
+                )
 
 
 def parse_listen(text: str) -> tuple[str, int]:

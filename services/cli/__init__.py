@@ -70,9 +70,9 @@ def main() -> None:
     from ovis.common.config import ConfigError
     from ovis.common.vision.preprocess import ImageError
     from ovis.services.bus import ZenohUnreachableError
-    from ovis.services.memory import keep_freed_memory
+    from ovis.services.memory import guard_memory
 
-    keep_freed_memory()  # before Zenoh's threads start: frames are allocated per message
+    guard_memory()  # before Zenoh's threads start: frames are allocated per message
     if signal.getsignal(signal.SIGINT) is _quit_quietly:
         signal.signal(signal.SIGINT, signal.default_int_handler)
     try:

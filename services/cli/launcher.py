@@ -58,7 +58,9 @@ def router(
     """
     from ovis.common.config import router_zenoh
     from ovis.services.bus import open_session
+    from ovis.services.memory import keep_freed_memory
 
+    keep_freed_memory(0)  # a router decodes no frame: keep no freed block for one
     cfg = config_with_options(config, mode="router")  # a bad file has been refused here
     zc = router_zenoh(
         cfg, config, listen=listen, connect=connect, default_endpoint=DEFAULT_ENDPOINT
@@ -267,6 +269,11 @@ def up(
     cpus = _cpus(pin) or []
     if record is not None and record.exists():
         raise UserError(f"{record} exists; give --record another name (nothing was started)")
+    if view and (token := os.environ.get("OVIS_OPERATOR_TOKEN")) and token != "auto":
+        from ovis.common.view.guard import token_problem
+
+        if problem := token_problem(token):  # the view would refuse it at its start
+            raise UserError(f"OVIS_OPERATOR_TOKEN: {problem} (nothing was started)")
     from ovis.services.cli import startup
 
     # Before anything starts: the endpoint, the source and its frame size, the calibration.

@@ -46,14 +46,31 @@ def view(
     max_clients: Annotated[
         int, typer.Option(help="Browsers served at once; more are asked to come back later.")
     ] = 32,
+    max_clients_per_address: Annotated[
+        int,
+        typer.Option(
+            help="Browsers served at once from one address (the operator's token gets in "
+            "beyond this and --max-clients)."
+        ),
+    ] = 8,
     operator_token: Annotated[
         str | None,
         typer.Option(
             envvar="OVIS_OPERATOR_TOKEN",
-            help="Secret (8+ characters) that lets the page recalibrate: the button appears "
-            "and asks for it, and the server checks it on every request. Without it the "
-            "page is read-only. Prefer the environment variable (not in `ps`).",
+            help="Secret that lets the page recalibrate: the button appears and asks for "
+            "it, and the server checks it on every request (wrong ones are slowed down, "
+            "per client). 'auto' makes a random one and prints the page's URL with it. "
+            "Refused if worth under 128 bits (e.g. 22 random letters and digits). Without "
+            "it the page is read-only. Prefer the environment variable (not in `ps`).",
             show_default=False,
+        ),
+    ] = None,
+    allow_origin: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Another origin whose pages may use the view's WebSocket and API, e.g. "
+            "https://ovis.example.org behind a proxy (repeatable). Default: only the "
+            "view's own pages."
         ),
     ] = None,
     nice: Annotated[
@@ -84,12 +101,16 @@ def view(
     not pay for it. Stop it with Ctrl-C.
     """
     from ovis.common.messages import Topics
+    from ovis.common.view.guard import new_token
     from ovis.common.view.settings import parse_listen, view_settings
     from ovis.services.bus import open_session
     from ovis.services.cli.options import config_with_options
     from ovis.services.view.feed import Bus
     from ovis.services.view.server import bind, serve, url_of
 
+    made_token = operator_token == "auto"
+    if made_token:
+        operator_token = new_token()
     try:
         host, port = parse_listen(listen)
         cfg = config_with_options(config, connect=connect)
@@ -106,6 +127,8 @@ def view(
             jpeg_quality=quality,
             max_clients=max_clients,
             operator_token=operator_token or None,
+            max_clients_per_address=max_clients_per_address,
+            allow_origins=list(allow_origin or []),
         )
         sock = bind(host, port)
     except ValueError as exc:
@@ -127,6 +150,8 @@ def view(
             f"{settings.max_fps:g} pictures/s per browser)",
             flush=True,
         )
+        if made_token:
+            print(f"ovis view: operator page {url_of(sock)}#token={operator_token}", flush=True)
         try:
             serve(bus, settings, sock)
         finally:

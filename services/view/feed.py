@@ -35,6 +35,7 @@ from ovis.common.messages import (
     decode,
     encode,
 )
+from ovis.common.pipeline.limits import Input, oversized
 from ovis.common.view.freshness import (
     Freshness,
     Seen,
@@ -44,6 +45,7 @@ from ovis.common.view.freshness import (
 )
 from ovis.common.view.health import HealthSummary, LatencyWindow, summarize
 from ovis.common.view.scene import camera_footprint
+from ovis.services.memory import GUARD
 
 __all__ = ["ArenaFeed", "Bus", "Item"]
 
@@ -124,6 +126,18 @@ class ArenaFeed:
         if n <= 3 or n % 100 == 0:
             log.warning("arena %s: refused a %s message: %s (#%d)", self.arena, what, exc, n)
 
+    def take(self, payload: zenoh.ZBytes, kind: Input, what: str) -> bytes | None:
+        """The bytes of a payload, or None (counted, never copied) when it is larger than
+        a message of ``kind`` may be with the arena's camera (none known yet: the hard
+        cap), see :mod:`ovis.common.pipeline.limits`."""
+        camera = None if self.calibration is None else self.calibration.camera
+        problem = oversized(len(payload), kind, what, camera)
+        if problem is not None:
+            self.refuse(what, MessageError(problem))
+            GUARD.request()  # give back what Zenoh took to receive it
+            return None
+        return payload.to_bytes()
+
     def _on_alive(self, sample: zenoh.Sample) -> None:
         name = str(sample.key_expr).rsplit("/", 1)[-1]
         with self.lock:
@@ -153,7 +167,9 @@ class ArenaFeed:
         )
 
     def _on_obstacles(self, sample: zenoh.Sample) -> None:
-        payload = sample.payload.to_bytes()
+        payload = self.take(sample.payload, "blobs", "obstacles")
+        if payload is None:
+            return
         try:
             msg = decode(payload, ObstacleFrame)  # validates; the page gets every field
         except MessageError as exc:
@@ -178,8 +194,11 @@ class ArenaFeed:
                 self.latency.add((seen.received_ns - msg.stamp_ns) / 1e6)
 
     def _on_health(self, sample: zenoh.Sample) -> None:
+        payload = self.take(sample.payload, "small", "health")
+        if payload is None:
+            return
         try:
-            msg = decode(sample.payload.to_bytes(), StreamHealth)
+            msg = decode(payload, StreamHealth)
         except MessageError as exc:
             self.refuse("health", exc)
             return
@@ -188,9 +207,12 @@ class ArenaFeed:
             self.stream_received_s = time.monotonic()
 
     def _on_calibration(self, sample: zenoh.Sample) -> None:
-        self.accept_calibration(sample.payload.to_bytes())
+        self.accept_calibration(sample.payload)
 
-    def accept_calibration(self, payload: bytes) -> None:
+    def accept_calibration(self, received: zenoh.ZBytes) -> None:
+        payload = self.take(received, "small", "calibration")
+        if payload is None:
+            return
         try:
             calib = decode(payload, CalibrationUpdate).calibration
             footprint = camera_footprint(calib.camera)
@@ -202,9 +224,11 @@ class ArenaFeed:
                 self.calibration = calib
                 self.footprint = footprint
 
-    def _keeper(self, store: collections.OrderedDict[int, Item], what: str, kind: str | None):
+    def _keeper(self, store: collections.OrderedDict[int, Item], what: Input, kind: str | None):
         def on_sample(sample: zenoh.Sample) -> None:
-            payload = sample.payload.to_bytes()
+            payload = self.take(sample.payload, what, what)
+            if payload is None:
+                return
             try:  # only the sequence number and stamp now; the rest when a picture is made
                 head = msgspec.msgpack.decode(payload, type=_Head)
             except (msgspec.DecodeError, msgspec.ValidationError) as exc:
@@ -261,8 +285,11 @@ class ArenaFeed:
         for reply in self.session.get(self.topics.status_all, timeout=timeout):
             if reply.ok is None:
                 continue
+            payload = self.take(reply.ok.payload, "small", "status")
+            if payload is None:
+                continue
             try:
-                st = decode(reply.ok.payload.to_bytes(), ServiceStatus)
+                st = decode(payload, ServiceStatus)
             except MessageError as exc:
                 self.refuse("status", exc)
                 continue
@@ -273,7 +300,7 @@ class ArenaFeed:
         if need_calibration:
             for reply in self.session.get(self.topics.calibration, timeout=timeout):
                 if reply.ok is not None:
-                    self.accept_calibration(reply.ok.payload.to_bytes())
+                    self.accept_calibration(reply.ok.payload)
 
     def freshness(self, kind: str) -> Freshness:
         """How current the newest item of ``kind`` (camera, binary, obstacles) is now."""

@@ -8,6 +8,14 @@ growing queue. Pictures are made once per tick for all browsers of an arena, at 
 into a few known messages; anything else gets an error message back (and after
 ``MAX_BAD`` of them the connection is closed). Recalibration needs the operator token
 (compared in constant time) on every request.
+
+Who may use it (:mod:`ovis.common.view.guard`): ``/ws`` and ``/api`` only for pages of
+the view's own origin or of ``allow_origins`` (a WebSocket must say its Origin); wrong
+tokens slowed down per client address and the socket closed after
+``MAX_WRONG_TOKENS``; a client holds at most ``max_clients_per_address`` sockets and all
+at most ``max_clients``, but a page that sends the operator token first gets one of
+``OPERATOR_SEATS`` seats of its own; refusals are logged at most once per kind every
+few seconds.
 """
 
 from __future__ import annotations
@@ -27,13 +35,14 @@ import msgspec
 import uvicorn
 from starlette.applications import Starlette
 from starlette.requests import Request
-from starlette.responses import HTMLResponse, JSONResponse, Response
+from starlette.responses import HTMLResponse, JSONResponse, PlainTextResponse, Response
 from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from ovis.common.messages import CalibrateRequest, Topics
 from ovis.common.view.grid import map_grid_step
+from ovis.common.view.guard import GuessLimiter, LogThrottle, OriginPolicy, Seats
 from ovis.common.view.scene import scene_objects
 from ovis.common.view.settings import ViewSettings
 from ovis.services.view.feed import ArenaFeed, Bus
@@ -49,6 +58,13 @@ MAX_BAD = 50
 #: Largest message accepted from a browser, bytes.
 MAX_MESSAGE = 4096
 HEALTH_PERIOD_S = 0.5
+#: Refused operator tokens (wrong, or sent while the client must wait) before the
+#: socket is closed.
+MAX_WRONG_TOKENS = 5
+#: Sockets of the operator beyond the viewers' seats.
+OPERATOR_SEATS = 4
+#: How long a socket beyond the seats may take to send the operator token, s.
+AUTH_WAIT_S = 2.0
 
 _json = msgspec.json.Encoder()
 Count = Annotated[int, msgspec.Meta(ge=0, le=10000)]
@@ -75,7 +91,14 @@ class Recalibrate(msgspec.Struct, tag="recalibrate", tag_field="type", forbid_un
     seed: Count | None = None
 
 
-_incoming = msgspec.json.Decoder(Select | Show | Recalibrate)
+class Auth(msgspec.Struct, tag="auth", tag_field="type", forbid_unknown_fields=True):
+    """The operator token, sent first by a page that has it: checked at once, and it
+    gets a socket beyond the viewers' seats in."""
+
+    token: Annotated[str, msgspec.Meta(max_length=256)]
+
+
+_incoming = msgspec.json.Decoder(Select | Show | Recalibrate | Auth)
 
 
 def pack_picture(picture: Picture) -> bytes:
@@ -88,13 +111,15 @@ def pack_picture(picture: Picture) -> bytes:
 class Viewer:
     """One browser: the arena it watches, the picture it wants, its pending updates."""
 
-    def __init__(self, ws: WebSocket, arena: str) -> None:
+    def __init__(self, ws: WebSocket, arena: str, client: str = "unknown") -> None:
         self.ws = ws
         self.arena = arena
+        self.client = client  # the remote address
         self.kind = "camera"
         self.slots: dict[str, str | bytes] = {}
         self.wake = asyncio.Event()
         self.bad = 0
+        self.wrong_tokens = 0
         self.replaced = 0  # updates overwritten before they could be sent (slow browser)
 
     def offer(self, slot: str, data: str | bytes) -> None:
@@ -107,12 +132,15 @@ class Viewer:
         while True:
             await self.wake.wait()
             self.wake.clear()
-            items, self.slots = self.slots, {}
-            for data in items.values():
-                if isinstance(data, bytes):
-                    await self.ws.send_bytes(data)
-                else:
-                    await self.ws.send_text(data)
+            await self.send_pending()
+
+    async def send_pending(self) -> None:
+        items, self.slots = self.slots, {}
+        for data in items.values():
+            if isinstance(data, bytes):
+                await self.ws.send_bytes(data)
+            else:
+                await self.ws.send_text(data)
 
 
 def _text(kind: str, **fields: Any) -> str:
@@ -122,9 +150,13 @@ def _text(kind: str, **fields: Any) -> str:
 class ViewServer:
     """The ASGI app and its per-arena broadcast loop."""
 
-    def __init__(self, bus: Bus, settings: ViewSettings) -> None:
+    def __init__(self, bus: Bus, settings: ViewSettings, origins: OriginPolicy) -> None:
         self.bus = bus
         self.settings = settings
+        self.origins = origins
+        self.guesses = GuessLimiter()
+        self.throttle = LogThrottle()
+        self.seats = Seats(settings.max_clients, settings.max_clients_per_address, OPERATOR_SEATS)
         self.viewers: set[Viewer] = set()
         self.recalibrating: dict[str, dict[str, Any]] = {}
         self.last_result: dict[str, dict[str, Any]] = {}
@@ -157,8 +189,14 @@ class ViewServer:
     async def _index(self, _request: Request) -> Response:
         return HTMLResponse((STATIC / "index.html").read_text("utf-8"))
 
-    async def _state(self, _request: Request) -> Response:
-        """Everything the page shows but the pictures, as JSON (for scripts)."""
+    async def _state(self, request: Request) -> Response:
+        """Everything the page shows but the pictures, as JSON (for scripts; a page of
+        another origin is refused)."""
+        headers = request.headers
+        problem = self.origins.problem(headers.get("origin"), headers.get("host"), required=False)
+        if problem is not None:
+            self._say("origin", f"refused /api/state to {_client(request)}: {problem}")
+            return JSONResponse({"error": problem}, status_code=403)
         out = {}
         for arena in self.bus.arenas():
             feed = self.bus.feed(arena)
@@ -178,19 +216,52 @@ class ViewServer:
 
     # --- one browser --------------------------------------------------------------------
     async def _socket(self, ws: WebSocket) -> None:
-        await ws.accept()
-        if len(self.viewers) >= self.settings.max_clients:
-            await ws.send_text(
-                _text(
-                    "error",
-                    fatal=True,
-                    message=f"too many viewers ({self.settings.max_clients}, the view's "
-                    "--max-clients): close another view of ovis or try again later",
-                )
-            )
-            await ws.close(code=1013)
+        client = _client(ws)
+        headers = ws.headers
+        problem = self.origins.problem(headers.get("origin"), headers.get("host"), required=True)
+        if problem is not None:
+            self._say("origin", f"refused a WebSocket from {client}: {problem}")
+            await ws.send_denial_response(PlainTextResponse(problem, status_code=403))
             return
-        viewer = Viewer(ws, self.default_arena())
+        await ws.accept()
+        operator = False
+        full = self.seats.take(client)
+        if full is not None:
+            operator = await self._operator_despite(ws, client, full)
+            if not operator:
+                return
+        viewer = Viewer(ws, self.default_arena(), client)
+        if operator:
+            viewer.offer("auth", _text("auth", ok=True, message="operator (an operator seat)"))
+        try:
+            await self._serve(ws, viewer)
+        finally:
+            self.seats.leave(client, operator)
+
+    async def _operator_despite(self, ws: WebSocket, client: str, full: str) -> bool:
+        """A socket beyond the viewers' seats: in (on an operator seat) only if its first
+        message, within ``AUTH_WAIT_S``, is the right operator token; else told why and
+        closed."""
+        reason = full
+        if self.settings.operator_token is not None:
+            try:
+                first = await asyncio.wait_for(ws.receive(), AUTH_WAIT_S)
+            except (TimeoutError, WebSocketDisconnect, RuntimeError):
+                first = {}
+            token = _auth_token(first.get("text"))
+            if token is not None:
+                refusal = self._check_token(client, token)
+                seat = self.seats.take_operator() if refusal is None else refusal
+                if seat is None:
+                    return True
+                reason = seat
+        self._say("full", f"refused a viewer from {client}: {reason}")
+        with contextlib.suppress(WebSocketDisconnect, RuntimeError, OSError):
+            await ws.send_text(_text("error", fatal=True, message=reason))
+            await ws.close(code=1013)
+        return False
+
+    async def _serve(self, ws: WebSocket, viewer: Viewer) -> None:
         self.viewers.add(viewer)
         self.bus.feed(viewer.arena).watch()
         pump = asyncio.create_task(viewer.pump())
@@ -204,10 +275,20 @@ class ViewServer:
                 if pump.done():
                     break
                 await self._handle(viewer, msg.get("text"), msg.get("bytes"))
+                closing = ""
                 if viewer.bad >= MAX_BAD:
-                    await ws.send_text(
-                        _text("error", fatal=True, message=f"{MAX_BAD} bad messages: disconnected")
+                    closing = f"{MAX_BAD} bad messages: disconnected"
+                elif viewer.wrong_tokens >= MAX_WRONG_TOKENS:
+                    closing = (
+                        f"{MAX_WRONG_TOKENS} operator tokens refused: disconnected; wait "
+                        f"{max(1.0, self.guesses.wait_s(viewer.client)):.0f} s before trying again"
                     )
+                if closing:  # what it was told so far, then why it is closed
+                    pump.cancel()
+                    with contextlib.suppress(asyncio.CancelledError):
+                        await pump
+                    await viewer.send_pending()
+                    await ws.send_text(_text("error", fatal=True, message=closing))
                     await ws.close(code=1008)
                     break
         except (WebSocketDisconnect, RuntimeError, OSError):
@@ -267,6 +348,9 @@ class ViewServer:
         elif isinstance(msg, Show):
             viewer.kind = msg.kind
             self._shown.pop(viewer.arena, None)  # send the new kind at once
+        elif isinstance(msg, Auth):
+            refusal = self._viewer_token(viewer, msg.token)
+            viewer.offer("auth", _text("auth", ok=refusal is None, message=refusal or "operator"))
         else:
             self._recalibrate(viewer, msg)
 
@@ -305,9 +389,9 @@ class ViewServer:
                 "OVIS_OPERATOR_TOKEN) to allow recalibration",
             )
             return
-        if not hmac.compare_digest(msg.token.encode(), token.encode()):
-            log.warning("refused a recalibration with a wrong operator token")
-            answer("refused", "wrong operator token")
+        refusal = self._viewer_token(viewer, msg.token)
+        if refusal is not None:
+            answer("refused", refusal)
             return
         if arena in self.recalibrating:
             answer("running", "a recalibration of this arena is already running")
@@ -348,6 +432,41 @@ class ViewServer:
         self.recalibrating.pop(arena, None)
         self.last_result[arena] = result
         self._broadcast(arena, "recalibration", _text("recalibration", arena=arena, **result))
+
+    # --- the operator token -------------------------------------------------------------
+    def _check_token(self, client: str, token: str) -> str | None:
+        """None if ``token`` is the operator's; else why it is refused: wrong (counted
+        against ``client``, who then may have to wait), or sent while it must wait (not
+        even compared)."""
+        expected = self.settings.operator_token
+        if expected is None:
+            return "this view is read-only: it has no operator token"
+        wait = self.guesses.wait_s(client)
+        if wait > 0:
+            self._say("token", f"refused an operator token from {client}: it must wait")
+            return f"too many wrong operator tokens from {client}: wait {wait:.0f} s"
+        if hmac.compare_digest(token.encode(), expected.encode()):
+            self.guesses.right(client)
+            return None
+        backoff = self.guesses.wrong(client)
+        self._say("token", f"refused a wrong operator token from {client}")
+        return "wrong operator token" + (f"; wait {backoff:.0f} s to try again" if backoff else "")
+
+    def _viewer_token(self, viewer: Viewer, token: str) -> str | None:
+        """:meth:`_check_token` for a seated viewer, whose refusals are counted (the
+        socket is closed after ``MAX_WRONG_TOKENS``)."""
+        refusal = self._check_token(viewer.client, token)
+        if refusal is not None and self.settings.operator_token is not None:
+            viewer.wrong_tokens += 1
+        return refusal
+
+    def _say(self, kind: str, message: str) -> None:
+        """Log a refusal, at most once per ``kind`` every few seconds (with how many
+        were left out): a flood of them must not fill the log."""
+        left_out = self.throttle.allow(kind)
+        if left_out is not None:
+            more = f" ({left_out} more refusals like it since the last line)" if left_out else ""
+            log.warning("%s%s", message, more)
 
     # --- broadcasting -------------------------------------------------------------------
     def _broadcast(self, arena: str, slot: str, data: str | bytes, kind: str | None = None) -> None:
@@ -425,6 +544,22 @@ class ViewServer:
                 self._push_health(arena, viewers)
 
 
+def _client(connection: Request | WebSocket) -> str:
+    """The remote address of a request or socket."""
+    return connection.client.host if connection.client is not None else "unknown"
+
+
+def _auth_token(text: str | None) -> str | None:
+    """The token of an ``auth`` message, or None (not one)."""
+    if text is None or len(text) > MAX_MESSAGE:
+        return None
+    try:
+        msg = _incoming.decode(text)
+    except (msgspec.DecodeError, msgspec.ValidationError):
+        return None
+    return msg.token if isinstance(msg, Auth) else None
+
+
 def bind(host: str, port: int) -> socket.socket:
     """A listening socket on host:port; OSError (e.g. the port is taken) as ValueError
     saying what to do."""
@@ -451,11 +586,21 @@ def url_of(sock: socket.socket) -> str:
 
 def serve(bus: Bus, settings: ViewSettings, sock: socket.socket) -> None:
     """Serve the page on ``sock`` until SIGINT/SIGTERM (uvicorn handles both)."""
+    host, port = sock.getsockname()[:2]
+    origins = OriginPolicy(host, port, settings.allow_origins)
     config = uvicorn.Config(
-        ViewServer(bus, settings).app(),
+        ViewServer(bus, settings, origins).app(),
         log_level="warning",
         ws="websockets-sansio",
         ws_max_size=MAX_MESSAGE * 4,
         lifespan="on",
     )
+    logging.getLogger("uvicorn.error").addFilter(_no_denial_noise)  # after its set-up
     uvicorn.Server(config).run(sockets=[sock])
+
+
+def _no_denial_noise(record: logging.LogRecord) -> bool:
+    """uvicorn logs "ASGI callable returned without completing handshake" after every
+    refused WebSocket (it does not count a denial response as one): a line per refusal,
+    unthrottled. The view logs its refusals itself (``ViewServer._say``)."""
+    return "without completing handshake" not in record.getMessage()

@@ -41,7 +41,13 @@ function connect() {
   ws.binaryType = "arraybuffer";
   view.ws = ws;
   setConnection("connecting", "connecting…");
-  ws.onopen = () => { setConnection("open", "connected"); };
+  ws.onopen = () => {
+    setConnection("open", "connected");
+    // The operator's token first: checked at once, and it gets the operator in even
+    // when every viewer's seat is taken.
+    const token = operatorToken();
+    if (token) ws.send(JSON.stringify({ type: "auth", token }));
+  };
   ws.onclose = () => {
     if (view.ws !== ws) return;
     view.connected = false;
@@ -64,6 +70,9 @@ function onText(text) {
     case "health": onHealth(msg); break;
     case "obstacles": onObstacles(msg); break;
     case "recalibration": onRecalibration(msg); break;
+    case "auth":
+      if (!msg.ok) { sessionStorage.removeItem("ovis-token"); showError(`operator token: ${msg.message}`); }
+      break;
     case "error":
       showError(msg.message);
       if (msg.fatal) { view.fatal = true; $("notice").textContent = msg.message; }
@@ -489,11 +498,15 @@ function everySecond() {
 }
 
 // --- recalibration ---------------------------------------------------------------
+function operatorToken() {
+  return new URLSearchParams(location.hash.slice(1)).get("token") || sessionStorage.getItem("ovis-token") || "";
+}
+
 function buildRecalibration(operator) {
   const panel = $("recalibration-panel");
   if (!operator) { panel.replaceChildren(); return; }
   if ($("recalibrate")) return;
-  const fromUrl = new URLSearchParams(location.hash.slice(1)).get("token") || sessionStorage.getItem("ovis-token") || "";
+  const fromUrl = operatorToken();
   panel.innerHTML = `<form id="recal-form" onsubmit="return false">
     <label>operator token <input type="password" id="token" autocomplete="off"></label>
     <label>population <input type="number" id="population" min="2" max="10000" placeholder="configured"></label>
