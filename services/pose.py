@@ -38,9 +38,8 @@ def main(service: Service) -> None:
         service.saw_frame(msg.seq, msg.stamp_ns, msg.stream)
         version = service.calibration.version
         out = obstacle_frame(msg, detector, version, service.topics.arena, time.time_ns())
-        publish(out)
-        service.sent()
         service.last_latency_ms = out.frame_age_ms
+        service.publish_result(publish, out)  # the state is "ok" from the first frame on
 
     inbox = service.inbox(service.topics.blobs)
     threading.Thread(target=service.serve, args=(inbox, handle), daemon=True).start()
