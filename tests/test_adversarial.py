@@ -330,7 +330,9 @@ def test_after_poisoning_the_store_and_a_restarted_calibrator_keep_the_genuine_o
     assert attacker.calibration()["version"] == genuine["version"]
     assert _newest_version(deployment) == newest
     assert attacker.status("calibrator")["state"] == "ok"
-    # and a genuine recalibration is still published
+    # and a genuine recalibration is still published, once the new calibrator has frames
+    # (with their truth, which follows each frame) to calibrate on
+    wait_for(lambda: attacker.status("calibrator")["frames_in"] >= 3, 10, "frames")
     reply = attacker.calibrate(seed=3)
     assert reply["ok"] and reply["version"] == newest + 1, reply
 
