@@ -23,7 +23,7 @@ from typing import Any
 import msgpack
 import pytest
 import zenoh
-from zenoh_helpers import free_port, wait_for
+from zenoh_helpers import frame_map, free_port, wait_for
 
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
 ROOT = "ovis/default"
@@ -227,23 +227,9 @@ def test_a_huge_query_is_refused_and_queries_are_answered_while_one_runs(
     assert attacker.calibrate(seed=7)["ok"]
 
 
-def _black_frame(seq: int) -> dict[str, Any]:
-    """A frame of the arena's size, numbered ``seq``."""
-    return {
-        "type": "frame",
-        "seq": seq,
-        "stamp_ns": time.time_ns(),
-        "rows": 480,
-        "cols": 640,
-        "channels": 1,
-        "dtype": "uint8",
-        "data": bytes(480 * 640),
-    }
-
-
 def test_sequence_number_1e9_is_not_a_billion_drops(attacker: Attacker) -> None:
     before = attacker.status("preprocess")
-    frame = _black_frame(10**9)
+    frame = frame_map(10**9, bytes(480 * 640))
     for _ in range(3):
         attacker.put("frames", frame)
         time.sleep(0.1)
@@ -349,7 +335,7 @@ def test_a_forged_frame_pair_moves_the_drops_by_at_most_one(attacker: Attacker) 
     for _ in range(pairs):
         ahead = max(seqs) + 999  # the largest gap still taken for frames lost
         for seq in (ahead, ahead + 1):
-            attacker.put("frames", _black_frame(seq))
+            attacker.put("frames", frame_map(seq, bytes(480 * 640)))
         time.sleep(0.3)
     time.sleep(1.0)
     sub.undeclare()

@@ -18,7 +18,7 @@ from pathlib import Path
 import msgpack
 import pytest
 from bus_client import BusClient
-from zenoh_helpers import free_port, ovis_cmd, spawn, stop, wait_for
+from zenoh_helpers import frame_map, free_port, ovis_cmd, spawn, stop, wait_for
 
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
 BIG = bytes(30 << 20)
@@ -92,18 +92,7 @@ def system(tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
 
 
 def forged_frame(seq: int) -> bytes:
-    return msgpack.packb(
-        {
-            "type": "frame",
-            "seq": seq,
-            "stamp_ns": time.time_ns(),
-            "rows": 480,
-            "cols": 640,
-            "channels": 1,
-            "dtype": "uint8",
-            "data": BIG,
-        }
-    )
+    return msgpack.packb(frame_map(seq, BIG))
 
 
 def oversized_everywhere(client: BusClient) -> None:

@@ -98,3 +98,18 @@ def pids_with(text: str) -> list[int]:
         if text in cmd:
             found.append(int(entry.name))
     return found
+
+
+def frame_map(seq: int, data: bytes, rows: int = 480, cols: int = 640) -> dict[str, object]:
+    """A grey frame as a plain map, the way a client with only msgpack writes it (the
+    attack tests forge frames with it: ``data`` may be any length)."""
+    return {
+        "type": "frame",
+        "seq": seq,
+        "stamp_ns": time.time_ns(),
+        "rows": rows,
+        "cols": cols,
+        "channels": 1,
+        "dtype": "uint8",
+        "data": data,
+    }
