@@ -203,7 +203,7 @@ class Supervisor:
         the stream identities they report (the capture's: this run's frames)."""
         for status in statuses.values():
             self.counters.record(status)
-            if status.stream:
+            if status.stream or status.frames_in:  # "": frames with no stream identity
                 self._streams.setdefault(status.service, set()).add(status.stream)
 
     def streams(self, name: str) -> set[str]:
