@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import signal
 import sys
 import tempfile
 import threading
@@ -418,9 +417,7 @@ def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, durati
         fleet.totals(),
         streams=fleet.streams("capture"),
     )
-    bad = [n for n, c in codes.items() if c not in (0, -signal.SIGTERM)]
-    failures = fleet.gave_up() or [f"process(es) {', '.join(bad)} exited abnormally"] * bool(bad)
-    return with_verdict(summary, statuses.get("capture"), failures)
+    return with_verdict(summary, statuses.get("capture"), fleet.failures(codes))
 
 
 def _poll_counters(fleet, session, topics, period_s: float = 1.0) -> Callable[[], None]:
