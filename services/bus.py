@@ -109,26 +109,41 @@ def open_session(zc: ZenohConfig, *, wait: bool = True) -> Iterator[zenoh.Sessio
 T = TypeVar("T")
 
 
-def interruptible(stop: threading.Event, work: Callable[[], T]) -> T | None:
+def interruptible(
+    stop: threading.Event,
+    work: Callable[[], T],
+    *,
+    discard: Callable[[T], object] | None = None,
+) -> T | None:
     """``work()`` in a thread: its result (or its exception), or None as soon as ``stop``
     is set (Ctrl-C, SIGTERM). A main thread blocked in a Zenoh call does not run the
     Python signal handlers until Zenoh returns, which may be never (a client waiting
-    for its router)."""
+    for its router). A result that comes after ``stop`` won goes to ``discard`` (a
+    session opened too late is closed, not left to hold the interpreter's exit)."""
     done = threading.Event()
+    lock = threading.Lock()
     result: list[tuple[bool, Any]] = []
+    abandoned = False
 
     def run() -> None:
         try:
-            result.append((True, work()))
+            outcome: tuple[bool, Any] = (True, work())
         except BaseException as exc:  # handed to the caller's thread
-            result.append((False, exc))
-        done.set()
+            outcome = (False, exc)
+        with lock:
+            result.append(outcome)
+            done.set()
+            late = abandoned
+        if late and outcome[0] and discard is not None:
+            discard(outcome[1])
 
     threading.Thread(target=run, name="interruptible", daemon=True).start()
     while not done.is_set() and not stop.is_set():
         done.wait(0.05)
-    if not done.is_set():
-        return None
+    with lock:
+        if not done.is_set():
+            abandoned = True
+            return None
     ok, value = result[0]
     if not ok:
         raise value
@@ -137,14 +152,18 @@ def interruptible(stop: threading.Event, work: Callable[[], T]) -> T | None:
 
 @contextmanager
 def client_session(
-    zc: ZenohConfig, timeout_s: float, stop: threading.Event, *, wait_s: float | None = None
+    zc: ZenohConfig, timeout_s: float, stop: threading.Event
 ) -> Iterator[zenoh.Session | None]:
-    """A tool's session: its router must answer within ``timeout_s`` (of which
-    ``wait_s`` are left when some were spent already; :class:`ZenohUnreachableError`
-    otherwise); None when ``stop`` is set first."""
-    wait = timeout_s if wait_s is None else wait_s
+    """A tool's session: its router must answer within ``timeout_s`` counted from the
+    process's start (:func:`~ovis.services.cli.options.time_left`;
+    :class:`ZenohUnreachableError` otherwise); None when ``stop`` is set first."""
+    from ovis.services.cli.options import time_left
+
+    def open_it() -> zenoh.Session:
+        return zenoh.open(zenoh_config(zc, timeout_s=time_left(timeout_s)))
+
     try:
-        session = interruptible(stop, lambda: zenoh.open(zenoh_config(zc, timeout_s=wait)))
+        session = interruptible(stop, open_it, discard=lambda late: late.close())
     except zenoh.ZError as exc:
         why = "" if "Timeout" in str(exc) else f" ({exc})"
         raise _unreachable(zc, f"no router answered within {timeout_s:g} s{why}") from None

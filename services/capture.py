@@ -45,16 +45,6 @@ def announce_source(service: Service, gaps: SourceGaps, changed: threading.Event
 
 def main(service: Service) -> None:
     cfg = service.config.service
-    if is_recording(cfg.source):  # a session file: its frames bit-exact, recorded pace
-        capture_from_recording(service)
-        return
-    publish_frame = service.publisher(service.topics.frames)
-    publish_truth = service.publisher(service.topics.truth)
-    pacer = Pacer(cfg.fps)
-    source: FrameSource | None = None
-    seq = 0
-    stream = secrets.token_hex(8)  # sequence numbers start again with a new stream
-    service.log.info("stream %s", stream)
     gaps, backoff, changed = SourceGaps(), Backoff(), threading.Event()
     service.amend_status = lambda status: gaps.amend(status, time.time_ns())
     threading.Thread(
@@ -71,6 +61,17 @@ def main(service: Service) -> None:
             service.log.warning("source lost: %s", exc)
         changed.set()
         service.error("source", f"{exc}; {then}")
+
+    if is_recording(cfg.source):  # a session file: its frames bit-exact, recorded pace
+        capture_from_recording(service, lambda why: lost(SourceEndedError(why), "lost for good"))
+        return
+    publish_frame = service.publisher(service.topics.frames)
+    publish_truth = service.publisher(service.topics.truth)
+    pacer = Pacer(cfg.fps)
+    source: FrameSource | None = None
+    seq = 0
+    stream = secrets.token_hex(8)  # sequence numbers start again with a new stream
+    service.log.info("stream %s", stream)
 
     service.ready()
     try:

@@ -91,7 +91,7 @@ class Replayer:
         arena: str | None = None,
         stamps: str = "auto",
         stop: threading.Event | None = None,
-        on_frame: Callable[[int, int], None] | None = None,
+        on_frame: Callable[[int, int, str], None] | None = None,
         topic: str | None = None,
         on_skip: Callable[[str], None] | None = None,
     ) -> None:
@@ -171,7 +171,7 @@ class Replayer:
                         r.shift_s, shifted = restamp.shift_ns / 1e9, True
                     payload = restamp.frame(payload)
                     if self.on_frame is not None and restamp.last is not None:
-                        self.on_frame(*restamp.last)
+                        self.on_frame(*restamp.last, restamp.stream)
                     r.frames += 1
                 elif suffix == "truth":
                     payload = restamp.truth(payload)
@@ -260,16 +260,19 @@ class DeliveryCheck:
         self._sub.undeclare()
 
 
-def capture_from_recording(service: Service) -> None:
+def capture_from_recording(service: Service, lost_for_good: Callable[[str], None]) -> None:
     """The capture stage with a session file as its source: the recorded frames (and
     ground truth) published bit-exact at the recorded pace, or the images of a file
     another tool wrote (its channel ``source_topic``, or its only image channel), looping
     if ``service.loop``; then it idles until stopped (a capture that exits would be
-    restarted). An image that cannot be read is counted as a source error and skipped."""
+    restarted). An image that cannot be read is counted as a source error and skipped.
+    A file that cannot be read, fails part way or is cut is the source lost for good
+    (``lost_for_good`` with the reason: recorded, said, in the status); one read to its
+    end is "recording ended"."""
     cfg = service.config.service
 
-    def on_frame(seq: int, stamp_ns: int) -> None:
-        service.saw_frame(seq, stamp_ns)
+    def on_frame(seq: int, stamp_ns: int, stream: str) -> None:
+        service.saw_frame(seq, stamp_ns, stream)
         service.sent()
 
     try:
@@ -286,24 +289,30 @@ def capture_from_recording(service: Service) -> None:
             on_skip=lambda reason: service.error("source", reason),
         )
     except RecordingError as exc:
-        service.state = "source lost"
-        service.error("source", str(exc))
+        lost_for_good(str(exc))
         service.ready()
         service.stop.wait()
         return
     service.ready()
     service.state = "ok"
     service.log.info("capturing from recording %s", cfg.source)
+    failed = ""
     try:
         report = replayer.run()
     except RecordingError as exc:
-        service.error("source", str(exc))
-        report = replayer.report
+        failed, report = str(exc), replayer.report
     if report.cut:
         service.log.warning("%s", report.cut)
     if report.shift_s:
         service.log.info("recorded stamps moved by %.0f s (the recording is old)", report.shift_s)
-    service.state = "recording ended"
-    service.log.info("recording ended after %d frames", report.frames)
+    if service.stop.is_set():  # stopped, not ended
+        replayer.close()
+        return
+    why = failed or report.cut
+    if why:
+        lost_for_good(f"{cfg.source} ended early after {report.frames} frames: {why}")
+    else:
+        service.state = "recording ended"
+        service.log.info("recording ended after %d frames", report.frames)
     service.stop.wait()
     replayer.close()

@@ -191,6 +191,16 @@ class Supervisor:
     def gave_up(self) -> list[str]:
         return [c.gave_up for c in self.children.values() if c.gave_up]
 
+    def failures(self, codes: dict[str, int]) -> list[str]:
+        """Why the run failed, given the children's exit ``codes`` (:meth:`stop`): those
+        that used their restart budget, and every other that exited abnormally."""
+        bad = [
+            f"{name} ({describe_exit(code)})"
+            for name, code in codes.items()
+            if code not in (0, -signal.SIGTERM) and not self.children[name].gave_up
+        ]
+        return self.gave_up() + [f"process(es) {', '.join(bad)} exited abnormally"] * bool(bad)
+
     def owns(self, status: ServiceStatus) -> bool:
         """Whether ``status`` is one of this supervisor's own processes (its pid on this
         host): another system's services on the same bus are not counted."""
@@ -203,7 +213,7 @@ class Supervisor:
         the stream identities they report (the capture's: this run's frames)."""
         for status in statuses.values():
             self.counters.record(status)
-            if status.stream:
+            if status.stream or status.frames_in:  # "": frames with no stream identity
                 self._streams.setdefault(status.service, set()).add(status.stream)
 
     def streams(self, name: str) -> set[str]:

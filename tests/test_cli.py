@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +14,7 @@ import pytest
 
 from ovis.common.calibration.file import load_calibration
 from ovis.common.config import load_points
+from ovis.services.bus import interruptible
 
 TABLE_1_T1 = [
     "--robot",
@@ -242,3 +245,24 @@ def test_bad_inputs_give_one_line_errors(tmp_path: Path, dataset: Path, calibrat
     assert_one_line_error(
         ovis("detect", str(small), "--calibration", str(calibration), check=False), "640x480"
     )
+
+
+def test_a_result_that_comes_after_stop_won_is_discarded_not_leaked() -> None:
+    """A client stopped while its session was still opening: the call returns None at
+    once, and the session that opens afterwards is handed to ``discard`` (closed)."""
+    stop, release, discarded = threading.Event(), threading.Event(), []
+
+    def slow_open() -> str:
+        release.wait(10)
+        return "session"
+
+    stop.set()
+    assert interruptible(stop, slow_open, discard=discarded.append) is None
+    release.set()
+    deadline = time.monotonic() + 5
+    while not discarded and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert discarded == ["session"]
+    # in time, the result is the caller's and nothing is discarded
+    assert interruptible(threading.Event(), lambda: "kept", discard=discarded.append) == "kept"
+    assert discarded == ["session"]

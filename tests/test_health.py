@@ -8,7 +8,7 @@ import socket
 import msgspec
 
 from ovis.common.analysis.live import LiveScore, position_error_flag
-from ovis.common.messages import ServiceStatus
+from ovis.common.messages import ObstacleFrame, ServiceStatus
 from ovis.common.pipeline.counters import MAX_PLAUSIBLE_GAP, StageCounters
 from ovis.common.pipeline.health import HEALTH_WINDOW_S, StreamWatch, stage_verdict
 from ovis.common.pipeline.totals import CounterTotals, least
@@ -160,3 +160,42 @@ def test_the_health_message_takes_only_a_verdict_not_a_service_state() -> None:
         assert watch.message(**common, verdict=(state, "")).state == "ok"
     failing = watch.message(**common, verdict=("failing", "3 of 4 inputs failed"))
     assert (failing.state, failing.reason) == ("failing", "3 of 4 inputs failed")
+
+
+def _stage(name: str, state: str, frames_out: int = 0, **fields) -> ServiceStatus:
+    return ServiceStatus(
+        service=name, pid=1, host="h", started_ns=0, state=state, frames_out=frames_out, **fields
+    )
+
+
+def test_the_summary_health_names_faults_not_stages_idle_after_their_work() -> None:
+    statuses = [
+        _stage("capture", "recording ended", 30),  # its recording read to the end
+        _stage("preprocess", "waiting for input", 30),  # done with the frames it had
+        _stage("label", "starting"),  # never handled a frame: a fault
+        _stage("pose", "failing", 3, reason="1 of 4 inputs failed:"),  # said as it is
+        _stage("calibrator", "waiting for input", last_error="frame 3: no board"),
+        _stage("fusion", "no calibration"),
+    ]
+    summary = LiveScore().summary({s.service: s for s in statuses}, {}, 1.0)
+    assert summary.health == {
+        "label": "starting",
+        "pose": "failing: 1 of 4 inputs failed:",
+        "calibrator": "waiting for input: frame 3: no board",
+        "fusion": "no calibration",
+    }
+
+
+def test_the_summary_counts_the_frames_of_the_runs_streams_none_if_it_has_none() -> None:
+    live = LiveScore()
+    for stream in ("ours", "ours", "theirs"):
+        msg = ObstacleFrame(
+            seq=0, stamp_ns=10**9, published_ns=10**9, frame_age_ms=1.0,
+            calibration_version=1, robot=None, obstacles=[], planner=[], stream=stream,
+        )  # fmt: skip
+        live.add_obstacles(msg, 10**9 + 1_000_000)
+    counted = [
+        live.summary({}, {}, 1.0, streams=streams).frames_processed
+        for streams in (None, {"ours"}, set())
+    ]
+    assert counted == [3, 2, 0]  # every stream, the run's own, none

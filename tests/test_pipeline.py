@@ -217,6 +217,26 @@ def test_counters_count_gaps_rate_and_errors() -> None:
     assert st.rss_mb == pytest.approx(rss_mb(), rel=0.2) and st.rss_mb > 10
 
 
+def test_gaps_under_overload_are_all_counted_one_frame_at_a_time() -> None:
+    """Every fifth frame arrives (four lost each time): each frame after a gap confirms
+    one more lost frame, the frames of earlier gaps are kept, and once the sequence goes
+    on without gaps the count reaches every frame lost."""
+    c = StageCounters()
+    for seq in range(0, 55, 5):  # 0, 5, …, 50: ten gaps of four
+        c.saw_frame(seq, 0)
+    assert c.seq_gaps == 9  # frames 10…50 each confirmed one
+    for seq in range(51, 100):
+        c.saw_frame(seq, 0)
+    assert (c.seq_gaps, c.seq_jumps) == (40, 0)
+
+
+def test_a_forged_pair_far_apart_moves_the_count_by_at_most_one() -> None:
+    c = StageCounters()
+    for seq in (*range(11), 510, 900, *range(11, 21)):  # two forged numbers, then the real
+        c.saw_frame(seq, 0)
+    assert (c.seq_gaps, c.seq_jumps, c.last_seq) == (1, 1, 20)
+
+
 def test_counters_rate_is_frames_per_second_of_arrival() -> None:
     c = StageCounters()
     for seq in range(6):

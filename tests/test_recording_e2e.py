@@ -27,10 +27,18 @@ from zenoh_helpers import client, free_port, ovis_cmd, spawn, stop, wait_for
 
 from ovis.common.calibration.file import calibration_from_config
 from ovis.common.calibration.store import CalibrationStore
+from ovis.common.capture.sources import SimSource
 from ovis.common.config import load_config
-from ovis.common.messages import ENCODING, Frame, ObstacleFrame, decode, encode
+from ovis.common.messages import (
+    ENCODING,
+    CalibrationUpdate,
+    Frame,
+    ObstacleFrame,
+    decode,
+    encode,
+)
 from ovis.common.recording.frames import PackedFrame
-from ovis.common.recording.session import SessionReader
+from ovis.common.recording.session import SessionReader, SessionWriter
 
 #: Real photos (CI has ../shared beside the clone; OVIS_SHARED_DATA names another place).
 SHARED = Path(
@@ -278,3 +286,40 @@ def _check_cut_file(cut: Path, sent: list[bytes], tmp_path: Path, endpoint: str)
         assert done.returncode == 2, done.stderr
         lines = done.stderr.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("error: "), done.stderr
+
+
+def test_a_cut_recording_as_source_is_the_source_lost_exit_3_with_the_reason(
+    tmp_path: Path,
+) -> None:
+    """`ovis up --source CUT.mcap`: the frames up to the cut are processed (the run's own
+    stream, counted), then the capture says "source lost" with the cut as the reason,
+    and the run is exit 3 saying so: a cut file never passes for a recording that ended."""
+    cfg = load_config()
+    sim = SimSource(cfg, 0, prerender=8)
+    t0, period = time.time_ns(), 1_000_000_000 // 15
+    path = tmp_path / "whole.mcap"
+    writer = SessionWriter(path, metadata={"arena": "default"}, chunk_size=200_000)
+    nominal = msgspec.structs.replace(calibration_from_config(cfg), version=1)
+    calib = CalibrationUpdate(calibration=nominal)
+    writer.bus("ovis/default/calibration", encode(calib), t0, t0)
+    for seq in range(60):
+        stamp = t0 + seq * period
+        frame = Frame.from_image(sim.read()[0], seq=seq, stamp_ns=stamp, stream="recorded")
+        writer.frame("ovis/default/frames", encode(frame), stamp, stamp)
+    writer.close()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: int(path.stat().st_size * 0.6)])
+    why = SessionReader(cut)
+    assert sum(1 for _ in why.bus_messages()) > 3 and why.cut is not None
+    once = _config(tmp_path / "once.toml", "loop = false")
+    args = ("--source", str(cut), "--config", str(once), "--duration", "10")
+    proc, _, err = start_up(tmp_path, "--pin", "none", *args)
+    out, _ = proc.communicate(timeout=180)
+    assert proc.returncode == 3, err.read_text()
+    summary = json.loads(out)
+    assert summary["frames_processed"] > 0 and summary["source_gaps"] == 1, summary
+    assert summary["reason"].startswith("the source was lost (and not back at the end): ")
+    assert f"{cut} ended early after" in summary["reason"] and why.cut in summary["reason"]
+    assert summary["health"]["capture"].startswith("source lost: ")
+    last = err.read_text().strip().splitlines()[-1]
+    assert last.startswith("error: the source was lost") and why.cut in last

@@ -48,3 +48,34 @@ def test_cameras_stop_first_then_the_stages_then_the_router(
     # The stages get the signal once the camera has gone and the drain time has passed.
     assert min(at["preprocess"], at["recorder"]) - at["capture"] >= supervisor.DRAIN_S
     assert at["router"] > max(at["preprocess"], at["recorder"])
+
+
+def test_a_child_that_gave_up_does_not_hide_another_that_exited_abnormally(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    scripts = {
+        "label": "import sys; sys.exit(1)",  # dies at once: with no restarts, given up
+        "pose": CHILD.replace("sys.exit(0)", "sys.exit(2)"),  # exits 2 when stopped
+        "preprocess": CHILD,
+    }
+
+    def spawn(self, child: supervisor.Child, *, spare: bool = False) -> subprocess.Popen[bytes]:
+        return subprocess.Popen(
+            [sys.executable, "-c", scripts[child.name], str(tmp_path / child.name)]
+        )
+
+    monkeypatch.setattr(supervisor.Supervisor, "_spawn", spawn)
+    fleet = supervisor.Supervisor(tmp_path, max_restarts=0)
+    for name in scripts:
+        fleet.start(name, [])
+    deadline = time.monotonic() + 30
+    while not (
+        fleet.gave_up() and all((tmp_path / f"{n}.up").exists() for n in ("pose", "preprocess"))
+    ):
+        assert time.monotonic() < deadline, "the children did not start, or label did not die"
+        fleet.supervise()
+        time.sleep(0.05)
+    codes = fleet.stop()
+    assert codes == {"label": 1, "pose": 2, "preprocess": 0}
+    gave_up = "label died (exit code 1) and used its restart budget (0 in 60 s): left stopped"
+    assert fleet.failures(codes) == [gave_up, "process(es) pose (exit code 2) exited abnormally"]

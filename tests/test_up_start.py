@@ -23,10 +23,14 @@ from real_photos import photo_paths
 from test_cli import assert_one_line_error, ovis
 from zenoh_helpers import client, free_port, ovis_cmd, wait_for
 
-from ovis.common.calibration.file import calibration_from_config
+from ovis.common.calibration.file import Calibration, calibration_from_config
 from ovis.common.calibration.store import CalibrationStore
 from ovis.common.config import load_config
-from ovis.common.messages import ObstacleFrame, encode
+from ovis.common.messages import CalibrationUpdate, ObstacleFrame, encode
+from ovis.common.recording.calibration import adopt_recorded_calibration
+from ovis.common.recording.session import SessionWriter
+from ovis.services.cli.errors import UserError
+from ovis.services.cli.startup import calibration_for_run
 
 #: A start that fails says so within this long (the issue's bound).
 START_FAILS_S = 10.0
@@ -128,6 +132,39 @@ def test_a_real_source_without_its_own_calibration_is_refused(real, tmp_path) ->
     CalibrationStore(tmp_path / "state").save(msgspec.structs.replace(sim, simulated=True))
     line = _start_failed(tmp_path, "--source", str(real["photos"]))
     assert "is the simulator's" in line
+
+
+def _session_with(path: Path, calib: Calibration) -> Path:
+    """A session file that carries ``calib`` (as the recorder writes the one in use)."""
+    writer = SessionWriter(path, metadata={"arena": "default"})
+    writer.bus("ovis/default/calibration", encode(CalibrationUpdate(calibration=calib)), 1, 1)
+    writer.close()
+    return path
+
+
+def test_a_recording_runs_with_its_own_calibration_never_a_simulated_one_beside_it(
+    tmp_path: Path,
+) -> None:
+    """`ovis up --source SESSION.mcap` takes the state folder's newest only if it is not
+    the simulator's or it is the one the recording carries (adopted from it)."""
+    cfg = load_config()
+    sim = msgspec.structs.replace(calibration_from_config(cfg), simulated=True)
+    real_cam = msgspec.structs.replace(calibration_from_config(cfg), source_image="board.jpg")
+
+    def run_with(recording: Path, state: Path):
+        service = msgspec.structs.replace(cfg.service, source=str(recording), state_dir=str(state))
+        up = msgspec.structs.replace(cfg, service=service)
+        adopt_recorded_calibration(recording, state)
+        return calibration_for_run(up, None, None)[0]
+
+    # the simulator's calibration was there before: the recording's is not adopted, and
+    # the simulator's is not taken for the recorded camera's
+    CalibrationStore(tmp_path / "sim-state").save(sim)
+    with pytest.raises(UserError, match="is the simulator's"):
+        run_with(_session_with(tmp_path / "real.mcap", real_cam), tmp_path / "sim-state")
+    # an empty state folder gets the recording's own, which counts whatever made it
+    from_sim = _session_with(tmp_path / "sim.mcap", sim)
+    assert run_with(from_sim, tmp_path / "fresh") == sim
 
 
 @pytest.mark.parametrize("source", ["nosuchdir", "empty", "notes.txt", "camera:9"])

@@ -16,6 +16,7 @@ from ovis.common.analysis.evaluation import TrackingScore
 from ovis.common.messages import ObstacleFrame, ServiceStatus, SourceGap, TruthFrame
 
 __all__ = [
+    "IDLE_STATES",
     "SOURCE_LOST",
     "UNSCORED_SHARE",
     "LiveScore",
@@ -59,7 +60,8 @@ class RunSummary(msgspec.Struct):
     restarts: dict[str, int] = {}
     #: frames with ground truth seen (the simulator's); 0: nothing to match against
     truth_frames: int = 0
-    #: services whose last status was "degraded", "failing" or "source lost", and why
+    #: services whose last status says something is wrong, and why: any state but "ok",
+    #: except that of a service not at work (:data:`IDLE_STATES`) that handled frames
     health: dict[str, str] = {}
     #: why the position error is not the whole story (objects missed or spurious), or ""
     position_error_flag: str = ""
@@ -151,9 +153,10 @@ class LiveScore:
     ) -> RunSummary:
         """The run's summary, with the services' last statuses and exit codes; counts
         from ``totals`` (over every process of a service) where given; frames only of
-        the capture ``streams`` given (the run's own), else of every stream."""
+        the capture ``streams`` given (the run's own: an empty set, none), or of every
+        stream (None)."""
         with self._lock:
-            own = [v for k, v in self._by_stream.items() if not streams or k in streams]
+            own = [v for k, v in self._by_stream.items() if streams is None or k in streams]
             lat = np.concatenate([np.asarray(v) for v in own]) if own else np.zeros(0)
             err = np.asarray(self.score.position_error_cm)
             score = self.score
@@ -181,11 +184,7 @@ class LiveScore:
             exit_codes=codes,
             restarts={n: r for n, r in (restarts or {}).items() if r},
             truth_frames=self.truth_frames,
-            health={
-                n: f"{s.state}: {s.reason or s.last_error}".rstrip(": ")
-                for n, s in statuses.items()
-                if s.state != "ok"
-            },
+            health={n: _said(s) for n, s in statuses.items() if _unwell(s)},
             position_error_flag=position_error_flag(score.matched, score.missed, score.spurious),
             source_gaps=source.source_gaps if source else 0,
             source_gap_s=source.source_gap_s if source else 0.0,
@@ -193,8 +192,26 @@ class LiveScore:
         )
 
 
-#: The capture's states that say its source is gone (the last one: it did not come back).
-SOURCE_LOST = ("source lost",)
+#: The capture's state that says its source is gone (its last: it did not come back).
+SOURCE_LOST = "source lost"
+#: States (their beginnings) of a service not at work, not yet or no more: wrong at the
+#: end of a run only for a service that handled no frame.
+IDLE_STATES = ("starting", "waiting", "recording ended")
+
+
+def _unwell(status: ServiceStatus) -> bool:
+    """Whether ``status`` says something is wrong (see :attr:`RunSummary.health`)."""
+    if status.state == "ok":
+        return False
+    return not (status.state.startswith(IDLE_STATES) and status.frames_out > 0)
+
+
+def _said(status: ServiceStatus) -> str:
+    """A service's state, and why when it says."""
+    why = status.reason or status.last_error
+    return f"{status.state}: {why}" if why else status.state
+
+
 #: The stages of the frame path, in order: the first one that says why is the reason.
 FRAME_PATH = ("capture", "preprocess", "label", "pose", "calibrator")
 
@@ -222,7 +239,7 @@ def with_verdict(
     processed or the capture's source was lost at the end, 1 when a process failed
     (``failures``: why), else 0. Nothing processed is never "ok": the health says so."""
     health = dict(summary.health)
-    lost = capture is not None and capture.state in SOURCE_LOST
+    lost = capture is not None and capture.state == SOURCE_LOST
     if summary.frames_processed == 0:
         if capture is None:
             reason = "no frame was captured: the capture never answered (not started yet, or dead)"

@@ -59,8 +59,8 @@ class StageCounters:
         self.last_seq: int | None = None
         self.stream: str = ""  # the capture's stream identity of the last frame
         self.seq_gaps = 0
-        self._pending = 0  # frames missing in the last gap, not yet confirmed as dropped
-        self._before_gap = -1  # the last sequence number before that gap
+        self._pending = 0  # frames missing in the gaps, not yet confirmed as dropped
+        self._before_gap = -1  # the last sequence number before the first of those gaps
         self.seq_jumps = 0
         self.stream_restarts = 0
         self._arrivals: collections.deque[float] = collections.deque(maxlen=64)
@@ -69,12 +69,14 @@ class StageCounters:
 
     def saw_frame(self, seq: int, stamp_ns: int, stream: str = "") -> None:
         """Count an input frame. A plausible gap in sequence numbers is dropped upstream,
-        counted one frame at a time as the sequence goes on after it (a forged frame far
-        ahead, even a pair, moves the count by at most one); a frame of the sequence
-        before the gap (it goes on: the gap was a forged or stray number) counts the gap
-        as one jump instead. A new ``stream`` (the capture restarted) or a jump beyond
-        :data:`MAX_PLAUSIBLE_GAP` is counted as such, and the count restarts there; any
-        other late, older frame neither counts nor moves the last one back."""
+        counted one frame at a time as the sequence goes on after it: each later frame
+        confirms one, and a gap that follows adds its frames to those still to confirm
+        (under overload none is forgotten; a forged frame far ahead, even a pair, moves
+        the count by at most one). A frame of the sequence before the gaps (it goes on:
+        they were forged or stray numbers) counts them as one jump instead. A new
+        ``stream`` (the capture restarted) or a jump beyond :data:`MAX_PLAUSIBLE_GAP` is
+        counted as such, and the count restarts there; any other late, older frame
+        neither counts nor moves the last one back."""
         with self._lock:
             self.frames_in += 1
             if stream and self.stream and stream != self.stream:
@@ -97,13 +99,14 @@ class StageCounters:
         last = self.last_seq
         if last is None:
             self.last_seq = seq
-        elif seq == last + 1:
-            if self._pending:
+        elif seq > last:
+            if self._pending:  # the sequence goes on after the gaps: one more frame lost
                 self._pending -= 1
                 self.seq_gaps += 1
+            else:
+                self._before_gap = last
+            self._pending += seq - last - 1  # a new gap adds to the earlier ones' frames
             self.last_seq = seq
-        elif seq > last:
-            self._pending, self._before_gap, self.last_seq = seq - last - 1, last, seq
         elif self._pending and seq == self._before_gap + 1:  # the old sequence goes on
             self.seq_jumps += 1
             self._pending, self._before_gap, self.last_seq = 0, -1, seq

@@ -41,15 +41,8 @@ class ServiceTotals(msgspec.Struct, kw_only=True):
 def _add(total: ServiceTotals, status: ServiceStatus) -> ServiceTotals:
     errors = collections.Counter(total.errors)
     errors.update(status.errors)
-    return ServiceTotals(
-        frames_in=total.frames_in + status.frames_in,
-        frames_out=total.frames_out + status.frames_out,
-        dropped=total.dropped + status.dropped,
-        seq_jumps=total.seq_jumps + status.seq_jumps,
-        stream_restarts=total.stream_restarts + status.stream_restarts,
-        errors=dict(errors),
-        processes=total.processes + 1,
-    )
+    sums = {name: getattr(total, name) + getattr(status, name) for name in COUNTERS}
+    return ServiceTotals(errors=dict(errors), processes=total.processes + 1, **sums)
 
 
 def least(a: ServiceStatus, b: ServiceStatus) -> ServiceStatus:

@@ -105,13 +105,15 @@ class Restamp:
     every stamp (a recording older than the services accept). Each later pass of
     ``--loop`` comes after the previous one (its length plus one frame period) with
     sequence numbers after its last, so both keep growing for the services downstream.
-    ``last`` is the (seq, stamp_ns) of the last frame as sent.
+    ``last`` is the (seq, stamp_ns) of the last frame as sent, ``stream`` its capture
+    stream identity.
     """
 
     def __init__(self, shift_ns: int = 0) -> None:
         self.shift_ns = int(shift_ns)
         self.seq_offset = 0
         self.last: tuple[int, int] | None = None
+        self.stream = ""
         self._stamps: list[int] = []  # first and last recorded stamp of this pass
         self._frames = 0
         self._max_seq = -1
@@ -135,6 +137,7 @@ class Restamp:
         self._frames += 1
         self._max_seq = max(self._max_seq, frame.seq)
         self.last = (frame.seq + self.seq_offset, frame.stamp_ns + self.shift_ns)
+        self.stream = frame.stream
         if not self.shift_ns and not self.seq_offset:
             return payload
         return encode(msgspec.structs.replace(frame, seq=self.last[0], stamp_ns=self.last[1]))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import signal
 import sys
 import tempfile
 import threading
@@ -29,7 +28,6 @@ from ovis.services.cli.options import (
     arena_topics,
     config_with_options,
     stop_on_signals,
-    time_left,
 )
 
 __all__ = ["register"]
@@ -38,6 +36,8 @@ STAGES = ("capture", "preprocess", "label", "pose", "calibrator", "fusion")
 #: Stages of the frame path that `ovis up` keeps a spare process ready for: a killed one
 #: is replaced without an interpreter start (the cost: one idle process each).
 STANDBY = ("preprocess", "label", "pose")
+#: What the router prints once it listens (`ovis up` waits for it in the router's log).
+LISTENING = "listening on"
 
 
 def router(
@@ -69,7 +69,7 @@ def router(
     with open_session(zc) as session:
         where = ", ".join(zc.listen) or f"the endpoints of {zc.config_file}"
         meshed = f"; meshed with {', '.join(zc.connect)}" if zc.connect else ""
-        print(f"zenoh router {session.zid()} listening on {where}{meshed}", flush=True)
+        print(f"zenoh router {session.zid()} {LISTENING} {where}{meshed}", flush=True)
         while not stop.wait(0.5):
             pass
 
@@ -353,13 +353,19 @@ ROUTER_START_S = 10.0
 
 def _wait_router(fleet, listen: str, stop) -> None:
     """Wait until the router says it listens; exit 2 when it dies first (its endpoint
-    was taken after the check, or cannot be listened on)."""
+    was taken after the check, or cannot be listened on) or has not said so within
+    :data:`ROUTER_START_S`."""
     log = fleet.log_dir / "router.log"
     deadline = time.monotonic() + ROUTER_START_S
-    while not stop.is_set() and time.monotonic() < deadline:
+    while not stop.is_set():
         text = log.read_text(errors="replace") if log.exists() else ""
-        if "listening on" in text:
+        if LISTENING in text:
             return
+        if time.monotonic() >= deadline:
+            raise UserError(
+                f"the router did not say it listens on {listen} within {ROUTER_START_S:g} s "
+                f"(its log: {log}); try again, or see why it is stuck in that log"
+            )
         if fleet.children["router"].proc.poll() is not None:
             last = (text.strip().splitlines()[-1:] or ["(no output)"])[0]
             raise UserError(
@@ -418,9 +424,7 @@ def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, durati
         fleet.totals(),
         streams=fleet.streams("capture"),
     )
-    bad = [n for n, c in codes.items() if c not in (0, -signal.SIGTERM)]
-    failures = fleet.gave_up() or [f"process(es) {', '.join(bad)} exited abnormally"] * bool(bad)
-    return with_verdict(summary, statuses.get("capture"), failures)
+    return with_verdict(summary, statuses.get("capture"), fleet.failures(codes))
 
 
 def _poll_counters(fleet, session, topics, period_s: float = 1.0) -> Callable[[], None]:
@@ -495,7 +499,7 @@ def watch(
     box = Inbox(depth=64)
     seen = 0
     deadline = time.monotonic() + duration if duration is not None else None
-    with client_session(cfg.zenoh, timeout, stop, wait_s=time_left(timeout)) as session:
+    with client_session(cfg.zenoh, timeout, stop) as session:
         if session is None:  # stopped while waiting for the router
             return
         session.declare_subscriber(topics.obstacles, lambda s: box.put(s.payload.to_bytes()))
@@ -534,6 +538,14 @@ def recalibrate(
     cancel: Annotated[
         bool, typer.Option("--cancel", help="Cancel the calibration that runs instead.")
     ] = False,
+    connect_timeout: Annotated[
+        float,
+        typer.Option(
+            "--connect-timeout",
+            min=0.1,
+            help="Seconds to wait for a router to answer; then exit code 4 with the reason.",
+        ),
+    ] = CONNECT_S,
     force: Annotated[
         bool,
         typer.Option(
@@ -551,7 +563,7 @@ def recalibrate(
     state folder's rejected/; --force publishes it when the camera really moved. While a
     calibration runs, the calibrator answers at once that it is busy (progress and ETA);
     --cancel stops it.
-    With no router answering within 5 s: exit code 4. Ctrl-C or SIGTERM ends it at any
+    With no router answering within --connect-timeout: exit code 4. Ctrl-C or SIGTERM ends it at any
     moment (exit code 130).
     """
     stop = stop_on_signals()  # first: nothing below may block before it is in place
@@ -562,7 +574,7 @@ def recalibrate(
     cfg = config_with_options(config, connect=connect, arena=arena)
     topics = arena_topics(cfg)
     request = encode(CalibrateRequest(frame_seq=frame, seed=seed, cancel=cancel, force=force))
-    with client_session(cfg.zenoh, CONNECT_S, stop, wait_s=time_left(CONNECT_S)) as session:
+    with client_session(cfg.zenoh, connect_timeout, stop) as session:
         replies = (
             None
             if session is None
@@ -620,7 +632,7 @@ def status(
 
     cfg = config_with_options(config, connect=connect, arena=arena)
     topics = arena_topics(cfg)
-    with client_session(cfg.zenoh, timeout, stop, wait_s=time_left(timeout)) as session:
+    with client_session(cfg.zenoh, timeout, stop) as session:
         report = (
             None
             if session is None

@@ -186,12 +186,9 @@ def up_cameras(
         _print_summary(summary)
     if summary["world"]["frames"] == 0:
         raise UserError(f"no world frame came out; see the logs in {log_dir}", 1)
-    from ovis.common.pipeline.restarts import describe_exit
-
-    bad = [f"{n} ({describe_exit(c)})" for n, c in codes.items() if c not in (0, -signal.SIGTERM)]
-    if bad or fleet.gave_up():
-        reasons = "; ".join(fleet.gave_up()) or f"process(es) {', '.join(bad)} exited abnormally"
-        raise UserError(f"{reasons}; see the logs in {log_dir}", 1)
+    failures = fleet.failures(codes)
+    if failures:
+        raise UserError(f"{'; '.join(failures)}; see the logs in {log_dir}", 1)
 
 
 class _Stamps(msgspec.Struct):

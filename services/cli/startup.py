@@ -101,20 +101,15 @@ def source_size(cfg: Any) -> tuple[int, int] | None:
 
 def _stored_calibration(cfg: Any):
     """The state folder's newest calibration when it stands for this real source: not
-    the simulator's (a recording's own counts whatever made it); else exit 2."""
+    the simulator's, unless it is the recording's own (``--source SESSION.mcap``: the
+    one the recorded system used counts whatever made it); else exit 2."""
     from ovis.common.calibration.frame_size import HOW_TO_CALIBRATE, made_on_simulator
     from ovis.common.calibration.store import CalibrationStore
-    from ovis.services.replay import is_recording
 
     store = CalibrationStore(cfg.service.state_dir)
     calib, _ = store.latest()
     source = cfg.service.source
-    carried = False
-    if is_recording(source):
-        from ovis.common.recording.session import recorded_calibration
-
-        carried = recorded_calibration(source) is not None
-    if calib is not None and (carried or not made_on_simulator(calib)):
+    if calib is not None and (not made_on_simulator(calib) or _recordings_own(source, calib)):
         return calib, f"calibration v{calib.version} of {store.folder}"
     held = (
         f"the newest in {store.folder} is the simulator's"
@@ -125,6 +120,16 @@ def _stored_calibration(cfg: Any):
         f"{source} needs a calibration of its own camera ({held}; the simulator's "
         f"camera is never used for real frames): {HOW_TO_CALIBRATE}"
     )
+
+
+def _recordings_own(source: str, calib: Any) -> bool:
+    """Whether ``calib`` is the calibration the recording ``source`` carries (the one
+    :func:`~ovis.common.recording.calibration.adopt_recorded_calibration` stored), not
+    merely one found beside it; False for any other source."""
+    from ovis.common.recording.session import recorded_calibration
+    from ovis.services.replay import is_recording
+
+    return is_recording(source) and recorded_calibration(source) == calib
 
 
 def calibration_for_run(cfg: Any, given: Path | None, size: tuple[int, int] | None):
