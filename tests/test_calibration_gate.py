@@ -123,6 +123,8 @@ def test_poisoned_control_points_give_a_refused_candidate(arena_calibrated, chan
         f"rejected candidate: DIPE {candidate.dipe_px:.3g} px vs {current.dipe_px:.3g} px"
     )
     assert judge_candidate(candidate, current, frame, force=True) == problem
+    # refused on its DIPE alone: no detection runs (it would refuse a frame this small)
+    assert judge_candidate(candidate, current, frame[:8, :8]) == problem
     first = judge_candidate(candidate, None, frame)  # even as the first one
     assert first == f"rejected candidate: DIPE {candidate.dipe_px:.3g} px: above 3 px, " + (
         "the camera does not explain the control points"
@@ -143,6 +145,8 @@ def test_a_genuine_recalibration_on_a_later_frame_passes(arena_calibrated) -> No
     ("part", "change"),
     [
         ("image", {"threshold": 255}),
+        # the stages binarize at the fixed level whatever the mode: blind as well
+        ("image", {"threshold_mode": "auto", "threshold": 255}),
         ("pose", {"obstacle_height_cm": 100.0, "robot_height_cm": 100.0}),
     ],
 )
