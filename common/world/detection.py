@@ -95,7 +95,8 @@ class DetectedObject(msgspec.Struct):
     #: end (obstacles, and an unmarked robot that has not moved yet)
     heading_resolved: bool = False
     #: whether ``vx_cm_s``/``vy_cm_s`` are measured: the object tracked over two frames'
-    #: capture times; false in its first frame (they are then 0, not a measurement)
+    #: capture times; false in its first frame (they are then 0, not a measurement) and
+    #: for frames without capture times (taken to be 1 s apart: a guess, not a measurement)
     velocity_measured: bool = False
 
 
@@ -376,7 +377,8 @@ class Detector:
 
         The goal defaults to the calibration's ``pose.goal_cm``/``goal_angle_deg``.
         ``stamp_s`` is the frame's capture time (s); without it frames are taken to be
-        the paper's Δt = 1 s apart. Obstacle velocities are in cm/s.
+        the paper's Δt = 1 s apart (and no velocity is flagged measured). Obstacle
+        velocities are in cm/s.
         """
         gray = median3 = None
         if self.pose.robots:
@@ -474,6 +476,11 @@ class Detector:
             shown[robot], resolved[robot] = motion.heading_deg, motion.resolved
             vel[robot] = motion.vx_cm_s, motion.vy_cm_s
             measured[robot] = motion.velocity_measured
+        if stamp_s is None:  # frames taken to be 1 s apart: a velocity, but not measured
+            measured[:] = False
+            marked.robots[:] = [
+                msgspec.structs.replace(r, velocity_measured=False) for r in marked.robots
+            ]
         # Objects in id order (the robot first), built column by column.
         out = np.arange(n)[ok]
         out = out[ids[out].argsort(kind="stable")]
