@@ -20,6 +20,7 @@ import msgspec
 
 __all__ = [
     "CALIBRATED_VARIABLES",
+    "KEEP_CALIBRATIONS",
     "MARKER_DICTIONARIES",
     "PINHOLE_VARIABLES",
     "PRESETS",
@@ -52,6 +53,9 @@ __all__ = [
 ]
 
 PRESETS = ("default", "paper", "pinhole")
+
+#: Calibration versions the calibrator keeps (``[service] keep_calibrations``'s default).
+KEEP_CALIBRATIONS = 20
 
 #: The nine variables the GA tunes (paper §4), in the paper's order.
 CALIBRATED_VARIABLES = (
@@ -538,7 +542,7 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     source_topic: Annotated[str, msgspec.Meta(max_length=4096)] = ""
     #: calibration versions the calibrator keeps in ``state_dir`` (older ones are
     #: deleted when it saves a new one)
-    keep_calibrations: Annotated[int, msgspec.Meta(ge=1, le=100000)] = 20
+    keep_calibrations: Annotated[int, msgspec.Meta(ge=1, le=100000)] = KEEP_CALIBRATIONS
 
     def __post_init__(self) -> None:
         if self.source_topic and not self.source.lower().endswith(".mcap"):

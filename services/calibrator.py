@@ -272,6 +272,8 @@ def main(service: Service) -> None:
             calib = store.save(calib)
         except StoreWriteError as exc:
             return not_saved(seq, str(exc))
+        for stale in store.not_deleted:  # kept on disk: the store grows until it works
+            service.error("store", f"cannot delete the old calibration {stale}")
         service.calibration = calib
         rejected[0] = ""
         publish(CalibrationUpdate(calibration=calib))

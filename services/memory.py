@@ -18,8 +18,9 @@ heaps. So the thresholds are fitted to the largest message a process accepts
 its own and unmapped when freed, and a heap keeps at most :data:`KEPT_MESSAGES` such
 messages free at its top; and :func:`guard_memory` gives back the free blocks left
 inside the heaps (``malloc_trim``) shortly after a stage refuses an oversized message,
-and whenever the process's resident memory, or the memory its heaps hold free, has
-grown by :data:`GROWTH_BYTES` since it last gave memory back.
+and whenever the memory its heaps hold free has grown by :data:`GROWTH_BYTES` since it
+last gave memory back (not when the process merely uses more: a trim stalls every
+thread that allocates meanwhile, and memory in use is not given back by it).
 """
 
 from __future__ import annotations
@@ -59,8 +60,8 @@ _MIN_MMAP_BYTES = 128 << 10
 #: How long after an oversized message its memory is given back: by then Zenoh and the
 #: callback have let go of it, and the messages of a flood are given back together.
 TRIM_DELAY_S = 0.5
-#: How often the guard looks at the process's resident memory, and by how much it must
-#: have grown since the last look (or trim) to be given back.
+#: How often the guard looks at the memory the heaps hold free, and by how much it must
+#: have grown above the least seen since the last trim to be given back.
 GUARD_PERIOD_S = 1.0
 GROWTH_BYTES = 16 << 20
 
@@ -124,14 +125,13 @@ class _MallInfo2(ctypes.Structure):
 
 
 def free_held_bytes() -> int | None:
-    """The memory glibc's heaps hold free (``mallinfo2``: free chunks and fast bins),
-    resident or not; None where the C library cannot say."""
+    """The memory glibc's heaps hold free (``mallinfo2``'s ``fordblks``: free chunks, the
+    fast bins' among them), resident or not; None where the C library cannot say."""
     info = _glibc("mallinfo2")
     if info is None:
         return None
     info.restype = _MallInfo2
-    held = info()
-    return int(held.fordblks + held.fsmblks)
+    return int(info().fordblks)
 
 
 def resident_bytes() -> int:
@@ -146,10 +146,9 @@ def resident_bytes() -> int:
 class MemoryGuard:
     """Gives freed memory back (:func:`give_back_freed_memory`) from a thread of its
     own: :data:`TRIM_DELAY_S` after :meth:`request` (once for all the requests made
-    meanwhile), and whenever, since it last looked, the resident memory or the memory
-    the heaps hold free (what a large message left when it was let go, maybe after the
-    last trim) has grown by :data:`GROWTH_BYTES` above the least seen since its last
-    trim."""
+    meanwhile), and whenever the memory the heaps hold free (what a large message left
+    when it was let go, maybe after the last trim) has grown by :data:`GROWTH_BYTES`
+    above the least seen since its last trim (:meth:`look`)."""
 
     def __init__(
         self,
@@ -158,7 +157,7 @@ class MemoryGuard:
         delay_s: float = TRIM_DELAY_S,
     ) -> None:
         self.period_s, self.growth_bytes, self.delay_s = period_s, growth_bytes, delay_s
-        self.trims = 0
+        self._floor: int | None = None
         self._asked = threading.Event()
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -175,20 +174,27 @@ class MemoryGuard:
         self.start()
         self._asked.set()
 
+    def look(self, asked: bool = False) -> bool:
+        """One look (the guard's thread makes one every ``period_s``): give memory back
+        when ``asked`` or when the heaps hold :data:`GROWTH_BYTES` more free than the
+        least seen since the last trim (the first look only notes it); True if it did."""
+        free = free_held_bytes() or 0
+        floor = free if self._floor is None else self._floor
+        if asked or free > floor + self.growth_bytes:
+            give_back_freed_memory()
+            self._floor = free_held_bytes() or 0
+            return True
+        self._floor = min(floor, free)
+        return False
+
     def _run(self) -> None:
-        floor = (resident_bytes(), free_held_bytes() or 0)
+        self.look()
         while True:
             asked = self._asked.wait(self.period_s)
             if asked:
                 time.sleep(self.delay_s)
                 self._asked.clear()
-            now = (resident_bytes(), free_held_bytes() or 0)
-            if asked or any(n > f + self.growth_bytes for n, f in zip(now, floor, strict=True)):
-                give_back_freed_memory()
-                self.trims += 1
-                now = (resident_bytes(), free_held_bytes() or 0)
-                floor = now
-            floor = (min(floor[0], now[0]), min(floor[1], now[1]))
+            self.look(asked)
 
 
 #: The guard of this process (started by :func:`guard_memory`).

@@ -67,6 +67,19 @@ def test_objects_must_be_seen_inside_their_footprint() -> None:
     assert sight_problem([FOUR[0]] * 4, FOUR) is not None
 
 
+def test_the_most_objects_are_matched_not_the_closest_pair_first() -> None:
+    """Two current objects, a candidate object halfway between them and one only the first
+    can see: each current object is seen by its own (closest pairs first would give the
+    halfway one to the first object and leave the second unseen)."""
+    current = [Seen(0.0, 0.0, 2.0), Seen(3.0, 0.0, 2.0)]
+    assert sight_problem([Seen(1.5, 0.0, 2.0), Seen(-1.9, 0.0, 2.0)], current) is None
+    moved = [Seen(1.5, 0.0, 2.0), Seen(-2.5, 0.0, 2.0)]  # outside the first one's footprint
+    assert sight_problem(moved, current) == (
+        "sees 2 objects, 1 of the current calibration's 2 where it sees them (largest "
+        "offset 1.5 cm; send force if the camera moved)"
+    )
+
+
 def test_gate_names_the_check() -> None:
     assert gate_problem(0.2, 0.3, FOUR, FOUR) is None
     assert gate_problem(152.0, 0.3, FOUR, FOUR) == (
@@ -110,6 +123,8 @@ def test_poisoned_control_points_give_a_refused_candidate(arena_calibrated, chan
         f"rejected candidate: DIPE {candidate.dipe_px:.3g} px vs {current.dipe_px:.3g} px"
     )
     assert judge_candidate(candidate, current, frame, force=True) == problem
+    # refused on its DIPE alone: no detection runs (it would refuse a frame this small)
+    assert judge_candidate(candidate, current, frame[:8, :8]) == problem
     first = judge_candidate(candidate, None, frame)  # even as the first one
     assert first == f"rejected candidate: DIPE {candidate.dipe_px:.3g} px: above 3 px, " + (
         "the camera does not explain the control points"
@@ -130,6 +145,8 @@ def test_a_genuine_recalibration_on_a_later_frame_passes(arena_calibrated) -> No
     ("part", "change"),
     [
         ("image", {"threshold": 255}),
+        # the stages binarize at the fixed level whatever the mode: blind as well
+        ("image", {"threshold_mode": "auto", "threshold": 255}),
         ("pose", {"obstacle_height_cm": 100.0, "robot_height_cm": 100.0}),
     ],
 )

@@ -13,7 +13,7 @@ import pytest
 from ovis.common.calibration.file import Calibration, calibration_from_config
 from ovis.common.calibration.store import PROBE_BYTES, CalibrationStore, StoreWriteError
 from ovis.common.calibration.validity import calibration_problem
-from ovis.common.config import ConfigError, config_from_dict, load_config
+from ovis.common.config import KEEP_CALIBRATIONS, ConfigError, config_from_dict, load_config
 from ovis.common.messages import ServiceStatus
 from ovis.common.pipeline.saving import cannot_save_status, cannot_save_text
 
@@ -36,8 +36,29 @@ def test_the_store_keeps_the_newest_versions_and_numbering_goes_on(tmp_path: Pat
         CalibrationStore(tmp_path, keep=0)
 
 
+def test_an_old_version_that_cannot_be_deleted_is_named_not_silently_kept(
+    tmp_path: Path,
+) -> None:
+    """A version that cannot be deleted (here a folder in its place) stays, named with
+    why; once it can be deleted the next save deletes it and names nothing."""
+    store = CalibrationStore(tmp_path, keep=2)
+    stuck = store.path(1)
+    stuck.mkdir()
+    (stuck / "inside").write_text("x")
+    store.save(_nominal())
+    assert store.versions() == [1, 2] and store.not_deleted == []
+    store.save(_nominal())
+    assert store.versions() == [1, 2, 3]
+    assert len(store.not_deleted) == 1 and store.not_deleted[0].startswith(f"{stuck}: ")
+    (stuck / "inside").unlink()
+    stuck.rmdir()
+    store.save(_nominal())
+    assert store.versions() == [3, 4] and store.not_deleted == []
+
+
 def test_keep_calibrations_is_a_validated_service_setting() -> None:
-    assert CFG.service.keep_calibrations == 20
+    assert CFG.service.keep_calibrations == KEEP_CALIBRATIONS == 20
+    assert CalibrationStore("anywhere").keep == KEEP_CALIBRATIONS
     kept = config_from_dict({"service": {"keep_calibrations": 3}})
     assert kept.service.keep_calibrations == 3
     with pytest.raises(ConfigError, match="keep_calibrations"):

@@ -111,6 +111,23 @@ def test_detect_equals_blobs_then_pose_as_the_services_split_it(cfg) -> None:
         arena.step()
 
 
+def test_velocities_without_capture_times_are_not_flagged_measured(cfg) -> None:
+    """Frames without capture times (taken 1 s apart): velocities, none measured; the
+    same frames stamped: every object tracked from the first frame is measured."""
+    arena = Arena(cfg, 2)
+    frames = []
+    for _ in range(3):
+        frames.append(arena.render()[0])
+        arena.step()
+    unstamped, stamped = _detector(cfg), _detector(cfg)
+    for k, frame in enumerate(frames):
+        guessed = unstamped.detect(frame)
+        timed = stamped.detect(frame, stamp_s=0.1 * k)
+        assert not any(o.velocity_measured for o in guessed.objects)
+        assert all(o.velocity_measured for o in timed.objects) == (k > 0)
+    assert any(o.vx_cm_s or o.vy_cm_s for o in guessed.objects)  # moving, 1 s apart
+
+
 def test_the_floor_on_the_object_side_of_the_threshold_is_not_an_object(cfg) -> None:
     """A threshold below the floor's grey: the floor is one blob touching the border and
     covering most of the frame — the background, not an obstacle (it was one before)."""

@@ -61,28 +61,62 @@ def test_thresholds_fitted_to_a_stage_camera_still_take_no_page_fault_per_frame(
 
 
 BURST = """
-import json, time
-from ovis.services.memory import guard_memory, resident_bytes
-guard = guard_memory()
-time.sleep(1.5)  # the guard's first looks: the start's own memory
+import json, sys, time
+from ovis.services.memory import MemoryGuard, keep_freed_memory, resident_bytes
+keep_freed_memory()
+guard = MemoryGuard()
+threaded = sys.argv[1] == "thread"
+if threaded:  # the guard's own thread: it looks every second
+    guard.start()
+    time.sleep(1.5)  # its first look notes what the start left free
+else:
+    guard.look()
+in_use = [bytearray(1 << 20) for _ in range(64)]  # memory in use: no reason to trim
+trimmed_in_use = None if threaded else guard.look()
 start = resident_bytes()
 burst = [bytearray(1 << 20) for _ in range(200)]  # 1 MiB blocks: from the heaps
 pin = bytearray(1 << 10)  # above them: freed, they are not the heap's top (not trimmed)
 peak = resident_bytes()
 del burst
-time.sleep(0.2)
 freed = resident_bytes()
-time.sleep(2.5)
-print(json.dumps({"start": start, "peak": peak, "freed": freed, "after": resident_bytes()}))
+trimmed = None
+if threaded:
+    deadline = time.monotonic() + 10.0
+    while resident_bytes() - start > 20 << 20 and time.monotonic() < deadline:
+        time.sleep(0.1)
+else:
+    trimmed = guard.look()
+print(json.dumps({"start": start, "peak": peak, "freed": freed, "after": resident_bytes(),
+                  "trimmed_in_use": trimmed_in_use, "trimmed": trimmed, "kept": len(in_use)}))
 """
+
+
+def _burst(how: str) -> tuple[dict, dict]:
+    """The burst script's answers, and its memory figures in MiB."""
+    out = subprocess.run(
+        [sys.executable, "-c", BURST, how], capture_output=True, text=True, check=True
+    )
+    found = json.loads(out.stdout)
+    mb = {k: found[k] / 2**20 for k in ("start", "peak", "freed", "after")}
+    return found, mb
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc_trim")
 def test_the_memory_guard_gives_back_what_a_burst_left() -> None:
     """200 MiB allocated and freed in heap-sized blocks stay resident (the thresholds
-    keep freed blocks), until the guard sees the heaps hold them free and trims."""
-    out = subprocess.run([sys.executable, "-c", BURST], capture_output=True, text=True, check=True)
-    mb = {k: v / 2**20 for k, v in json.loads(out.stdout).items()}
+    keep freed blocks), until the guard's next look sees the heaps hold them free and
+    trims; 64 MiB more in use before is no reason to trim."""
+    found, mb = _burst("look")
+    assert found["trimmed_in_use"] is False
     assert mb["peak"] - mb["start"] > 190, mb
-    assert mb["freed"] - mb["start"] > 150, mb  # kept by the heaps at first
+    assert mb["freed"] - mb["start"] > 150, mb  # kept by the heaps: no look since
+    assert found["trimmed"] is True
+    assert mb["after"] - mb["start"] < 20, mb
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc_trim")
+def test_the_guard_thread_gives_back_a_burst() -> None:
+    """The guard's own thread, looking every second, trims the burst."""
+    _, mb = _burst("thread")
+    assert mb["peak"] - mb["start"] > 190, mb
     assert mb["after"] - mb["start"] < 20, mb

@@ -3,6 +3,7 @@ frame's payload against its own header (what the calibrator keeps unread)."""
 
 from __future__ import annotations
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -71,3 +72,13 @@ def test_a_frame_of_another_size_than_the_camera_is_not_kept() -> None:
     header = decode(payload, FrameHeader)
     problem = frame_payload_problem(header, len(payload), CAMERA)
     assert problem == "frame 3 is 64x48, the camera is configured for 640x480"
+
+
+def test_limits_are_worked_out_once_per_camera_size() -> None:
+    """Every message is checked against its camera's limits: the same size (another pose,
+    a recalibration) gives the same limits without working them out again; another size
+    its own."""
+    moved = msgspec.structs.replace(CAMERA, tvec_cm=(5.0, 0.0, 150.0))
+    assert PayloadLimits.of(moved) is PayloadLimits.of(CAMERA)
+    wider = msgspec.structs.replace(CAMERA, cols=1280, rows=960)
+    assert PayloadLimits.of(wider).frame == 3 * 1280 * 960 + HEADER_BYTES

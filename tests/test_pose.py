@@ -23,15 +23,15 @@ def test_robot_is_least_compact_candidate_in_area_range() -> None:
 
 def test_tracker_keeps_ids_through_motion_and_crossing_order() -> None:
     t = Tracker(gate_cm=10.0)
-    ids0, v0 = t.update(np.array([[10.0, 10.0], [50.0, 10.0], [30.0, 40.0]]))
+    ids0, v0, _ = t.track(np.array([[10.0, 10.0], [50.0, 10.0], [30.0, 40.0]]))
     assert ids0.tolist() == [1, 2, 3] and ROBOT_ID not in ids0
     assert (v0 == 0).all()
     # Next frame: everything moved 3 cm and the detections come in another order.
-    ids1, v1 = t.update(np.array([[33.0, 40.0], [13.0, 10.0], [53.0, 10.0]]))
+    ids1, v1, _ = t.track(np.array([[33.0, 40.0], [13.0, 10.0], [53.0, 10.0]]))
     assert ids1.tolist() == [3, 1, 2]
     np.testing.assert_allclose(v1, [[3.0, 0.0]] * 3)
     # Constant velocity is predicted: a 9 cm step after a 3 cm one is within the gate.
-    ids2, _ = t.update(np.array([[22.0, 10.0]]))
+    ids2, _, _ = t.track(np.array([[22.0, 10.0]]))
     assert ids2.tolist() == [1]
 
 
@@ -47,12 +47,12 @@ def test_tracker_says_which_displacements_are_measured() -> None:
 
 def test_tracker_gives_new_ids_beyond_the_gate_and_never_reuses() -> None:
     t = Tracker(gate_cm=5.0)
-    t.update(np.array([[0.0, 0.0]]))
-    ids, _ = t.update(np.array([[20.0, 0.0], [0.5, 0.0]]))
+    t.track(np.array([[0.0, 0.0]]))
+    ids, _, _ = t.track(np.array([[20.0, 0.0], [0.5, 0.0]]))
     assert ids.tolist() == [2, 1]
-    ids, _ = t.update(np.zeros((0, 2)))
+    ids, _, _ = t.track(np.zeros((0, 2)))
     assert ids.size == 0
-    ids, _ = t.update(np.array([[0.5, 0.0]]))
+    ids, _, _ = t.track(np.array([[0.5, 0.0]]))
     assert ids.tolist() == [3]  # the track was lost: a new id, never an old one
 
 
@@ -61,12 +61,12 @@ def test_reserved_ids_are_never_given_to_obstacles() -> None:
     one holding 2 gets a new id above the robots', the others keep theirs, and new
     obstacles skip every id a robot has or had."""
     t = Tracker(gate_cm=5.0)
-    t.update(np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]]))
+    t.track(np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]]))
     t.reserve({2, 7})
-    ids, _ = t.update(np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0]]))
+    ids, _, _ = t.track(np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0]]))
     assert ids.tolist() == [1, 8, 3, 9]
     t.reserve({10})
-    ids, _ = t.update(np.array([[40.0, 0.0], [50.0, 0.0]]))
+    ids, _, _ = t.track(np.array([[40.0, 0.0], [50.0, 0.0]]))
     assert ids.tolist() == [11, 12]
     assert ROBOT_ID in t.reserved and {2, 7, 10} <= t.reserved
 

@@ -51,7 +51,7 @@ from ovis.common.world.robots import (
     marker_poses,
     poses_of,
 )
-from ovis.common.world.unmarked import UnmarkedRobot
+from ovis.common.world.unmarked import PATH_FRAMES, UnmarkedRobot
 from ovis.services.cli.watching import format_obstacles
 
 
@@ -644,6 +644,19 @@ def test_unmarked_velocity_is_measured_from_the_second_frame() -> None:
     out = _track(robot, [(1.5 * k, 0.0, 0.0) for k in range(3)])
     assert [m.velocity_measured for m in out] == [False, True, True]
     assert (out[0].vx_cm_s, out[0].vy_cm_s) == (0.0, 0.0) and out[2].vx_cm_s > 20.0
+
+
+def test_unmarked_robot_standing_still_long_then_driving_resolves() -> None:
+    """Twice the kept path of standing still with its centre jittering by a few mm: never
+    resolved; then driving +x resolves it as soon as it has travelled a centimetre from
+    where it stood."""
+    robot = UnmarkedRobot(PoseConfig())
+    jitter = np.random.default_rng(3).uniform(-0.2, 0.2, (2 * PATH_FRAMES, 2))
+    still = _track(robot, [(x, y, 180.0 - 1.0) for x, y in jitter])
+    assert not any(m.resolved for m in still)
+    moving = _track(robot, [(0.5 * k, 0.0, 1.0) for k in range(1, 5)], start=2 * PATH_FRAMES)
+    assert [m.resolved for m in moving] == [False, True, True, True]  # 0.5 cm, then 1 cm on
+    assert [m.heading_deg for m in moving[1:]] == [1.0, 1.0, 1.0]
 
 
 def test_filter_takes_a_position_without_a_heading() -> None:

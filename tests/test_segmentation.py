@@ -8,13 +8,15 @@ import numpy as np
 import pytest
 from test_real_detection import evenly_lit, on_canvas, reference_coins
 
-from ovis.common.config import ImageParams
+from ovis.common.config import ImageParams, PinholeParams, PoseConfig
 from ovis.common.vision.segmentation import (
     FIRST_WINDOW_PX,
     WINDOW_PER_OBJECT,
+    ObjectWindow,
     follow_objects,
     segmentation,
 )
+from ovis.common.world.detection import Detector
 from ovis.common.world.pixels import detect_pixels
 
 skimage = pytest.importorskip("skimage")
@@ -87,3 +89,48 @@ def test_a_plain_floor_keeps_the_first_window() -> None:
     """No object to follow: the first window, the level over the whole frame."""
     found = follow_objects(np.full((480, 640), 90, np.uint8), "bright")
     assert found.block_px == FIRST_WINDOW_PX and found.near is None
+
+
+def test_the_next_frame_starts_from_the_settled_window(photo) -> None:
+    """A sequence of frames: the first searches (several looks), the next ones start from
+    the window it settled on and take one look, with the same window and level as a
+    search of their own; twice-larger coins move the window: it searches again."""
+    image, labels = photo
+    canvas = on_canvas(image, labels, 1280, 960, (300, 400))[0]
+    window = ObjectWindow()
+    first = segmentation(canvas, AUTO, window)
+    assert window.looks > 1
+    shifted = np.roll(canvas, (5, -7), axis=(0, 1))  # the objects moved a little
+    second = segmentation(shifted, AUTO, window)
+    assert window.looks == 1
+    alone = segmentation(shifted, AUTO)
+    assert second.block_px == first.block_px
+    assert abs(second.block_px - alone.block_px) <= alone.block_px / 8
+    assert abs(second.level - alone.level) <= 1
+    twice = cv2.resize(image, None, fx=2.0, fy=2.0, interpolation=cv2.INTER_LINEAR)
+    twice_labels = cv2.resize(labels, None, fx=2.0, fy=2.0, interpolation=cv2.INTER_NEAREST)
+    larger = segmentation(on_canvas(twice, twice_labels, 1280, 960)[0], AUTO, window)
+    assert window.looks > 1 and larger.block_px > 1.7 * first.block_px
+
+
+def test_a_detector_carries_the_window_between_frames(photo) -> None:
+    """Detector.detect on a sequence: one look from the second frame on, the same coins."""
+    image, labels = photo
+    canvas = on_canvas(image, labels, 1024, 768, (200, 300))[0]
+    rows, cols = canvas.shape
+    camera = PinholeParams(
+        rows=rows,
+        cols=cols,
+        fx=500.0,
+        fy=500.0,
+        cx=cols / 2,
+        cy=rows / 2,
+        rvec=(np.pi, 0.0, 0.0),
+        tvec_cm=(0.0, 0.0, 200.0),
+    )
+    detector = Detector(camera, AUTO, PoseConfig())
+    first = detector.detect(canvas)
+    assert detector.window.looks > 1
+    second = detector.detect(canvas)
+    assert detector.window.looks == 1
+    assert [(o.row, o.col) for o in second.objects] == [(o.row, o.col) for o in first.objects]

@@ -18,6 +18,7 @@ one line (in the world or in the image), no two at the same place.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Sequence
@@ -32,6 +33,7 @@ from ovis.common.calibration.file import Calibration, PointResidual, mm_or_none,
 from ovis.common.calibration.lens_check import CLICK_PX, pose_check
 from ovis.common.calibration.quality import AccuracyReport, HeldOut, HeldOutPoint
 from ovis.common.camera.intrinsics import CameraIntrinsics, with_pose
+from ovis.common.camera.paper_model import Projection
 from ovis.common.camera.pinhole import back_project, project
 from ovis.common.config import (
     PINHOLE_VARIABLES,
@@ -158,24 +160,32 @@ def _point_fields(p: ControlPoint, predicted_row: float, predicted_col: float) -
 
 
 def _held_out_point(p: ControlPoint, cam: PinholeParams, in_sample: float | None) -> HeldOutPoint:
-    pred = project(p.x_cm, p.y_cm, p.z_cm, cam)
-    b = back_project(p.row, p.col, cam, p.z_cm)
-    cm = float(np.hypot(float(b.x_cm) - p.x_cm, float(b.y_cm) - p.y_cm)) if b.valid else None
+    xyz = np.array([[p.x_cm, p.y_cm, p.z_cm]])
+    pix = np.array([[p.col, p.row]], dtype=np.float64)
+    pred, px = _projected(xyz, pix, cam)
     return HeldOutPoint(
-        **_point_fields(p, float(pred.row), float(pred.col)),
-        error_px=float(np.hypot(float(pred.row) - p.row, float(pred.col) - p.col)),
-        error_cm=cm,
+        **_point_fields(p, float(pred.row[0]), float(pred.col[0])),
+        error_px=float(px[0]),
+        error_cm=_floor_errors(pix, xyz, cam)[0],
         in_sample_px=in_sample,
     )
+
+
+def _projected(
+    xyz: NDArray[np.float64], pix: NDArray[np.float64], cam: PinholeParams
+) -> tuple[Projection, NDArray[np.float64]]:
+    """Where ``cam`` projects the points, and each point's pixel (col, row) distance from
+    its projection (inf where it does not project)."""
+    pred = project(xyz[:, 0], xyz[:, 1], xyz[:, 2], cam)
+    d = np.hypot(pix[:, 1] - pred.row, pix[:, 0] - pred.col)
+    return pred, np.where(pred.valid, d, np.inf)
 
 
 def _residuals(
     xyz: NDArray[np.float64], pix: NDArray[np.float64], cam: PinholeParams
 ) -> NDArray[np.float64]:
     """Each point's pixel distance from its projection (inf where it does not project)."""
-    pred = project(xyz[:, 0], xyz[:, 1], xyz[:, 2], cam)
-    d = np.hypot(pix[:, 1] - pred.row, pix[:, 0] - pred.col)
-    return np.where(pred.valid, d, np.inf)
+    return _projected(xyz, pix, cam)[1]
 
 
 def _leave_one_out(
@@ -281,11 +291,9 @@ def solve_floor_pose(
     pix = np.array([[p.col, p.row] for p in points], dtype=np.float64)
     rvec, tvec = _pose(xyz, pix, intr)
     cam = _camera(intr, rvec, tvec, pixel_pitch_mm)
-    pred = project(xyz[:, 0], xyz[:, 1], xyz[:, 2], cam)
+    pred, px = _projected(xyz, pix, cam)
     if not np.all(pred.valid):
         raise FloorPoseError("the pose found puts control points behind the camera")
-    d_row, d_col = pix[:, 1] - pred.row, pix[:, 0] - pred.col
-    px = np.hypot(d_row, d_col)
     pitch = cam.d_x_mm
     residuals = [
         PointResidual(
@@ -302,13 +310,13 @@ def solve_floor_pose(
     lens = pose_check(
         names=[p.name for p in points],
         residuals_px=px,
-        residuals_cm=_floor_errors(points, pix, xyz, cam),
+        residuals_cm=_floor_errors(pix, xyz, cam),
         lens=intr,
         cam=cam,
         point_px=point_px,
         rest_ssr=None if loo is None else loo[1],
         held_out=None if loo is None else [(h.error_px, h.error_cm) for h in loo[0].points],
-        alternatives=_lens_alternatives(xyz, pix, intr) if len(points) > MIN_POINTS else (),
+        alternatives=functools.partial(_lens_alternatives, xyz, pix, intr),
         what=lens_name,
     )
     return Calibration(
@@ -330,12 +338,10 @@ def solve_floor_pose(
 
 
 def _floor_errors(
-    points: Sequence[ControlPoint],
-    pix: NDArray[np.float64],
-    xyz: NDArray[np.float64],
-    cam: PinholeParams,
+    pix: NDArray[np.float64], xyz: NDArray[np.float64], cam: PinholeParams
 ) -> list[float | None]:
-    """Each point's pixel back-projected onto its plane vs. its position (cm)."""
+    """Each point's pixel (col, row) back-projected onto its plane vs. its position (cm);
+    None where it does not reach the plane."""
     b = back_project(pix[:, 1], pix[:, 0], cam, xyz[:, 2])
     err = np.hypot(b.x_cm - xyz[:, 0], b.y_cm - xyz[:, 1])
     return [float(e) if ok else None for e, ok in zip(err, b.valid, strict=True)]

@@ -25,6 +25,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
 from ovis.common.calibration.plausibility import MAX_MEAN_DIPE_PX
 
 __all__ = [
@@ -76,24 +79,19 @@ def dipe_problem(candidate_px: float, current_px: float | None, force: bool = Fa
 
 def _matches(current: list[Seen], candidate: list[Seen]) -> tuple[int, float]:
     """How many current objects a distinct candidate object sees inside their footprint
-    (closest pairs first), and the largest offset of a current object to its nearest
-    candidate object (cm)."""
-    pairs = sorted(
-        (math.hypot(a.x_cm - b.x_cm, a.y_cm - b.y_cm), i, j)
-        for i, a in enumerate(current)
-        for j, b in enumerate(candidate)
-    )
-    nearest = [
-        min((d for d, i, _ in pairs if i == k), default=math.inf) for k in range(len(current))
-    ]
-    used_i: set[int] = set()
-    used_j: set[int] = set()
-    for d, i, j in pairs:
-        if i in used_i or j in used_j or d > max(current[i].radius_cm, MIN_MATCH_CM):
-            continue
-        used_i.add(i)
-        used_j.add(j)
-    return len(used_i), max(nearest, default=0.0)
+    (the most such pairs, then the least total distance), and the largest offset of a
+    current object to its nearest candidate object (cm)."""
+    if not (current and candidate):
+        return 0, math.inf if current else 0.0
+    now = np.array([(a.x_cm, a.y_cm) for a in current])
+    new = np.array([(b.x_cm, b.y_cm) for b in candidate])
+    dist = np.hypot(now[:, None, 0] - new[None, :, 0], now[:, None, 1] - new[None, :, 1])
+    gate = np.maximum([a.radius_cm for a in current], MIN_MATCH_CM)[:, None]
+    inside = dist <= gate  # (NaN: never)
+    # a pair outside costs more than all inside pairs together: the most pairs first
+    outside = 1.0 + float(np.sum(dist[inside]))
+    rows, cols = linear_sum_assignment(np.where(inside, dist, outside))
+    return int(inside[rows, cols].sum()), float(dist.min(axis=1).max())
 
 
 def sight_problem(candidate: list[Seen], current: list[Seen], force: bool = False) -> str | None:

@@ -41,7 +41,7 @@ straight down.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -170,7 +170,7 @@ def pose_check(
     point_px: float,
     rest_ssr: NDArray[np.float64] | None = None,
     held_out: Sequence[tuple[float, float | None]] | None = None,
-    alternatives: Sequence[tuple[str, NDArray[np.float64], int]] = (),
+    alternatives: Callable[[], Sequence[tuple[str, NDArray[np.float64], int]]] | None = None,
     what: str = "the intrinsics file",
 ) -> LensCheck:
     """Judge a known-lens pose (see the module docstring).
@@ -178,8 +178,9 @@ def pose_check(
     ``residuals_px``/``_cm``: each point's in-sample residual; ``rest_ssr[i]`` the other
     points' sum of squared residuals with the pose refitted without point i, and
     ``held_out[i]`` point i's held-out error (px, cm) then (5+ points); ``alternatives``:
-    (what the refit changed, its residuals, its degrees of freedom) for the lens
-    diagnosis.
+    what makes (what the refit changed, its residuals, its degrees of freedom) for the
+    lens diagnosis, called only when the points are unexplained and no outlier is found
+    (the refits cost many pose fits).
     """
     n = len(names)
     height, tilt = viewing(cam)
@@ -211,8 +212,8 @@ def pose_check(
         check.outlier = names[out]
         check.outlier_px, check.outlier_cm = held_out[out]
         check.outlier_also = [names[i] for i in also]
-    elif n > 4:
-        for change, res, dof in alternatives:
+    elif n > 4 and alternatives is not None:
+        for change, res, dof in alternatives():
             if fit_statistic(_ssr(res), e, dof) <= 1.0:
                 rms_alt = float(np.sqrt(np.mean(np.square(res))))
                 check.hints.append(f"{change} the points are explained (RMS {rms_alt:.3g} px)")

@@ -34,13 +34,12 @@ from ovis.common.calibration.file import (
     load_calibration,
     save_calibration,
 )
+from ovis.common.config import KEEP_CALIBRATIONS
 
-__all__ = ["KEEP_VERSIONS", "PROBE_BYTES", "CalibrationStore", "StoreWriteError"]
+__all__ = ["PROBE_BYTES", "CalibrationStore", "StoreWriteError"]
 
 _VERSION_RE = re.compile(r"^calibration-v(\d{4,})\.json$")
 _EPOCH_RE = re.compile(r"^[0-9a-f]{16}$")
-#: Versions kept unless told otherwise (``[service] keep_calibrations``).
-KEEP_VERSIONS = 20
 #: What :meth:`CalibrationStore.writable` writes to find out: room for a calibration
 #: file and its copy in ``current.json``.
 PROBE_BYTES = 64 << 10
@@ -58,13 +57,15 @@ def _why(exc: OSError, folder: Path) -> str:
 class CalibrationStore:
     """A folder of versioned calibration files, keeping the newest ``keep``."""
 
-    def __init__(self, folder: Path | str, keep: int = KEEP_VERSIONS) -> None:
+    def __init__(self, folder: Path | str, keep: int = KEEP_CALIBRATIONS) -> None:
         if keep < 1:
             raise ValueError(f"a calibration store keeps at least 1 version, not {keep}")
         self.folder = Path(folder)
         self.keep = keep
         #: why the last write failed (None: it worked, or none was tried)
         self.problem: str | None = None
+        #: the old versions the last :meth:`prune` could not delete, each with why
+        self.not_deleted: list[str] = []
 
     def _write(self, write: Callable[[], None]) -> None:
         """Run ``write``; an OSError becomes a StoreWriteError and the store's problem."""
@@ -164,15 +165,18 @@ class CalibrationStore:
         return calibration
 
     def prune(self) -> list[int]:
-        """Delete the versions older than the newest ``keep``; the versions deleted (a
-        file that cannot be deleted stays, to be tried again next time)."""
-        deleted = []
+        """Delete the versions older than the newest ``keep``; the versions deleted. A
+        file that cannot be deleted stays, to be tried again next time, and is named
+        with why in :attr:`not_deleted` (for the calibrator to count and say)."""
+        deleted, self.not_deleted = [], []
         for version in self.versions()[: -self.keep]:
+            path = self.path(version)
             try:
-                os.unlink(self.path(version))
+                os.unlink(path)
             except FileNotFoundError:
                 pass
-            except OSError:
+            except OSError as exc:
+                self.not_deleted.append(f"{path}: {exc.strerror or exc}")
                 continue
             deleted.append(version)
         return deleted

@@ -6,6 +6,7 @@ camera's frames need; and a frame's payload against what its own header declares
 
 from __future__ import annotations
 
+import functools
 from typing import Literal, NamedTuple
 
 from ovis.common.config import CameraModel
@@ -47,16 +48,24 @@ class PayloadLimits(NamedTuple):
 
     @classmethod
     def of(cls, camera: CameraModel | None) -> PayloadLimits:
-        if camera is None:
-            return cls(MAX_PAYLOAD_BYTES, MAX_PAYLOAD_BYTES, MAX_PAYLOAD_BYTES, SMALL_BYTES)
-        pixels = camera.rows * camera.cols
-        sizes = (
-            3 * pixels + HEADER_BYTES,
-            (pixels + 7) // 8 + pixels + MARKERS_BYTES + HEADER_BYTES,
-            max(pixels, SMALL_BYTES) + MARKERS_BYTES + HEADER_BYTES,
-            SMALL_BYTES,
-        )
-        return cls(*(min(size, MAX_PAYLOAD_BYTES) for size in sizes))
+        """The limits for ``camera`` (they depend on its size only: worked out once per
+        size, not per message)."""
+        return _limits(None if camera is None else (camera.rows, camera.cols))
+
+
+@functools.lru_cache(maxsize=16)
+def _limits(size: tuple[int, int] | None) -> PayloadLimits:
+    """:meth:`PayloadLimits.of` a camera of ``size`` (rows, cols; None: none known)."""
+    if size is None:
+        return PayloadLimits(MAX_PAYLOAD_BYTES, MAX_PAYLOAD_BYTES, MAX_PAYLOAD_BYTES, SMALL_BYTES)
+    pixels = size[0] * size[1]
+    sizes = (
+        3 * pixels + HEADER_BYTES,
+        (pixels + 7) // 8 + pixels + MARKERS_BYTES + HEADER_BYTES,
+        max(pixels, SMALL_BYTES) + MARKERS_BYTES + HEADER_BYTES,
+        SMALL_BYTES,
+    )
+    return PayloadLimits(*(min(n, MAX_PAYLOAD_BYTES) for n in sizes))
 
 
 def oversized(size: int, kind: Input, what: str, camera: CameraModel | None) -> str | None:

@@ -26,6 +26,7 @@ __all__ = [
     "SPECK_FRACTION",
     "background",
     "smallest_object_px",
+    "speck_floor_px",
     "typical_area_px",
 ]
 
@@ -68,5 +69,10 @@ def smallest_object_px(area_px: NDArray[np.float64]) -> float:
     """The smallest object (px) among blobs of these areas (the background left out):
     :data:`SPECK_FRACTION` of the typical object's area, and at least
     :data:`MIN_OBJECT_PX`."""
-    above_floor = area_px[area_px >= MIN_OBJECT_PX]
-    return max(MIN_OBJECT_PX, SPECK_FRACTION * typical_area_px(above_floor))
+    return speck_floor_px(typical_area_px(area_px[area_px >= MIN_OBJECT_PX]))
+
+
+def speck_floor_px(typical_px: float) -> float:
+    """The smallest object (px) when the typical object covers ``typical_px``:
+    :data:`SPECK_FRACTION` of it, and at least :data:`MIN_OBJECT_PX`."""
+    return max(MIN_OBJECT_PX, SPECK_FRACTION * typical_px)

@@ -14,7 +14,8 @@ the same window and the same level, so the same objects.
   objects, sets the window from their size and looks again, until the window settles
   (within 1/8) or after :data:`SEARCH_ROUNDS` looks. It starts small because a window
   far wider than the objects turns the floor's own light and shade into blobs of its
-  size, which would widen it further.
+  size, which would widen it further. A sequence of frames of one camera
+  (:class:`ObjectWindow`) starts each frame from the window the last one settled on.
 * **The level of "auto"** is Otsu's level of the local contrast around the objects
   (within :data:`NEIGHBOURHOOD` of an extent of each), not of the whole frame: empty
   floor far from any object would otherwise outweigh them and raise the level with the
@@ -36,7 +37,7 @@ from ovis.common.vision.labeling import Components, filter_components, label_com
 from ovis.common.vision.objects import (
     MIN_OBJECT_PX,
     background,
-    smallest_object_px,
+    speck_floor_px,
     typical_area_px,
 )
 from ovis.common.vision.preprocess import (
@@ -55,8 +56,10 @@ __all__ = [
     "NEIGHBOURHOOD",
     "SEARCH_ROUNDS",
     "WINDOW_PER_OBJECT",
+    "ObjectWindow",
     "Prepared",
     "Segmentation",
+    "follow_objects",
     "prepare",
     "segment",
     "segmentation",
@@ -110,13 +113,21 @@ def _odd(px: float, shape: tuple[int, ...]) -> int:
     return int(min(max(px, MIN_WINDOW_PX), max(3, MAX_WINDOW_SHARE * min(shape[:2])))) | 1
 
 
-def _objects(contrast: GrayImage, near: NDArray[np.bool_] | None, polarity: Polarity):
+def _objects(
+    contrast: GrayImage, near: NDArray[np.bool_] | None, polarity: Polarity
+) -> tuple[Components, float]:
     """The objects of a local-contrast image at Otsu's level (taken over ``near``): not
-    the background, not specks."""
+    the background, not specks; and their typical area (px)."""
     binary = binarize(contrast, otsu_level(contrast, where=near), polarity)
     comp = label_components(binary, min_area_px=MIN_OBJECT_PX)
-    comp = filter_components(comp, ~background(comp))
-    return filter_components(comp, comp.area_px >= smallest_object_px(comp.area_px))
+    behind = background(comp)
+    if behind.any():
+        comp = filter_components(comp, ~behind)
+    typical = typical_area_px(comp.area_px)
+    specks = comp.area_px < speck_floor_px(typical)
+    if specks.any():
+        comp = filter_components(comp, ~specks)
+    return comp, typical
 
 
 def _neighbourhood(comp: Components, extent: float) -> NDArray[np.bool_]:
@@ -128,23 +139,79 @@ def _neighbourhood(comp: Components, extent: float) -> NDArray[np.bool_]:
     return cv2.dilate(mask, disc).astype(bool)
 
 
-def follow_objects(gray: GrayImage, polarity: Polarity, block_px: int = 0) -> Prepared:
-    """The local contrast of ``gray`` over a window that follows its objects (see the
-    module's docstring), or over ``block_px`` when given, and the objects' neighbourhood."""
-    block = block_px | 1 if block_px else _odd(FIRST_WINDOW_PX, gray.shape)
-    near = None
+class ObjectWindow:
+    """The settled window of a sequence of frames (one camera), and its objects'
+    neighbourhood: each frame's search starts from them, so a scene whose objects keep
+    their size costs one look per frame; the search runs again only when the window
+    moves by more than the tolerance. ``looks``: how many the last frame took."""
+
+    def __init__(self) -> None:
+        self.block_px = 0
+        self.near: NDArray[np.bool_] | None = None
+        self.looks = 0
+        self._key: tuple[tuple[int, ...], str] | None = None
+
+    def start(
+        self, shape: tuple[int, ...], polarity: Polarity
+    ) -> tuple[int, NDArray[np.bool_] | None]:
+        """Where a frame of ``shape`` starts its search: the settled window, or
+        :data:`FIRST_WINDOW_PX` for a new camera or polarity."""
+        if self._key != (shape, polarity) or not self.block_px:
+            return _odd(FIRST_WINDOW_PX, shape), None
+        return self.block_px, self.near
+
+    def keep(self, shape: tuple[int, ...], polarity: Polarity, found: Prepared, looks: int) -> None:
+        self._key, self.block_px, self.near = (shape, polarity), found.block_px, found.near
+        self.looks = looks
+
+
+def _search(
+    gray: GrayImage, polarity: Polarity, block: int, near: NDArray[np.bool_] | None
+) -> tuple[Prepared, int]:
+    """The window search from ``block`` (objects found at Otsu's level over ``near``),
+    and how many looks it took; no objects: the window it started from."""
     for look in range(SEARCH_ROUNDS):
         contrast = local_contrast(gray, block)
-        comp = _objects(contrast, near, polarity)
+        comp, typical = _objects(contrast, near, polarity)
         if not comp.count:
-            return Prepared(contrast, block, None)
-        extent = math.sqrt(typical_area_px(comp.area_px))
+            return Prepared(contrast, block, None), look + 1
+        extent = math.sqrt(typical)
         near = _neighbourhood(comp, extent)
         wanted = _odd(WINDOW_PER_OBJECT * extent, gray.shape)
-        if block_px or abs(wanted - block) * 8 <= block or look == SEARCH_ROUNDS - 1:
-            break
+        if abs(wanted - block) * 8 <= block or look == SEARCH_ROUNDS - 1:
+            return Prepared(contrast, block, near), look + 1
         block = wanted
-    return Prepared(contrast, block, near)
+    raise AssertionError("unreachable: the last look returns")
+
+
+def follow_objects(
+    gray: GrayImage,
+    polarity: Polarity,
+    block_px: int = 0,
+    *,
+    auto: bool = True,
+    window: ObjectWindow | None = None,
+) -> Prepared:
+    """The local contrast of ``gray`` over a window that follows its objects (see the
+    module's docstring), or over ``block_px`` when given; and, for "auto" (``auto``), the
+    objects' neighbourhood. ``window`` carries the settled window from frame to frame."""
+    if block_px:
+        block = block_px | 1
+        contrast = local_contrast(gray, block)
+        if not auto:  # a fixed level on a fixed window: no objects to look for
+            return Prepared(contrast, block, None)
+        comp, typical = _objects(contrast, None, polarity)
+        near = _neighbourhood(comp, math.sqrt(typical)) if comp.count else None
+        return Prepared(contrast, block, near)
+    if window is None:
+        return _search(gray, polarity, _odd(FIRST_WINDOW_PX, gray.shape), None)[0]
+    block, near = window.start(gray.shape, polarity)
+    found, looks = _search(gray, polarity, block, near)
+    if found.near is None and near is not None:  # nothing at the carried window: afresh
+        found, more = _search(gray, polarity, _odd(FIRST_WINDOW_PX, gray.shape), None)
+        looks += more
+    window.keep(gray.shape, polarity, found, looks)
+    return found
 
 
 def prepare(
@@ -153,12 +220,14 @@ def prepare(
     block_px: int = 0,
     background: GrayImage | None = None,
     polarity: Polarity = "bright",
+    window: ObjectWindow | None = None,
 ) -> Prepared:
     """The image the threshold applies to: the frame, less the background if given, as
-    local contrast (:func:`follow_objects`) for the "adaptive" and "auto" modes."""
+    local contrast (:func:`follow_objects`, from ``window`` when given) for the
+    "adaptive" and "auto" modes."""
     out = gray if background is None else subtract_background(gray, background)
     if mode in ("adaptive", "auto"):
-        return follow_objects(out, polarity, block_px)
+        return follow_objects(out, polarity, block_px, auto=mode == "auto", window=window)
     return Prepared(out, 0, None)
 
 
@@ -178,14 +247,19 @@ class Segmentation(NamedTuple):
     level: int
 
 
-def segmentation(smoothed: GrayImage, params: ImageParams) -> Segmentation:
+def segmentation(
+    smoothed: GrayImage, params: ImageParams, window: ObjectWindow | None = None
+) -> Segmentation:
     """Object pixels of a smoothed frame under ``params`` (see the module's docstring),
-    with the window and level used."""
+    with the window and level used; ``window`` carries the window of a sequence of
+    frames (:class:`ObjectWindow`)."""
     shape = smoothed.shape
     floor = None
     if params.background:
         floor = _cached_mask(params.background, shape, "background")
-    prepared = prepare(smoothed, params.threshold_mode, params.block_px, floor, params.polarity)
+    prepared = prepare(
+        smoothed, params.threshold_mode, params.block_px, floor, params.polarity, window
+    )
     level = prepared.level(params.threshold_mode, params.threshold)
     binary = binarize(prepared.image, min(255, level), params.polarity)
     if params.roi:
@@ -193,6 +267,9 @@ def segmentation(smoothed: GrayImage, params: ImageParams) -> Segmentation:
     return Segmentation(binary, prepared.block_px, level)
 
 
-def segment(smoothed: GrayImage, params: ImageParams) -> NDArray[np.uint8]:
-    """Object pixels (1) of a smoothed frame under ``params``."""
-    return segmentation(smoothed, params).binary
+def segment(
+    smoothed: GrayImage, params: ImageParams, window: ObjectWindow | None = None
+) -> NDArray[np.uint8]:
+    """Object pixels (1) of a smoothed frame under ``params`` (``window``: see
+    :func:`segmentation`)."""
+    return segmentation(smoothed, params, window).binary

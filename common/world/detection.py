@@ -27,7 +27,7 @@ from ovis.common.vision.markers import Markers
 from ovis.common.vision.objects import background
 from ovis.common.vision.perimeter import perimeter
 from ovis.common.vision.preprocess import ImageError, as_gray, smooth
-from ovis.common.vision.segmentation import segment
+from ovis.common.vision.segmentation import ObjectWindow, segment
 from ovis.common.vision.shape import compactness, orientation
 from ovis.common.world.marker_search import (
     marker_search_image,
@@ -95,7 +95,8 @@ class DetectedObject(msgspec.Struct):
     #: end (obstacles, and an unmarked robot that has not moved yet)
     heading_resolved: bool = False
     #: whether ``vx_cm_s``/``vy_cm_s`` are measured: the object tracked over two frames'
-    #: capture times; false in its first frame (they are then 0, not a measurement)
+    #: capture times; false in its first frame (they are then 0, not a measurement) and
+    #: for frames without capture times (taken to be 1 s apart: a guess, not a measurement)
     velocity_measured: bool = False
 
 
@@ -149,21 +150,30 @@ def find_blobs(
 
 
 def binarize_frame(
-    image: NDArray[np.uint8], params: ImageParams, camera: CameraModel
+    image: NDArray[np.uint8],
+    params: ImageParams,
+    camera: CameraModel,
+    window: ObjectWindow | None = None,
 ) -> NDArray[np.uint8]:
-    """The paper's median step and binarization of a frame of the calibration's size."""
-    return segment(smooth(_frame_gray(image, camera), params.median), params)
+    """The paper's median step and binarization of a frame of the calibration's size
+    (``window``: the local-contrast window carried between frames,
+    :class:`~ovis.common.vision.segmentation.ObjectWindow`)."""
+    return segment(smooth(_frame_gray(image, camera), params.median), params, window)
 
 
 def median_and_binary(
-    image: NDArray[np.uint8], params: ImageParams, camera: CameraModel
+    image: NDArray[np.uint8],
+    params: ImageParams,
+    camera: CameraModel,
+    window: ObjectWindow | None = None,
 ) -> tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[np.uint8]]:
     """The frame as grey, its 3×3 median and :func:`binarize_frame`'s binary image, from
     one median filter: the paper's smoothing step and the marker search both start from
     it."""
     gray = _frame_gray(image, camera)
     median3 = cv2.medianBlur(gray, 3)
-    return gray, median3, segment(smooth(gray, params.median, median3=median3), params)
+    smoothed = smooth(gray, params.median, median3=median3)
+    return gray, median3, segment(smoothed, params, window)
 
 
 def _frame_gray(image: NDArray[np.uint8], camera: CameraModel) -> NDArray[np.uint8]:
@@ -335,6 +345,7 @@ class Detector:
         self.robots = RobotTracker(pose)
         self.unmarked = UnmarkedRobot(pose)
         self.tables = PlaneTables()
+        self.window = ObjectWindow()  # the local-contrast window, settled over the frames
         self._last_stamp: float | None = None
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
         self.marker_side_px = marker_side_px(pose, camera)
@@ -349,6 +360,7 @@ class Detector:
         self.tracker.reserve(robot_ids(pose))
         self.robots.reconfigure(pose)
         self.unmarked.pose = pose
+        self.window = ObjectWindow()
         self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
         self.marker_side_px = marker_side_px(pose, camera)
         self.top_side_cm = top_side_cm(pose, camera)
@@ -365,13 +377,14 @@ class Detector:
 
         The goal defaults to the calibration's ``pose.goal_cm``/``goal_angle_deg``.
         ``stamp_s`` is the frame's capture time (s); without it frames are taken to be
-        the paper's Δt = 1 s apart. Obstacle velocities are in cm/s.
+        the paper's Δt = 1 s apart (and no velocity is flagged measured). Obstacle
+        velocities are in cm/s.
         """
         gray = median3 = None
         if self.pose.robots:
-            gray, median3, binary = median_and_binary(frame, self.image, self.camera)
+            gray, median3, binary = median_and_binary(frame, self.image, self.camera, self.window)
         else:
-            binary = binarize_frame(frame, self.image, self.camera)
+            binary = binarize_frame(frame, self.image, self.camera, self.window)
         planes = (self.pose.obstacle_height_cm, self.pose.robot_height_cm)
         blobs, (floor, top) = measure_blobs_and_maps(
             binary,
@@ -463,6 +476,11 @@ class Detector:
             shown[robot], resolved[robot] = motion.heading_deg, motion.resolved
             vel[robot] = motion.vx_cm_s, motion.vy_cm_s
             measured[robot] = motion.velocity_measured
+        if stamp_s is None:  # frames taken to be 1 s apart: a velocity, but not measured
+            measured[:] = False
+            marked.robots[:] = [
+                msgspec.structs.replace(r, velocity_measured=False) for r in marked.robots
+            ]
         # Objects in id order (the robot first), built column by column.
         out = np.arange(n)[ok]
         out = out[ids[out].argsort(kind="stable")]

@@ -67,12 +67,14 @@ def detect_pixels(
         seg.binary, min_area_px=MIN_OBJECT_PX if min_area_px is None else min_area_px
     )
     behind = background(comp)
-    comp = filter_components(comp, ~behind)
+    if behind.any():
+        comp = filter_components(comp, ~behind)
     lo = smallest_object_px(comp.area_px) if min_area_px is None else min_area_px
     keep = comp.area_px >= lo
     if max_area_px is not None:
         keep &= comp.area_px <= max_area_px
-    comp = filter_components(comp, keep)
+    if not keep.all():
+        comp = filter_components(comp, keep)
     perim = perimeter(comp, params.perimeter)
     comp_c = compactness(comp.area_px, perim)
     order = np.argsort(-comp.area_px, kind="stable")

@@ -156,18 +156,11 @@ class Tracker:
             self._next_id += 1
         return out
 
-    def update(self, xy: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-        """Assign ids to this frame's obstacle centres (N, 2); return (ids, displacements).
-
-        Displacements are in cm per frame (0 for a new obstacle). Tracks not seen this
-        frame are dropped.
-        """
-        step = self.track(xy)
-        return step.ids, step.step
-
     def track(self, xy: NDArray[np.float64]) -> TrackStep:
-        """:meth:`update`, and which obstacles continue a track (their displacement is
-        measured; a new one's 0 is not)."""
+        """Assign ids to this frame's obstacle centres (N, 2): each one's id, displacement
+        (cm per frame; 0 for a new obstacle) and whether it continues a track (its
+        displacement measured; a new one's 0 is not). Tracks not seen this frame are
+        dropped."""
         xy = np.array(xy, dtype=np.float64).reshape(-1, 2)  # a copy: kept as the tracks
         ids = np.full(xy.shape[0], -1, dtype=np.int64)
         step = np.zeros(xy.shape)

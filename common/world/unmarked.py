@@ -79,6 +79,51 @@ def axis_end(axis_deg: float, towards_deg: float) -> float:
     return wrap_angle_deg(axis_deg + 180.0)
 
 
+class _Path:
+    """The robot's recent positions (at most :data:`PATH_FRAMES`) and a box around them
+    (never smaller than they span): a robot standing still is seen not to have
+    travelled :data:`TRAVEL_CM` from the box alone, without walking its path."""
+
+    def __init__(self) -> None:
+        self.points: deque[tuple[float, float]] = deque(maxlen=PATH_FRAMES)
+        self._box: tuple[float, float, float, float] | None = None  # x0, y0, x1, y1
+
+    def clear(self) -> None:
+        self.points.clear()
+        self._box = None
+
+    def append(self, x: float, y: float) -> None:
+        self.points.append((x, y))
+        self._grow(x, y)
+
+    def _grow(self, x: float, y: float) -> None:
+        b = self._box
+        self._box = (
+            (x, y, x, y) if b is None else (min(b[0], x), min(b[1], y), max(b[2], x), max(b[3], y))
+        )
+
+    def travel(self, x: float, y: float) -> float | None:
+        """Direction (deg) from the latest position at least :data:`TRAVEL_CM` away to
+        (x, y), the path up to that position then forgotten; None if there is none."""
+        b = self._box
+        if b is None:
+            return None
+        far_x, far_y = max(x - b[0], b[2] - x), max(y - b[1], b[3] - y)
+        if math.hypot(far_x, far_y) < TRAVEL_CM:  # every position is nearer
+            return None
+        path = self.points
+        for k in range(len(path) - 1, -1, -1):
+            px, py = path[k]
+            if math.hypot(x - px, y - py) >= TRAVEL_CM:
+                for _ in range(k + 1):
+                    path.popleft()
+                self._box = None
+                for q in path:
+                    self._grow(*q)
+                return math.degrees(math.atan2(y - py, x - px))
+        return None
+
+
 @dataclass
 class UnmarkedRobot:
     """The track of the one unmarked robot (see the module docstring)."""
@@ -88,7 +133,7 @@ class UnmarkedRobot:
     resolved: bool = False
     _filter: RobotFilter | None = None
     _last: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the last frame's x, y, stamp
-    _path: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=PATH_FRAMES))
+    _path: _Path = field(default_factory=_Path)
 
     def update(self, x: float, y: float, axis_deg: float | None, stamp_s: float) -> RobotMotion:
         """Fold in the robot's blob of one frame: its centre (cm), its long axis (deg,
@@ -117,7 +162,7 @@ class UnmarkedRobot:
             turn = 0.0 if before is None else abs(wrap_angle_deg(self.heading_deg - before))
             if turn > SHARP_TURN_DEG:  # no constant-velocity motion: restart
                 f = self._restart_velocity(x, y, stamp_s)
-        self._path.append((x, y))
+        self._path.append(x, y)
         self._last = (x, y, stamp_s)
         heading = None if axis_deg is None else self.heading_deg
         resolved = self.resolved and heading is not None
@@ -137,14 +182,7 @@ class UnmarkedRobot:
         away to (x, y), the path up to that position then forgotten (a travel tells
         once: a robot that stopped, then turns in place, is not oriented by how it
         came); None if the robot has not travelled that far since."""
-        path = self._path
-        for k in range(len(path) - 1, -1, -1):
-            px, py = path[k]
-            if math.hypot(x - px, y - py) >= TRAVEL_CM:
-                for _ in range(k + 1):
-                    path.popleft()
-                return math.degrees(math.atan2(y - py, x - px))
-        return None
+        return self._path.travel(x, y)
 
 
 def _along(axis_deg: float, direction_deg: float) -> bool:
