@@ -26,7 +26,7 @@ from foreign_mcap import (
 )
 from pipeline_helpers import start_up
 from real_photos import photo_paths
-from zenoh_helpers import client, free_port, ovis_cmd, spawn, stop, wait_for
+from zenoh_helpers import client, free_port, ovis_cmd, spawn, stop, wait_for, wait_subscribed
 
 from ovis.common.messages import Frame, decode
 
@@ -89,7 +89,7 @@ def test_replay_publishes_the_photos_as_frames_at_their_pace(
     expected = write_photos(path, photos, flavour, t0, PERIOD)
     with client(router) as session:
         frames = Frames(session)
-        time.sleep(0.5)
+        wait_subscribed(router, "ovis/default/frames")
         done = _replay(str(path), "--connect", router)
         assert done.returncode == 0, done.stderr
         wait_for(lambda: len(frames.all()) >= len(photos), 10, "every replayed frame")
@@ -126,7 +126,7 @@ def test_topic_picks_a_channel_and_without_it_several_are_refused(
     assert "/right (sensor_msgs/msg/Image, cdr, 3 messages)" in line
     with client(router) as session:
         frames = Frames(session)
-        time.sleep(0.5)
+        wait_subscribed(router, "ovis/lab/frames")
         done = _replay(str(path), "--topic", "/right", "--connect", router, "--arena", "lab")
         assert done.returncode == 0, done.stderr
         wait_for(lambda: len(frames.all()) >= 3, 10, "the /right frames")

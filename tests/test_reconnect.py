@@ -1,6 +1,7 @@
 """Sources that go away and come back: a real video file removed and put back, read by the
-source object; and a video that ends with looping off, lost for good, as the capture
-service (a real process on a real router) and the stream's health say."""
+source object and by the capture service (a real process on a real router), which says
+it lost it and plays it again once it is back; and a video that ends with looping off,
+lost for good, as the capture service and the stream's health say."""
 
 from __future__ import annotations
 
@@ -134,3 +135,60 @@ def test_a_video_that_ends_with_loop_off_is_lost_for_good_and_says_so(tmp_path: 
         stop([*procs, router])
     log = (tmp_path / "capture.log").read_text()
     assert "Traceback" not in log and "source lost: ended: video" in log
+
+
+def test_the_capture_resumes_when_a_video_that_went_away_comes_back(tmp_path: Path) -> None:
+    """A video (looping off) moved away while the capture (a real process) plays it: once
+    its open file is read out, the capture says "source lost" (the file gone) and sends
+    nothing; moved back, it plays it again, sequence numbers going on, and counts the
+    loss as over. (A looping video moved away is not lost at all: OpenCV keeps reading
+    the file it has open.)"""
+    video, away = tmp_path / "cam.avi", tmp_path / "away.avi"
+    write_video(video, frames=8)
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text(f'[service]\nsource = "{video}"\nloop = false\nfps = 4.0\n')
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")
+    procs = []
+    topics = Topics("default")
+    seen: list[int] = []
+    try:
+        with client(endpoint) as session:
+            session.declare_subscriber(
+                topics.frames, lambda s: seen.append(decode(s.payload.to_bytes(), Frame).seq)
+            )
+            procs.append(
+                spawn(
+                    ovis_cmd("run", "capture", "--connect", endpoint, "--config", str(cfg)),
+                    tmp_path / "capture.log",
+                )
+            )
+            wait_for(lambda: seen, 30, "the video's first frame")
+            video.rename(away)  # unplugged while it plays
+
+            def status(state: str, reason: str) -> ServiceStatus | None:
+                st = query_statuses(session, topics).get("capture")
+                return st if st and st.state == state and reason in st.reason else None
+
+            # lost, and an attempt to open it again has failed: it is really away
+            wait_for(lambda: status("source lost", "existing video file"), 30, "a failed reopen")
+            away_seen = list(seen)
+            st = status("source lost", "")
+            assert st is not None and st.source_gaps == 1 and st.gaps[-1].ongoing
+            assert (
+                st.gaps[-1].reason == f"video {video} delivered no frame (file gone?); reconnecting"
+            )
+            assert away_seen == list(range(away_seen[0], 8))  # what the open file still held
+            away.rename(video)  # plugged back
+            wait_for(lambda: len(seen) >= len(away_seen) + 8, 30, "the video played again")
+            assert seen[len(away_seen) :] == list(range(8, 16))  # the numbers go on
+            st = wait_for(
+                lambda: status("source lost", "ended: "), 30, "the video to end, loop off"
+            )
+            assert st.source_gaps == 2 and not st.gaps[0].ongoing and st.gaps[1].ongoing
+            assert st.gaps[0].reason.endswith("(file gone?); reconnecting")
+            assert procs[0].poll() is None
+    finally:
+        stop([*procs, router])
+    log = (tmp_path / "capture.log").read_text()
+    assert "Traceback" not in log and "source back after" in log

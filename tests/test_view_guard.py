@@ -161,9 +161,12 @@ def test_1000_wrong_tokens_are_cut_short_slowed_down_and_barely_logged(views) ->
     with ws_connect(views.url, origin=views.origin) as ws:
         ws.send(json.dumps({"type": "auth", "token": TOKEN}))
         assert texts_until(ws, lambda m: m["type"] == "auth")[-1]["ok"] is True
-    time.sleep(0.5)
-    logged = views.log.read_text().count("operator token") - lines_before
-    assert 1 <= logged <= 2, views.log.read_text()[-2000:]
+
+    def logged() -> int:
+        return views.log.read_text().count("operator token") - lines_before
+
+    wait_for(logged, 5, "the refused tokens in the view's log")
+    assert logged() <= 2, views.log.read_text()[-2000:]
 
 
 def test_a_weak_token_is_refused_at_start_and_auto_makes_a_strong_one(views) -> None:
