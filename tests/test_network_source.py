@@ -15,12 +15,11 @@ import threading
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 import zenoh
 from mjpeg_server import mjpeg_camera
-from real_photos import photo_paths
+from real_photos import photo_bytes_and_pixels
 from rich.console import Console
 from zenoh_helpers import alive, client, free_port, ovis_cmd, spawn, stop, wait_for
 
@@ -44,10 +43,8 @@ TOPICS = Topics("default")
 
 def real_jpegs() -> tuple[list[bytes], list[np.ndarray]]:
     """The shared photos as JPEG files' bytes, and as OpenCV decodes them (grey)."""
-    paths = photo_paths()
-    return [p.read_bytes() for p in paths], [
-        cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in paths
-    ]
+    pairs = photo_bytes_and_pixels()
+    return [jpeg for jpeg, _ in pairs], [pixels for _, pixels in pairs]
 
 
 def failure_after(src: StreamSource) -> tuple[float, str]:

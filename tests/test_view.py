@@ -39,8 +39,8 @@ import msgspec
 import pytest
 from mjpeg_server import mjpeg_camera
 from pipeline_helpers import Recorder
-from real_photos import photo_paths
-from ws_helpers import texts_until, ws_connect
+from real_photos import photo_calibration, photo_paths
+from ws_helpers import serving, texts_until, ws_connect
 from zenoh_helpers import client, free_port, ovis_cmd, pids_with, spawn, stop, wait_for
 
 from ovis.common.calibration.file import Calibration
@@ -147,7 +147,7 @@ def system(tmp_path_factory: pytest.TempPathFactory):
                 ),
                 tmp / "lonely.log",
             )
-            wait_for(lambda: _answers(s.url) and _answers(s.lonely_url), 30, "both views")
+            wait_for(lambda: serving(s.url) and serving(s.lonely_url), 30, "both views")
             with sync_playwright() as p:
                 s.browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
                 yield s
@@ -169,14 +169,6 @@ def system(tmp_path_factory: pytest.TempPathFactory):
     ):
         if log is not None and log.exists():
             assert "Traceback" not in log.read_text(), log.read_text()
-
-
-def _answers(url: str) -> bool:
-    try:
-        get_json(url + "api/state")
-        return True
-    except OSError:
-        return False
 
 
 @contextlib.contextmanager
@@ -322,7 +314,7 @@ def test_a_view_of_an_arena_with_no_stage_says_so(system) -> None:
         page.wait_for_selector("#picture[data-seq]", timeout=15000)
 
 
-def test_garbage_and_20_clients_leave_the_view_serving(system) -> None:
+def test_garbage_and_20_clients_leave_the_viewserving(system) -> None:
     with ws_connect(system.url) as ws:
         for junk in (
             b"\x00\xff\x13",
@@ -428,7 +420,7 @@ def honest(system, tmp_path_factory: pytest.TempPathFactory):
         tmp / "capture.log",
     )
     try:
-        wait_for(lambda: _answers(h.url), 30, "the honest view")
+        wait_for(lambda: serving(h.url), 30, "the honest view")
         yield h
     finally:
         if h.capture.poll() is None:
@@ -504,7 +496,7 @@ def test_a_page_whose_view_server_stops_greys_its_health_to_unknown(system, tmp_
     )
     server = spawn(args, tmp_path / "view.log")
     try:
-        wait_for(lambda: _answers(url), 30, "the view")
+        wait_for(lambda: serving(url), 30, "the view")
         with page_of(system, url) as page:
             page.wait_for_selector("#stages tr[data-alive=true]", timeout=15000)
             page.wait_for_selector("#stream[data-state=ok]", timeout=15000)
@@ -637,18 +629,7 @@ def recorded_session(path: Path, tmp: Path) -> SimpleNamespace:
     with `ovis intrinsics` and `ovis calibrate --board` on the first photo, which the
     recording holds as its frame CALIBRATION_FRAME)."""
     photos = photo_paths()
-    lens, out = tmp / "CAM.yaml", tmp / "calib.json"
-    for args in (
-        ["intrinsics", *map(str, photos[1:]), "--board", "chessboard:9x6", "--out", str(lens)],
-        [
-            "calibrate",
-            str(photos[0]),
-            *("--intrinsics", str(lens), "--board", "chessboard:9x6"),
-            *("--square-cm", str(SQUARE_CM), "--out", str(out)),
-        ],
-    ):
-        done = subprocess.run(ovis_cmd(*args), capture_output=True, text=True, timeout=120)
-        assert done.returncode == 0, done.stderr
+    _, out = photo_calibration(tmp, SQUARE_CM)
     calib = msgspec.json.decode(out.read_bytes(), type=Calibration)
     calib = msgspec.structs.replace(calib, version=1, source_image=f"frame {CALIBRATION_FRAME}")
     t0 = time.time_ns() - int(RECORDED_AGO_S * 1e9)
