@@ -5,6 +5,7 @@ simulator's ground truth."""
 from __future__ import annotations
 
 import contextlib
+import json
 import re
 import subprocess
 import threading
@@ -136,6 +137,21 @@ def start_up(tmp: Path, *args: str) -> tuple[subprocess.Popen[bytes], str, Path]
             stderr=fh,
         )
     return proc, endpoint, err
+
+
+def run_up(tmp: Path, *args: str, timeout: float = 180) -> tuple[int, dict | None, str, float]:
+    """`ovis up --json --pin none` (as :func:`start_up`) to its end: exit code, summary,
+    stderr, seconds it took."""
+    t0 = time.monotonic()
+    proc, _, err = start_up(tmp, "--pin", "none", *args)
+    out, _ = proc.communicate(timeout=timeout)
+    text = out.decode().strip()
+    return (
+        proc.returncode,
+        json.loads(text) if text else None,
+        err.read_text(),
+        time.monotonic() - t0,
+    )
 
 
 def up_log_dir(err: Path) -> str:

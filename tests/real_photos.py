@@ -69,3 +69,28 @@ def without_board(path: Path) -> np.ndarray:
     out = gray.copy()
     out[mask > 0] = int(np.median(gray))
     return out
+
+
+def photo_bytes_and_pixels(paths: list[Path] | None = None) -> list[tuple[bytes, np.ndarray]]:
+    """The photos (all by default) as their JPEG files' bytes and as OpenCV decodes them
+    (grey, as they are)."""
+    return [
+        (p.read_bytes(), cv2.imread(str(p), cv2.IMREAD_UNCHANGED))
+        for p in (photo_paths() if paths is None else paths)
+    ]
+
+
+def photo_calibration(folder: Path, square_cm: float = 2.5) -> tuple[Path, Path]:
+    """A calibration of the photos' camera made with the commands docs/real-camera.md
+    shows: the lens from the other 13 photos (`ovis intrinsics`), the
+    board of the first one as the floor (`ovis calibrate --board`). Written into
+    ``folder``: the lens file and the calibration."""
+    from cli_helpers import ovis
+
+    paths = photo_paths()
+    lens, calib = folder / "CAM.yaml", folder / "calib.json"
+    board = ["--board", "chessboard:9x6"]
+    ovis("intrinsics", *map(str, paths[1:]), *board, "--out", str(lens))
+    ovis("calibrate", str(paths[0]), "--intrinsics", str(lens), *board,
+         "--square-cm", str(square_cm), "--out", str(calib))  # fmt: skip
+    return lens, calib

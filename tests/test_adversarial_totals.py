@@ -18,18 +18,10 @@ from zenoh_helpers import wait_for
 BILLION = 10**9
 
 
-def _connect(endpoint: str) -> Attacker | None:
-    """A client of `ovis up`'s router, once it listens."""
-    try:
-        return Attacker(endpoint)
-    except zenoh.ZError:
-        return None
-
-
 def test_forged_statuses_do_not_move_ovis_ups_totals(tmp_path: Path) -> None:
     proc, endpoint, err = start_up(tmp_path, "--duration", "15", "--fps", "10", "--pin", "none")
     try:
-        attacker = wait_for(lambda: _connect(endpoint), 30, "ovis up's router")
+        attacker = wait_for(lambda: Attacker.connect(endpoint), 30, "ovis up's router")
         try:
             genuine = {
                 s: wait_for(

@@ -18,7 +18,7 @@ from pathlib import Path
 import msgpack
 import pytest
 from bus_client import BusClient
-from zenoh_helpers import frame_map, free_port, ovis_cmd, spawn, stop, wait_for
+from zenoh_helpers import frame_map, free_port, ovis_cmd, pids_with, spawn, stop, wait_for
 
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
 BIG = bytes(30 << 20)
@@ -43,15 +43,8 @@ def memory_mb(pid: int) -> dict[str, float]:
 
 def router_pid(endpoint: str) -> int:
     """The router `ovis up` started on ``endpoint``."""
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
-            except OSError:
-                continue
-            if " router " in cmd and endpoint in cmd:
-                return int(entry.name)
-    raise AssertionError(f"no router on {endpoint}")
+    (pid,) = pids_with(f" router --listen {endpoint}")
+    return pid
 
 
 class System:

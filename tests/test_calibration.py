@@ -184,7 +184,7 @@ def test_a_tiny_ga_that_fails_says_the_ga_is_too_small() -> None:
 
 
 def test_ovis_calibrate_with_a_tiny_ga_exits_3_saying_what_to_raise(tmp_path: Path) -> None:
-    from test_cli import assert_one_line_error, ovis
+    from cli_helpers import assert_one_line_error, ovis
 
     ovis("simulate", "--out", str(tmp_path), "--frames", "1")
     frame, points = str(tmp_path / "frame_0000.png"), str(tmp_path / "points.toml")

@@ -14,8 +14,8 @@ import cv2
 import msgspec
 import numpy as np
 import pytest
+from cli_helpers import assert_one_line_error, ovis
 from real_photos import board_xyz, opencv_corners, photo_paths, without_board
-from test_cli import assert_one_line_error, ovis
 
 from ovis.common.calibration.file import load_calibration
 from ovis.common.calibration.floor import solve_floor_pose

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import cv2
 import jsonschema
 import numpy as np
 import pytest
@@ -22,7 +21,7 @@ from foreign_mcap import (
     two_image_channels,
     write_photos,
 )
-from real_photos import photo_paths
+from real_photos import photo_bytes_and_pixels, photo_paths
 
 from ovis.common.messages import Frame, decode, encode
 from ovis.common.recording.foreign import (
@@ -44,7 +43,7 @@ PERIOD = 100_000_000  # between two photos' log times
 @pytest.fixture(scope="module")
 def photos() -> list[tuple[bytes, np.ndarray]]:
     """The first four photos: their JPEG bytes and their pixels as OpenCV decodes them."""
-    return [(p.read_bytes(), cv2.imread(str(p), cv2.IMREAD_UNCHANGED)) for p in photo_paths()[:4]]
+    return photo_bytes_and_pixels(photo_paths()[:4])
 
 
 @pytest.mark.parametrize("name", list(FLAVOURS))

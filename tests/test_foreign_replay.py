@@ -13,10 +13,10 @@ import threading
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 import zenoh
+from cli_helpers import assert_one_line_error
 from foreign_mcap import (
     ForeignMcap,
     no_image_channel,
@@ -25,8 +25,8 @@ from foreign_mcap import (
     write_photos,
 )
 from pipeline_helpers import start_up
-from real_photos import photo_paths
-from zenoh_helpers import client, free_port, ovis_cmd, spawn, stop, wait_for
+from real_photos import photo_bytes_and_pixels, photo_calibration
+from zenoh_helpers import client, free_port, ovis_cmd, spawn, stop, wait_for, wait_subscribed
 
 from ovis.common.messages import Frame, decode
 
@@ -35,7 +35,7 @@ PERIOD = 100_000_000  # ns between two photos' log times
 
 @pytest.fixture(scope="module")
 def photos() -> list[tuple[bytes, np.ndarray]]:
-    return [(p.read_bytes(), cv2.imread(str(p), cv2.IMREAD_UNCHANGED)) for p in photo_paths()]
+    return photo_bytes_and_pixels()
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +89,7 @@ def test_replay_publishes_the_photos_as_frames_at_their_pace(
     expected = write_photos(path, photos, flavour, t0, PERIOD)
     with client(router) as session:
         frames = Frames(session)
-        time.sleep(0.5)
+        wait_subscribed(router, "ovis/default/frames")
         done = _replay(str(path), "--connect", router)
         assert done.returncode == 0, done.stderr
         wait_for(lambda: len(frames.all()) >= len(photos), 10, "every replayed frame")
@@ -108,25 +108,18 @@ def test_replay_publishes_the_photos_as_frames_at_their_pace(
     assert got[-1][2] - got[0][2] >= 13 * PERIOD / 1e9 * 0.9
 
 
-def _one_error_line(done: subprocess.CompletedProcess[str]) -> str:
-    assert done.returncode == 2, (done.returncode, done.stdout, done.stderr)
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), done.stderr
-    return lines[0]
-
-
 def test_topic_picks_a_channel_and_without_it_several_are_refused(
     tmp_path: Path, photos, router: str
 ) -> None:
     path = tmp_path / "two.mcap"
     two_image_channels(path, photos[:3], time.time_ns())
-    line = _one_error_line(_replay(str(path), "--connect", router))
+    line = assert_one_line_error(_replay(str(path), "--connect", router), code=2)
     assert "holds 2 image channels: pick one with --topic NAME: " in line
     assert "/left (foxglove.CompressedImage, json, 3 messages)" in line
     assert "/right (sensor_msgs/msg/Image, cdr, 3 messages)" in line
     with client(router) as session:
         frames = Frames(session)
-        time.sleep(0.5)
+        wait_subscribed(router, "ovis/lab/frames")
         done = _replay(str(path), "--topic", "/right", "--connect", router, "--arena", "lab")
         assert done.returncode == 0, done.stderr
         wait_for(lambda: len(frames.all()) >= 3, 10, "the /right frames")
@@ -134,7 +127,9 @@ def test_topic_picks_a_channel_and_without_it_several_are_refused(
     assert [key for key, _, _ in got] == ["ovis/lab/frames"] * 3
     for (_, frame, _), (_, pixels) in zip(got, photos, strict=False):
         assert np.array_equal(frame.image(), pixels[::-1])
-    line = _one_error_line(_replay(str(path), "--topic", "/nope", "--connect", router))
+    line = assert_one_line_error(
+        _replay(str(path), "--topic", "/nope", "--connect", router), code=2
+    )
     assert "has no channel '/nope'; channels found: /left (" in line
 
 
@@ -143,8 +138,8 @@ def test_no_usable_channel_or_encoding_is_exit_2_naming_what_was_found(tmp_path:
     no_image_channel(none, time.time_ns())
     listen = ("--listen", f"tcp/127.0.0.1:{free_port()}", "--no-live")  # never reached
     for cmd in (("replay", str(none)), ("up", "--source", str(none), *listen)):
-        line = _one_error_line(
-            subprocess.run(ovis_cmd(*cmd), capture_output=True, text=True, timeout=60)
+        line = assert_one_line_error(
+            subprocess.run(ovis_cmd(*cmd), capture_output=True, text=True, timeout=60), code=2
         )
         assert "holds no image channel ovis reads" in line
         assert "channels found: /rosout (foxglove.Log, json, 1 messages)" in line
@@ -153,38 +148,25 @@ def test_no_usable_channel_or_encoding_is_exit_2_naming_what_was_found(tmp_path:
     out.message("/depth", "cdr", "raw", time.time_ns(), width=4, height=2, encoding="16UC1",
                 step=8, data=bytes(16))  # fmt: skip
     out.close()
-    line = _one_error_line(_replay(str(deep)))
+    line = assert_one_line_error(_replay(str(deep)), code=2)
     assert "raw image encoding '16UC1' is not supported: ovis reads raw mono8, bgr8" in line
     two = tmp_path / "two.mcap"
     two_image_channels(two, [(b"", np.zeros((8, 8), np.uint8))] * 3, time.time_ns())
-    line = _one_error_line(
+    line = assert_one_line_error(
         subprocess.run(
             ovis_cmd("up", "--source", str(two), *listen, "--topic", "/left"),
             capture_output=True,
             text=True,
             timeout=60,
-        )
+        ),
+        code=2,
     )
     assert "a jpeg image does not decode (0 bytes)" in line
-    line = _one_error_line(
-        subprocess.run(ovis_cmd("up", *listen, "--topic", "/left"), capture_output=True, text=True)
+    line = assert_one_line_error(
+        subprocess.run(ovis_cmd("up", *listen, "--topic", "/left"), capture_output=True, text=True),
+        code=2,
     )
     assert "source_topic '/left' picks a channel of an MCAP file, but the source is 'sim'" in line
-
-
-def _calibration(tmp_path: Path) -> Path:
-    """A calibration of the photos' camera: the lens from 13 photos (`ovis intrinsics`),
-    the board of the first one as the floor (`ovis calibrate --board`)."""
-    paths = photo_paths()
-    cam, calib = tmp_path / "cam.yaml", tmp_path / "calib.json"
-    for args in (
-        ["intrinsics", *map(str, paths[1:]), "--board", "chessboard:9x6", "--out", str(cam)],
-        ["calibrate", str(paths[0]), "--intrinsics", str(cam), "--board", "chessboard:9x6",
-         "--square-cm", "2.5", "--out", str(calib)],
-    ):  # fmt: skip
-        done = subprocess.run(ovis_cmd(*args), capture_output=True, text=True, timeout=120)
-        assert done.returncode == 0, done.stderr
-    return calib
 
 
 def test_up_processes_the_frames_of_the_channel_topic_picks(tmp_path: Path, photos) -> None:
@@ -199,7 +181,9 @@ def test_up_processes_the_frames_of_the_channel_topic_picks(tmp_path: Path, phot
     size = tmp_path / "size.toml"  # the photos' size (the default camera is 640x480)
     size.write_text('preset = "default"\n[camera]\nrows = 512\ncols = 640\n')
     args = ("--source", str(path), "--topic", "/camera/image", "--config", str(size))
-    proc, endpoint, err = start_up(tmp_path, *args, "--calibration", str(_calibration(tmp_path)))
+    proc, endpoint, err = start_up(
+        tmp_path, *args, "--calibration", str(photo_calibration(tmp_path)[1])
+    )
     obstacles: list[bytes] = []
     try:
         with client(endpoint) as session:

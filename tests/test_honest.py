@@ -9,9 +9,9 @@ import shutil
 from pathlib import Path
 
 import numpy as np
-from pipeline_helpers import start_up
+from cli_helpers import assert_one_line_error, ovis
+from pipeline_helpers import run_up
 from real_photos import opencv_corners, photo_paths
-from test_cli import assert_one_line_error, ovis
 from test_floor_pose import OUTER, write_points
 
 
@@ -85,13 +85,6 @@ def test_implausible_floor_pose_exits_3_unless_forced(tmp_path: Path) -> None:
     assert json.loads(out.read_text())["dipe_px"] > 3.0
 
 
-def _up(tmp_path: Path, *args: str) -> tuple[int, dict | None, str]:
-    proc, _, err = start_up(tmp_path, "--duration", "25", "--fps", "10", "--pin", "none", *args)
-    out, _ = proc.communicate(timeout=120)
-    text = out.decode().strip()
-    return proc.returncode, json.loads(text) if text else None, err.read_text()
-
-
 def test_up_with_a_calibration_processes_a_folder_without_truth(tmp_path: Path) -> None:
     data = tmp_path / "sim"
     ovis("simulate", "--out", str(data), "--frames", "3")
@@ -100,7 +93,8 @@ def test_up_with_a_calibration_processes_a_folder_without_truth(tmp_path: Path) 
     frames.mkdir()
     for f in data.glob("frame_*.png"):
         shutil.copy(f, frames / f.name)
-    code, summary, err = _up(tmp_path, "--source", str(frames), "--calibration", str(calib))
+    args = ("--source", str(frames), "--calibration", str(calib))
+    code, summary, err, _ = run_up(tmp_path, "--duration", "25", "--fps", "10", *args)
     assert code == 0, (summary, err)
     assert "stored as version 1" in err
     assert summary["frames_processed"] > 0 and summary["calibration_version"] == 1

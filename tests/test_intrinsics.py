@@ -9,8 +9,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from cli_helpers import assert_one_line_error, ovis
 from real_photos import opencv_calibration, photo_paths, without_board
-from test_cli import assert_one_line_error, ovis
 
 from ovis.common.camera.intrinsics import read_intrinsics
 from ovis.common.vision.boards import BoardError, parse_board

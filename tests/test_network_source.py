@@ -15,12 +15,11 @@ import threading
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 import zenoh
 from mjpeg_server import mjpeg_camera
-from real_photos import photo_paths
+from real_photos import photo_bytes_and_pixels
 from rich.console import Console
 from zenoh_helpers import alive, client, free_port, ovis_cmd, spawn, stop, wait_for
 
@@ -32,7 +31,7 @@ from ovis.common.capture.sources import (
     StreamSource,
     without_password,
 )
-from ovis.common.messages import Frame, ServiceStatus, StreamHealth, Topics, decode
+from ovis.common.messages import Frame, ServiceStatus, SourceState, StreamHealth, Topics, decode
 from ovis.services.cli.watching import query_statuses, summary_table
 
 #: The requirement: a lost source is said within this many seconds.
@@ -44,10 +43,8 @@ TOPICS = Topics("default")
 
 def real_jpegs() -> tuple[list[bytes], list[np.ndarray]]:
     """The shared photos as JPEG files' bytes, and as OpenCV decodes them (grey)."""
-    paths = photo_paths()
-    return [p.read_bytes() for p in paths], [
-        cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in paths
-    ]
+    pairs = photo_bytes_and_pixels()
+    return [jpeg for jpeg, _ in pairs], [pixels for _, pixels in pairs]
 
 
 def failure_after(src: StreamSource) -> tuple[float, str]:
@@ -103,16 +100,19 @@ def test_a_password_in_a_stream_url_stays_out_of_what_is_shown() -> None:
 
 
 class Watcher:
-    """What a client sees: the frames (the first ones' pixels kept) and the health."""
+    """What a client sees: the frames (the first ones' pixels kept), the health and what
+    the capture says of its source."""
 
     def __init__(self, session: zenoh.Session, keep: int = 28) -> None:
         self.frames: list[tuple[float, int]] = []  # (receipt, seq)
         self.images: list[np.ndarray] = []
         self.health: list[tuple[float, StreamHealth]] = []
+        self.said: list[SourceState] = []
         self.keep = keep
         self.lock = threading.Lock()
         session.declare_subscriber(TOPICS.frames, self._frame)
         session.declare_subscriber(TOPICS.health, self._health)
+        session.declare_subscriber(TOPICS.source, self._said)
 
     def _frame(self, sample: zenoh.Sample) -> None:
         f = decode(sample.payload.to_bytes(), Frame)
@@ -125,6 +125,22 @@ class Watcher:
         msg = decode(sample.payload.to_bytes(), StreamHealth)
         with self.lock:
             self.health.append((time.monotonic(), msg))
+
+    def _said(self, sample: zenoh.Sample) -> None:
+        msg = decode(sample.payload.to_bytes(), SourceState)
+        with self.lock:
+            self.said.append(msg)
+
+    def first_lost(self, after_ns: int) -> tuple[SourceState | None, StreamHealth | None]:
+        """The first "source lost" the capture and the health published after ``after_ns``
+        (their own publication times: what ovis took, not what a poll took)."""
+        with self.lock:
+            said = [m for m in self.said if m.published_ns > after_ns]
+            health = [h for _, h in self.health if h.published_ns > after_ns]
+        return (
+            next((m for m in said if m.state == "source lost"), None),
+            next((h for h in health if h.state == "source lost"), None),
+        )
 
     def frames_after(self, t: float) -> list[tuple[float, int]]:
         with self.lock:
@@ -139,20 +155,24 @@ def capture_status(session: zenoh.Session) -> ServiceStatus | None:
     return query_statuses(session, TOPICS, timeout=1.0).get("capture")
 
 
-def lost_within(session: zenoh.Session, watcher: Watcher, t0: float) -> ServiceStatus:
-    """Wait for the capture's status and the health to say "source lost"; assert that
-    both did within SAY_LOST_S of ``t0``; the capture's status."""
-
-    def status_lost() -> tuple[float, ServiceStatus] | None:
-        st = capture_status(session)
-        return (time.monotonic(), st) if st and st.state == "source lost" else None
-
-    status_at, status = wait_for(status_lost, 10, "the capture to say source lost")
-    health_at, health = wait_for(
-        lambda: watcher.health_after(t0, "source lost"), 10, "the health to say source lost"
+def lost_within(session: zenoh.Session, watcher: Watcher, t0_ns: int) -> ServiceStatus:
+    """Wait for the capture (on its source topic and in its status) and the health to say
+    "source lost"; assert that the capture and the health published it within SAY_LOST_S
+    of ``t0_ns`` (wall clock, when the camera failed); the capture's status."""
+    said, health = wait_for(
+        lambda: all(watcher.first_lost(t0_ns)) and watcher.first_lost(t0_ns),
+        10,
+        "the capture and the health to say source lost",
     )
-    print(f"source lost: status after {status_at - t0:.2f} s, health after {health_at - t0:.2f} s")
-    assert status_at - t0 < SAY_LOST_S and health_at - t0 < SAY_LOST_S
+    status = wait_for(
+        lambda: (st := capture_status(session)) and st.state == "source lost" and st,
+        10,
+        "the capture's status to say source lost",
+    )
+    said_s, health_s = (said.published_ns - t0_ns) / 1e9, (health.published_ns - t0_ns) / 1e9
+    print(f"source lost: said by the capture after {said_s:.2f} s, the health {health_s:.2f} s")
+    assert said_s < SAY_LOST_S and health_s < SAY_LOST_S
+    assert said.reason == status.gaps[-1].reason and said.lost_ns is not None
     # the reason it was lost, or (after an attempt to reopen) why it cannot be reopened
     assert health.reason in (status.gaps[-1].reason, status.reason)
     assert status.reason.startswith(("stream http://", "cannot open stream http://"))
@@ -211,9 +231,9 @@ def test_an_mjpeg_camera_that_drops_is_said_lost_in_2_s_and_reconnects(tmp_path:
                 assert len(set(shown)) == len(photos)
 
                 # switched off: the connection closes, nothing answers
-                t_off = time.monotonic()
+                t_off, t_off_ns = time.monotonic(), time.time_ns()
                 camera.stop()
-                status = lost_within(session, watcher, t_off)
+                status = lost_within(session, watcher, t_off_ns)
                 assert status.gaps[-1].reason.startswith(f"stream {camera.url} delivered no frame")
                 assert status.source_gaps == 1 and status.gaps[-1].ongoing
                 time.sleep(max(0.0, t_off + OUTAGE_S - time.monotonic()))
@@ -227,9 +247,9 @@ def test_an_mjpeg_camera_that_drops_is_said_lost_in_2_s_and_reconnects(tmp_path:
                 )
 
                 # frozen: the connection stays open, no frame comes
-                t_freeze = time.monotonic()
+                t_freeze, t_freeze_ns = time.monotonic(), time.time_ns()
                 camera.freeze()
-                status = lost_within(session, watcher, t_freeze)
+                status = lost_within(session, watcher, t_freeze_ns)
                 assert "delivered no frame for 1 s" in status.gaps[-1].reason
                 time.sleep(max(0.0, t_freeze + OUTAGE_S - time.monotonic()))
                 t_thaw = time.monotonic()

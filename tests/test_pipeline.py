@@ -423,7 +423,7 @@ def test_ids_are_unique_across_kinds_live_and_offline(tmp_path) -> None:
     and every planner entry names one object of its kind."""
     import json
 
-    from test_cli import ovis
+    from cli_helpers import ovis
 
     from ovis.common.world.marker_search import BlobMarkers
 

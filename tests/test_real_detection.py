@@ -12,8 +12,8 @@ import cv2
 import msgspec
 import numpy as np
 import pytest
+from cli_helpers import assert_one_line_error, ovis
 from scipy import ndimage as ndi
-from test_cli import assert_one_line_error, ovis
 
 skimage = pytest.importorskip("skimage")
 from skimage import data, filters, segmentation  # noqa: E402

@@ -1,6 +1,7 @@
 """Sources that go away and come back: a real video file removed and put back, read by the
-source object; and a video that ends with looping off, lost for good, as the capture
-service (a real process on a real router) and the stream's health say."""
+source object and by the capture service (a real process on a real router), which says
+it lost it and plays it again once it is back; and a video that ends with looping off,
+lost for good, as the capture service and the stream's health say."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import zenoh
 from zenoh_helpers import alive, client, free_port, ovis_cmd, spawn, stop, wait_for
 
 from ovis.common.capture.sources import SourceEndedError, SourceError, StreamSource, open_source
@@ -31,6 +33,23 @@ def write_video(path: Path, frames: int = 12) -> None:
     for i in range(frames):
         writer.write(np.full((120, 160, 3), 20 * i % 255, np.uint8))
     writer.release()
+
+
+def capture_config(tmp_path: Path, video: Path) -> Path:
+    """The video (8 frames) written, and a capture's config that plays it once at 4 fps."""
+    write_video(video, frames=8)
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text(f'[service]\nsource = "{video}"\nloop = false\nfps = 4.0\n')
+    return cfg
+
+
+def frame_seqs(session: zenoh.Session) -> list[int]:
+    """The sequence numbers of the frames published from now on, as they come."""
+    seen: list[int] = []
+    session.declare_subscriber(
+        Topics("default").frames, lambda s: seen.append(decode(s.payload.to_bytes(), Frame).seq)
+    )
+    return seen
 
 
 def test_video_source_reconnects_when_the_file_comes_back(tmp_path: Path) -> None:
@@ -75,9 +94,7 @@ def test_a_video_that_ends_with_loop_off_is_lost_for_good_and_says_so(tmp_path: 
     lost" with the reason "ended: …" in its status, on its source topic and, through the
     pose stage, in the stream's health; it does not start the video again."""
     video = tmp_path / "cam.avi"
-    write_video(video, frames=8)
-    cfg = tmp_path / "cfg.toml"
-    cfg.write_text(f'[service]\nsource = "{video}"\nloop = false\nfps = 4.0\n')
+    cfg = capture_config(tmp_path, video)
     # no calibrator here: the pose stage runs on the simulator's settings (a real source's
     # stages listen only once a calibrator hands them a calibration); what it is checked
     # for is how it passes the capture's word on into the stream's health
@@ -87,14 +104,11 @@ def test_a_video_that_ends_with_loop_off_is_lost_for_good_and_says_so(tmp_path: 
     router = spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")
     procs = []
     topics = Topics("default")
-    seen: list[int] = []
     said: list[SourceState] = []
     health: list[StreamHealth] = []
     try:
         with client(endpoint) as session:
-            session.declare_subscriber(
-                topics.frames, lambda s: seen.append(decode(s.payload.to_bytes(), Frame).seq)
-            )
+            seen = frame_seqs(session)
             session.declare_subscriber(
                 topics.source, lambda s: said.append(decode(s.payload.to_bytes(), SourceState))
             )
@@ -134,3 +148,55 @@ def test_a_video_that_ends_with_loop_off_is_lost_for_good_and_says_so(tmp_path: 
         stop([*procs, router])
     log = (tmp_path / "capture.log").read_text()
     assert "Traceback" not in log and "source lost: ended: video" in log
+
+
+def test_the_capture_resumes_when_a_video_that_went_away_comes_back(tmp_path: Path) -> None:
+    """A video (looping off) moved away while the capture (a real process) plays it: once
+    its open file is read out, the capture says "source lost" (the file gone) and sends
+    nothing; moved back, it plays it again, sequence numbers going on, and counts the
+    loss as over. (A looping video moved away is not lost at all: OpenCV keeps reading
+    the file it has open.)"""
+    video, away = tmp_path / "cam.avi", tmp_path / "away.avi"
+    cfg = capture_config(tmp_path, video)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")
+    procs = []
+    topics = Topics("default")
+    try:
+        with client(endpoint) as session:
+            seen = frame_seqs(session)
+            procs.append(
+                spawn(
+                    ovis_cmd("run", "capture", "--connect", endpoint, "--config", str(cfg)),
+                    tmp_path / "capture.log",
+                )
+            )
+            wait_for(lambda: seen, 30, "the video's first frame")
+            video.rename(away)  # unplugged while it plays
+
+            def status(state: str, reason: str) -> ServiceStatus | None:
+                st = query_statuses(session, topics).get("capture")
+                return st if st and st.state == state and reason in st.reason else None
+
+            # lost, and an attempt to open it again has failed: it is really away
+            wait_for(lambda: status("source lost", "existing video file"), 30, "a failed reopen")
+            away_seen = list(seen)
+            st = status("source lost", "")
+            assert st is not None and st.source_gaps == 1 and st.gaps[-1].ongoing
+            assert (
+                st.gaps[-1].reason == f"video {video} delivered no frame (file gone?); reconnecting"
+            )
+            assert away_seen == list(range(away_seen[0], 8))  # what the open file still held
+            away.rename(video)  # plugged back
+            wait_for(lambda: len(seen) >= len(away_seen) + 8, 30, "the video played again")
+            assert seen[len(away_seen) :] == list(range(8, 16))  # the numbers go on
+            st = wait_for(
+                lambda: status("source lost", "ended: "), 30, "the video to end, loop off"
+            )
+            assert st.source_gaps == 2 and not st.gaps[0].ongoing and st.gaps[1].ongoing
+            assert st.gaps[0].reason.endswith("(file gone?); reconnecting")
+            assert procs[0].poll() is None
+    finally:
+        stop([*procs, router])
+    log = (tmp_path / "capture.log").read_text()
+    assert "Traceback" not in log and "source back after" in log

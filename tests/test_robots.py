@@ -765,7 +765,7 @@ def test_unmarked_robot_over_a_sequence_in_ovis_detect(tmp_path) -> None:
     simulator's rate (its points.toml) without --fps, and from --fps when given."""
     import json
 
-    from test_cli import ovis
+    from cli_helpers import ovis
 
     from ovis.common.calibration.file import save_calibration
     from ovis.common.config import config_from_dict, load_points

@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 
 import pytest
-from test_cli import assert_one_line_error, ovis
+from cli_helpers import assert_one_line_error, ovis
 
 from ovis.common.calibration.file import Calibration, save_calibration
 from ovis.common.config import load_points

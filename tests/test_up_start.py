@@ -18,9 +18,9 @@ from pathlib import Path
 import cv2
 import msgspec
 import pytest
-from pipeline_helpers import Recorder, start_up
-from real_photos import photo_paths
-from test_cli import assert_one_line_error, ovis
+from cli_helpers import assert_one_line_error, ovis
+from pipeline_helpers import Recorder, run_up, start_up
+from real_photos import photo_calibration, photo_paths
 from zenoh_helpers import client, free_port, ovis_cmd, wait_for
 
 from ovis.common.calibration.file import Calibration, calibration_from_config
@@ -51,26 +51,8 @@ def real(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         big = cv2.resize(gray, (1280, 1024), interpolation=cv2.INTER_LINEAR)
         cv2.imwrite(str(folders["big"] / p.name), big)
         cv2.imwrite(str(folders["crop"] / p.name), gray[16:496])
-    cam, calib = tmp / "CAM.yaml", tmp / "calib.json"
-    board = ["--board", "chessboard:9x6", "--square-cm", "2.5"]
-    ovis("intrinsics", str(folders["photos"]), *board, "--out", str(cam))
-    first = str(folders["photos"] / photo_paths()[0].name)
-    ovis("calibrate", first, "--intrinsics", str(cam), *board, "--out", str(calib))
+    _, calib = photo_calibration(tmp)
     return {**folders, "calib": calib}
-
-
-def _up(tmp: Path, *args: str, timeout: float = 180) -> tuple[int, dict | None, str, float]:
-    """`ovis up --json` to its end: exit code, summary, stderr, seconds it took."""
-    t0 = time.monotonic()
-    proc, _, err = start_up(tmp, "--pin", "none", *args)
-    out, _ = proc.communicate(timeout=timeout)
-    text = out.decode().strip()
-    return (
-        proc.returncode,
-        json.loads(text) if text else None,
-        err.read_text(),
-        (time.monotonic() - t0),
-    )
 
 
 @contextlib.contextmanager
@@ -86,7 +68,7 @@ def _never_left_running(proc: subprocess.Popen) -> Iterator[subprocess.Popen]:
 
 def _start_failed(tmp: Path, *args: str) -> str:
     """`ovis up` that must fail at start: exit 2 within 10 s, one line; that line."""
-    code, summary, err, took = _up(tmp, "--duration", "30", *args, timeout=60)
+    code, summary, err, took = run_up(tmp, "--duration", "30", *args, timeout=60)
     proc = subprocess.CompletedProcess([], code, "", err)
     assert_one_line_error(proc)
     assert code == 2 and summary is None, (code, err)
@@ -98,7 +80,7 @@ def test_real_photos_run_with_their_calibration_and_bigger_ones_with_it_scaled(
     real, tmp_path: Path
 ) -> None:
     args = ["--duration", "15", "--fps", "10"]
-    code, s, err, _ = _up(tmp_path, "--source", str(real["photos"]), "--calibration",
+    code, s, err, _ = run_up(tmp_path, "--source", str(real["photos"]), "--calibration",
                           str(real["calib"]), *args)  # fmt: skip
     assert code == 0, err
     assert "stored as version 1" in err and "640x480" not in err
@@ -106,7 +88,7 @@ def test_real_photos_run_with_their_calibration_and_bigger_ones_with_it_scaled(
     assert (s["calibration_version"], s["exit_code"], s["reason"], s["health"]) == (1, 0, "", {})
     # The same state folder, photos twice the size: its calibration (a real camera's,
     # the newest there) is scaled, said so, stored, and used.
-    code, s, err, _ = _up(tmp_path, "--source", str(real["big"]), *args)
+    code, s, err, _ = run_up(tmp_path, "--source", str(real["big"]), *args)
     assert code == 0, err
     assert f"is for 640x512, {real['big']} delivers 1280x1024" in err, err
     assert "scaled by 2" in err and "stored as version 2" in err

@@ -34,9 +34,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from cli_helpers import assert_one_line_error
 from mjpeg_server import mjpeg_camera
 from real_photos import photo_paths
-from test_cli import assert_one_line_error
 from zenoh_helpers import free_port, ovis_cmd, wait_for
 
 from ovis.services.supervisor import die_with_parent

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import socket
 import time
+import urllib.request
 from collections.abc import Callable
 from typing import Any
 
@@ -15,6 +16,15 @@ from websockets.sync.client import ClientConnection, connect
 
 #: ``origin`` for the view's own page.
 OWN = "own"
+
+
+def serving(url: str) -> bool:
+    """Whether the view at ``url`` answers its state (for wait_for)."""
+    try:
+        urllib.request.urlopen(url + "api/state", timeout=2).close()
+        return True
+    except OSError:
+        return False
 
 
 def ws_connect(url: str, source: str = "127.0.0.1", origin: str | None = OWN) -> ClientConnection:

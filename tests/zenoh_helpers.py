@@ -77,6 +77,15 @@ def wait_for(predicate: Callable[[], object], timeout: float, what: str) -> obje
     raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
 
 
+def wait_subscribed(endpoint: str, key: str, timeout: float = 10.0) -> None:
+    """Wait until the router at ``endpoint`` has a subscriber for ``key``: a publisher on
+    a session of its own sees it match (what a process started next will also see)."""
+    with client(endpoint) as probe:
+        publisher = probe.declare_publisher(key)
+        wait_for(lambda: publisher.matching_status.matching, timeout, f"a subscriber of {key}")
+        publisher.undeclare()
+
+
 def alive(session: zenoh.Session, arena: str = "default") -> set[str]:
     names = set()
     for reply in session.liveliness().get(f"ovis/{arena}/alive/*", timeout=1.0):
