@@ -1,5 +1,6 @@
 """Preprocessing service: the paper's median step and binarization (§3) of each frame,
-with the current calibration's threshold and polarity; publishes packed binary frames
+with the current calibration's segmentation (threshold mode and level, polarity, background,
+region of interest); publishes packed binary frames
 on ``ovis/<arena>/binary`` (with marked robots, also the frame's 3×3 median, or the
 frame itself for markers with cells too small for the median, in which the label
 service searches their markers around the blobs)."""
@@ -12,15 +13,19 @@ from ovis.common.calibration.file import Calibration
 from ovis.common.messages import Frame
 from ovis.common.pipeline.stages import binary_frame, clock_skew
 from ovis.common.vision.preprocess import ImageError, as_gray
+from ovis.common.vision.segmentation import ObjectWindow
 from ovis.common.world.marker_search import BlobMarkers
 from ovis.services.service import Service
 
 
 def main(service: Service) -> None:
     markers = BlobMarkers()  # which image to send for the marker search, per calibration
+    window = [ObjectWindow()]  # the local-contrast window of this camera's frames
 
     def prepare(calib: Calibration) -> None:
-        """The calibration's marker sizes, worked out before its frames come."""
+        """The calibration's marker sizes, worked out before its frames come; a new
+        calibration's frames search their local-contrast window afresh."""
+        window[0] = ObjectWindow()
         if calib.pose.robots:
             markers.sizes(calib.version, calib.camera, calib.pose)
 
@@ -41,6 +46,6 @@ def main(service: Service) -> None:
             service.error("bad_frame", f"frame {frame.seq}: {exc}")
             return
         service.saw_frame(frame.seq, frame.stamp_ns, frame.stream)
-        service.publish_result(publish, binary_frame(frame, gray, calib, markers))
+        service.publish_result(publish, binary_frame(frame, gray, calib, markers, window[0]))
 
     service.serve(service.inbox(service.topics.frames), handle)

@@ -3,7 +3,9 @@ the calibrator's decision with it on simulated frames (common/pipeline/candidate
 
 from __future__ import annotations
 
+import cv2
 import msgspec
+import numpy as np
 import pytest
 
 from ovis.common.calibration.file import load_calibration
@@ -145,13 +147,19 @@ def test_a_genuine_recalibration_on_a_later_frame_passes(arena_calibrated) -> No
     ("part", "change"),
     [
         ("image", {"threshold": 255}),
-        # the stages binarize at the fixed level whatever the mode: blind as well
-        ("image", {"threshold_mode": "auto", "threshold": 255}),
+        # a region of interest that holds no object: the stages apply it too
+        ("image", {"roi": "EMPTY_ROI"}),
         ("pose", {"obstacle_height_cm": 100.0, "robot_height_cm": 100.0}),
     ],
 )
-def test_a_calibration_that_sees_nothing_is_refused(arena_calibrated, part, change) -> None:
+def test_a_calibration_that_sees_nothing_is_refused(
+    arena_calibrated, part, change, tmp_path
+) -> None:
     _, _, frame, truth, current = arena_calibrated
+    if change.get("roi") == "EMPTY_ROI":
+        empty = tmp_path / "roi.png"
+        cv2.imwrite(str(empty), np.zeros(frame.shape[:2], np.uint8))
+        change = {"roi": str(empty)}
     blind = msgspec.structs.replace(
         current, **{part: msgspec.structs.replace(getattr(current, part), **change)}
     )

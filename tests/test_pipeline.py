@@ -53,7 +53,8 @@ from ovis.common.pipeline.stages import (
     wrong_size,
 )
 from ovis.common.sim.arena import Arena, control_points
-from ovis.common.vision.preprocess import as_gray
+from ovis.common.vision.preprocess import as_gray, smooth
+from ovis.common.vision.segmentation import ObjectWindow, segmentation
 from ovis.common.world.detection import Detector, size_filter_px
 
 CFG = load_config(preset="default")
@@ -99,6 +100,29 @@ def test_binary_frame_is_opencvs_median_and_threshold(scene) -> None:
         1,
     )
     assert 0 < expected.mean() < 0.5  # objects and floor both present: the test can fail
+
+
+def test_the_live_stage_applies_the_calibrations_whole_segmentation(scene, tmp_path) -> None:
+    """A calibration in "auto" mode with a region of interest: the preprocess stage's
+    binary frame is what `ovis detect` segments (same pixels, the level it used), not
+    the fixed level alone; nothing outside the region."""
+    _, image, _, calib = scene
+    gray = as_gray(Frame.from_image(image, seq=1, stamp_ns=time.time_ns()).image())
+    roi = np.zeros_like(gray)
+    roi[:, : gray.shape[1] // 2] = 255
+    cv2.imwrite(str(tmp_path / "roi.png"), roi)
+    params = msgspec.structs.replace(
+        calib.image, threshold_mode="auto", threshold=250, roi=str(tmp_path / "roi.png")
+    )
+    calib = msgspec.structs.replace(calib, image=params)
+    frame = Frame.from_image(image, seq=7, stamp_ns=time.time_ns())
+    window = ObjectWindow()
+    out = _wire(binary_frame(frame, gray, calib, window=window), BinaryFrame)
+    seg = segmentation(smooth(gray, params.median), params)
+    assert np.array_equal(out.mask(), seg.binary) and out.threshold == seg.level != 250
+    assert out.mask()[:, gray.shape[1] // 2 :].sum() == 0 and out.mask().sum() > 100
+    again = binary_frame(frame, gray, calib, window=window)  # the window carried over
+    assert np.array_equal(again.mask(), out.mask()) and window.looks == 1
 
 
 def test_the_stages_over_the_wire_find_what_one_process_finds(scene) -> None:

@@ -23,7 +23,8 @@ from ovis.common.messages import (
     ObstacleFrame,
     PlaneMap,
 )
-from ovis.common.vision.preprocess import GrayImage, binarize, smooth
+from ovis.common.vision.preprocess import GrayImage, smooth
+from ovis.common.vision.segmentation import ObjectWindow, segmentation
 from ovis.common.world.detection import Detector, measure_blobs_and_maps, size_filter_px
 from ovis.common.world.marker_search import BlobMarkers
 
@@ -70,10 +71,17 @@ def wrong_size(frame: _Sized, camera: CameraModel, kind: str) -> str | None:
 
 
 def binary_frame(
-    frame: Frame, gray: GrayImage, calib: Calibration, markers: BlobMarkers | None = None
+    frame: Frame,
+    gray: GrayImage,
+    calib: Calibration,
+    markers: BlobMarkers | None = None,
+    window: ObjectWindow | None = None,
 ) -> BinaryFrame:
     """The preprocessing stage: the median step and binarization (§3) of ``gray`` (the
-    frame's grey image) with the calibration's threshold and polarity, packed; with marked
+    frame's grey image) with the calibration's whole segmentation (threshold mode and
+    level, polarity, empty-floor background, region of interest, as `ovis detect` and
+    the calibration applied it; ``window``: the local-contrast window carried between
+    one camera's frames), packed, with the level used; with marked
     robots configured, also the image the label stage searches their markers in around
     the blobs: the frame's 3×3 median (the smoothing step computes it anyway), or the
     frame itself when the markers' cells are too small for it (``markers``'
@@ -81,7 +89,7 @@ def binary_frame(
     params = calib.image
     median3 = cv2.medianBlur(gray, 3) if calib.pose.robots else None
     smoothed = smooth(gray, params.median, median3=median3)
-    binary = binarize(smoothed, params.threshold, params.polarity)
+    seg = segmentation(smoothed, params, window)
     search = median3
     if median3 is not None and markers is not None:
         search = markers.search_image(gray, median3, calib.version, calib.camera, calib.pose)
@@ -90,8 +98,8 @@ def binary_frame(
         stamp_ns=frame.stamp_ns,
         rows=frame.rows,
         cols=frame.cols,
-        bits=np.packbits(binary).tobytes(),
-        threshold=params.threshold,
+        bits=np.packbits(seg.binary).tobytes(),
+        threshold=min(255, seg.level),
         calibration_version=calib.version,
         stream=frame.stream,
         median=None if search is None else search.tobytes(),
