@@ -240,8 +240,8 @@ def up(
     10 s, at most --max-restarts a minute) and the reason logged. Ctrl-C or SIGTERM (or
     --duration) stops everything cleanly; logs of each process are in a temporary folder
     named at the start. Exit code 0: frames were processed with a calibration; 3: none
-    was, or the source was lost at the end (the summary's "reason" says why); 1: a
-    process failed.
+    was (also when a process failed: no frame wins), or the source was lost at the end
+    (the summary's "reason" says why); 1: a process failed while frames were processed.
     """
     if cameras is not None:
         given = [f"--{n}" for n, v in (("source", source), ("calibration", calibration),
