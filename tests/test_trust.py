@@ -27,18 +27,15 @@ from ovis.common.trust.proof import Signer, Verifier
 
 CFG = load_config()
 KEY = Topics("default").obstacles
+#: an obstacle message as the pose stage publishes it (fields by name, as any reader sees)
 PAYLOAD = encode(
-    ObstacleFrame(
-        seq=7,
-        stamp_ns=1,
-        published_ns=2,
-        frame_age_ms=1.0,
-        calibration_version=3,
-        robot=None,
-        obstacles=[],
-        planner=[],
+    msgspec.convert(
+        {"type": "obstacles", "seq": 7, "stamp_ns": 1, "published_ns": 2,
+         "frame_age_ms": 1.0, "calibration_version": 3, "robot": None, "obstacles": [],
+         "planner": []},
+        ObstacleFrame,
     )
-)
+)  # fmt: skip
 
 
 @pytest.fixture

@@ -13,10 +13,10 @@ against a real `ovis up --view` (default profile) on a free loopback port.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -30,7 +30,7 @@ import msgpack
 import pytest
 import zenoh
 from bus_client import BusClient
-from zenoh_helpers import free_port, wait_for
+from zenoh_helpers import free_port, stop, wait_for
 
 ROOT = "ovis/default"
 STAGES = ("preprocess", "label", "pose")
@@ -160,13 +160,7 @@ class Up:
             return json.loads(r.read())["arenas"]["default"]
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-        try:
-            self.proc.wait(60)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+        stop([self.proc], timeout=60)
 
 
 @pytest.fixture(scope="module")
@@ -189,11 +183,8 @@ def up(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Up]:
 
 @pytest.fixture
 def client(up: Up) -> Iterator[Observer]:
-    c = Observer(up.endpoint)
-    try:
+    with contextlib.closing(Observer(up.endpoint)) as c:
         yield c
-    finally:
-        c.close()
 
 
 def _held(client: Observer) -> dict[str, tuple[int, str]]:
