@@ -88,16 +88,17 @@ def trust_rows(quick: bool, log=print) -> list[Row]:
                 f"p50 {check.p50 * 1e3:.1f} µs, {both / frame.p50:.3f} of a frame"
             )
             r = ratio(both, frame.p50)
+            per_frame = what == "ObstacleFrame"  # a calibration is signed once, not per frame
             rows.append(
                 Row(
                     f"Proof of origin: sign + verify one {what} ({len(payload)} B) vs one "
-                    "frame's processing",
+                    "frame's processing (the four stages' work in one process)",
                     "ms",
                     both,
                     floor=frame.p50,
                     ratio=r,
-                    target=f"ratio ≤ {TARGET_RATIO}",
-                    met=r is not None and r <= TARGET_RATIO,
+                    target=f"ratio ≤ {TARGET_RATIO}" if per_frame else None,
+                    met=(r is not None and r <= TARGET_RATIO) if per_frame else None,
                 )
             )
             rows.append(Row(f"Proof of origin: sign one {what}", "ms", sign.p50))
