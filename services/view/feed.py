@@ -231,15 +231,19 @@ class ArenaFeed:
             self.stream_received_s = time.monotonic()
 
     def _on_calibration(self, sample: zenoh.Sample) -> None:
-        self.accept_calibration(sample.payload, attachment_of(sample))
+        replay = self._mark(sample) is not None  # a recording's: kept no proof, and says so
+        self.accept_calibration(sample.payload, attachment_of(sample), replay=replay)
 
-    def accept_calibration(self, received: zenoh.ZBytes, proof: bytes | None) -> None:
-        """A calibration with the calibrator's proof, newer than the one shown."""
+    def accept_calibration(
+        self, received: zenoh.ZBytes, proof: bytes | None, *, replay: bool = False
+    ) -> None:
+        """A calibration with the calibrator's proof (or replayed), newer than the one
+        shown."""
         payload = self.take(received, "small", "calibration")
         if payload is None:
             return
         problem = self.calibrator.problem(self.topics.calibration, payload, proof)
-        if problem is not None:
+        if problem is not None and not replay:
             self.refuse_unproven("calibration", problem)
             return
         try:
