@@ -49,6 +49,7 @@ GROUPS = {
     "memory": "Memory",
     "recording": "Recording",
     "recovery": "Recovery",
+    "trust": "Proof of origin",
 }
 DEFAULT = (
     "pipeline",
@@ -60,6 +61,7 @@ DEFAULT = (
     "robots",
     "recovery",
     "fusion",
+    "trust",
 )
 
 
@@ -76,6 +78,7 @@ TIMED = {
     "robots": ("benchmarks.robots", "robots_rows"),
     "recovery": ("benchmarks.recovery", "recovery_rows"),
     "fusion": ("benchmarks.fusion", "fusion_rows"),
+    "trust": ("benchmarks.trust", "trust_rows"),
 }
 
 

@@ -42,6 +42,7 @@ __all__ = [
     "RobotSpec",
     "ServiceConfig",
     "SimulatorConfig",
+    "TrustConfig",
     "ZenohConfig",
     "load_config",
     "load_points",
@@ -558,6 +559,17 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
         return self.source == "sim" or self.source.startswith("grid:")
 
 
+class TrustConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Where the keys of the proof of origin are (``[trust]``, docs/trust.md): the
+    calibrator and the pose stage sign with ``<keys_dir>/<role>.key`` (made on first
+    start); the others trust ``<keys_dir>/<role>.pub``, or the public key files named
+    here (copied from the host that made them)."""
+
+    keys_dir: Annotated[str, msgspec.Meta(max_length=4096)] = ""  # "": <state_dir>/keys
+    calibrator_public: Annotated[str, msgspec.Meta(max_length=4096)] = ""
+    pose_public: Annotated[str, msgspec.Meta(max_length=4096)] = ""
+
+
 class CameraSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """One of several cameras over one arena (``[[cameras]]``): its name, its source (as
     ``service.source``) and its camera model calibrated to the *shared* floor frame
@@ -616,6 +628,7 @@ class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     #: several cameras over one arena, fused into one world (empty: the one ``camera``)
     cameras: Annotated[list[CameraSpec], msgspec.Meta(max_length=64)] = []
     fusion: FusionConfig = msgspec.field(default_factory=FusionConfig)
+    trust: TrustConfig = msgspec.field(default_factory=TrustConfig)
 
     def __post_init__(self) -> None:
         names = [c.name for c in self.cameras]

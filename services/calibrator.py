@@ -61,6 +61,7 @@ from ovis.common.pipeline.saving import cannot_save_status, cannot_save_text
 from ovis.common.vision.preprocess import ImageError
 from ovis.services.inbox import Inbox
 from ovis.services.service import Service
+from ovis.services.trust import signer_for
 
 INITIAL_RETRY_S = 2.0
 
@@ -144,16 +145,20 @@ def main(service: Service) -> None:
     # Truth first: a frame whose truth was published before we listened is never usable.
     service.session.declare_subscriber(service.topics.truth, on_truth)
     service.session.declare_subscriber(service.topics.frames, on_frame)
-    publish = service.publisher(service.topics.calibration, drop=False)
+    signer = signer_for(cfg, "calibrator")  # its word is what this key signed
+    publish = service.publisher(service.topics.calibration, drop=False, signer=signer)
 
     def on_current(query: zenoh.Query) -> None:
         if service.fits(query.payload, "small", "calibration_query") and (
             service.calibration.version > 0
         ):
+            key = service.topics.calibration
+            payload = encode(CalibrationUpdate(calibration=service.calibration))
             query.reply(
-                service.topics.calibration,
-                encode(CalibrationUpdate(calibration=service.calibration)),
+                key,
+                payload,
                 encoding=zenoh.Encoding(ENCODING),
+                attachment=signer.attachment(key, payload),
             )
 
     service.session.declare_queryable(service.topics.calibration, on_current)

@@ -17,6 +17,7 @@ from ovis.common.pipeline.health import SERVICE_STATE, SourceWatch, StreamWatch
 from ovis.common.pipeline.stages import obstacle_frame
 from ovis.common.world.detection import Detector
 from ovis.services.service import Service
+from ovis.services.trust import signer_for
 
 
 def main(service: Service) -> None:
@@ -29,7 +30,8 @@ def main(service: Service) -> None:
         detector.recalibrate(c.camera, c.image, c.pose)
 
     service.follow_calibration(recalibrate)
-    publish = service.publisher(service.topics.obstacles)
+    signer = signer_for(service.config, "pose")  # consumers believe what this key signed
+    publish = service.publisher(service.topics.obstacles, signer=signer)
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
         msg = service.decode(payload, BlobList, "blobs")
@@ -43,7 +45,7 @@ def main(service: Service) -> None:
 
     inbox = service.inbox(service.topics.blobs)
     threading.Thread(target=service.serve, args=(inbox, handle), daemon=True).start()
-    publish_health = service.publisher(service.topics.health, drop=False)
+    publish_health = service.publisher(service.topics.health, drop=False, signer=signer)
     watch = StreamWatch(service.config.service.frame_timeout_s)
     source = SourceWatch()
     news = threading.Event()  # the source was lost or is back: publish the health now

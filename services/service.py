@@ -37,16 +37,19 @@ from ovis.common.messages import (
 from ovis.common.pipeline.counters import StageCounters, worth_logging
 from ovis.common.pipeline.following import (
     RECONCILE_S,
+    Answer,
     CalibrationFollower,
-    identity,
     label,
+    pick,
 )
 from ovis.common.pipeline.limits import Input, PayloadLimits, oversized
 from ovis.common.pipeline.stages import wrong_size
+from ovis.common.trust.proof import Signer
 from ovis.services.bus import open_session
 from ovis.services.inbox import Inbox
 from ovis.services.memory import GUARD, keep_freed_memory
 from ovis.services.placement import pin_to_cpus
+from ovis.services.trust import attachment_of, every_reply, unproven, verifier_for
 
 __all__ = ["Service", "run"]
 
@@ -186,8 +189,11 @@ class Service:
         self.counters.sent()
 
     # --- outputs ------------------------------------------------------------------
-    def publisher(self, key: str, *, drop: bool = True) -> Callable[[Any], None]:
-        """A function that publishes a message (msgpack, ``application/msgpack``) on key."""
+    def publisher(
+        self, key: str, *, drop: bool = True, signer: Signer | None = None
+    ) -> Callable[[Any], None]:
+        """A function that publishes a message (msgpack, ``application/msgpack``) on key,
+        with ``signer``'s proof of origin in the attachment if given."""
         pub = self.session.declare_publisher(
             key,
             encoding=zenoh.Encoding(ENCODING),
@@ -195,7 +201,14 @@ class Service:
                 zenoh.CongestionControl.DROP if drop else zenoh.CongestionControl.BLOCK
             ),
         )
-        return lambda message: pub.put(encode(message))
+        if signer is None:
+            return lambda message: pub.put(encode(message))
+
+        def put(message: Any) -> None:
+            payload = encode(message)
+            pub.put(payload, attachment=signer.attachment(key, payload))
+
+        return put
 
     def publish_result(self, publish: Callable[[Any], None], message: Any) -> None:
         """Publish one frame's result, count it, and say the stage works."""
@@ -206,15 +219,22 @@ class Service:
     # --- calibration --------------------------------------------------------------
     def follow_calibration(self, on_change: Callable[[Calibration], None] | None = None) -> None:
         """Use the calibrator's current calibration (:mod:`ovis.common.pipeline.following`):
-        ask its queryable now, every ``RECONCILE_S``, and whenever a calibration is
-        pushed on the topic (the push itself is never taken: anyone can publish there)."""
+        ask its queryable now, every ``RECONCILE_S``, and whenever a calibration with the
+        calibrator's proof is pushed on the topic (the push itself is never taken: a
+        recorded genuine one can be pushed again)."""
         if on_change:
             self._calibration_listeners.append(on_change)
         self.follower = CalibrationFollower(self.config, self.calibration)
+        self._calibrator = verifier_for(self.config, "calibrator")
         ask = threading.Event()
 
         def on_push(sample: zenoh.Sample) -> None:
-            if self.receive(sample.payload, "small", CalibrationUpdate, "calibration"):
+            payload = self.take(sample.payload, "small", "calibration")
+            if payload is None:
+                return
+            if problem := unproven(self._calibrator, sample, payload):
+                self._conflict(f"a push on {sample.key_expr}: refused, {problem}")
+            elif self.decode(payload, CalibrationUpdate, "calibration"):
                 ask.set()
 
         self.session.declare_subscriber(self.topics.calibration, on_push)
@@ -234,34 +254,40 @@ class Service:
 
         threading.Thread(target=reconcile, name=f"{self.name}-calibration", daemon=True).start()
 
+    def _conflict(self, text: str) -> None:
+        """Count a calibration conflict (``calibration_conflict``); the status says it."""
+        self.error("calibration_conflict", text)
+        if self.follower is not None:
+            self.follower.conflict(text, time.monotonic())
+
     def reconcile_calibration(self, timeout: float = 2.0) -> bool:
-        """Ask the calibrator for its calibration and use it if it differs from ours and
-        is valid; False when nobody answered."""
-        answers: dict[tuple[str, int], Calibration] = {}
-        for reply in self.session.get(self.topics.calibration, timeout=timeout):
+        """Ask every queryable of the calibration for its answer and use the calibrator's
+        proven one if it is newer than ours and valid; unproven answers and replays are
+        counted as conflicts (:func:`~ovis.common.pipeline.following.pick`). False when
+        nobody answered with the calibrator's proof."""
+        answers = []
+        for reply in every_reply(self.session, self.topics.calibration, timeout=timeout):
             if reply.ok is None:
                 continue
-            update = self.receive(reply.ok.payload, "small", CalibrationUpdate, "calibration")
+            who = f"replier {reply.replier_id.zid}" if reply.replier_id else "a replier"
+            payload = self.take(reply.ok.payload, "small", "calibration")
+            if payload is None:
+                continue
+            proof = attachment_of(reply.ok)
+            problem = self._calibrator.problem(self.topics.calibration, payload, proof)
+            update = self.decode(payload, CalibrationUpdate, "calibration")
             if update is not None:
-                answers[identity(update.calibration)] = update.calibration
-        if len(answers) > 1:
-            self.error(
-                "calibration_conflict",
-                f"{len(answers)} different answers to the current calibration "
-                f"({', '.join(map(label, answers.values()))}); keeping "
-                f"{label(self.calibration)}: more than one queryable serves "
-                f"{self.topics.calibration} (use the secure profile)",
-            )
-            return True
-        if not answers:
-            return False
-        calib = next(iter(answers.values()))
-        adopted, problem = self.follower.offer(calib)
-        if problem is not None:
-            self.error("bad_calibration", problem)
-        if adopted:
-            self._use(calib, f"using calibration {label(calib)} (DIPE {calib.dipe_px:.3f} px)")
-        return True
+                answers.append(Answer(who, update.calibration, problem))
+        calib, conflicts = pick(self.calibration, answers)
+        for text in conflicts:
+            self._conflict(text)
+        if calib is not None:
+            adopted, problem = self.follower.offer(calib)
+            if problem is not None:
+                self.error("bad_calibration", problem)
+            if adopted:
+                self._use(calib, f"using calibration {label(calib)} (DIPE {calib.dipe_px:.3f} px)")
+        return any(a.unproven is None for a in answers)
 
     def _use(self, calib: Calibration, message: str) -> None:
         self.calibration = calib

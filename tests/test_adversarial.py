@@ -406,7 +406,8 @@ def test_an_impossible_calibration_is_refused_and_the_stream_goes_on(
     deployment: Deployment, attacker: Attacker
 ) -> None:
     """With the calibrator gone (previous test), a forger even gets to answer the
-    calibration query: Z0 = -500 cm is still refused by every stage."""
+    calibration query: Z0 = -500 cm is still refused by every stage (it has no
+    calibrator's proof of origin: a calibration conflict)."""
     assert deployment.procs["calibrator"].poll() is not None
     before = {s: attacker.status(s) for s in ("preprocess", "label", "pose")}
     genuine = before["pose"]["calibration_version"]
@@ -423,9 +424,10 @@ def test_an_impossible_calibration_is_refused_and_the_stream_goes_on(
             RECONCILE_S + SLACK_S,
             f"{stage} to refuse it",
         )
-        assert "not above the floor" in st["reason"], st
+        assert "calibration_conflict" in st["reason"], st
+        assert "no proof of origin" in st["reason"], st
         assert st["calibration_version"] == before[stage]["calibration_version"]
-        assert st["errors"].get("bad_calibration", 0) >= 1
+        assert st["errors"].get("calibration_conflict", 0) >= 1
     wait_for(lambda: len(attacker.since(n)) >= 10, 10, "obstacles still flowing")
     assert {m["calibration_version"] for m in attacker.since(n)} == {genuine}
 

@@ -24,6 +24,8 @@ import pytest
 import zenoh
 
 from ovis.common.messages import ENCODING, ObstacleFrame, Topics, TruthFrame, encode
+from ovis.common.trust.keys import load_or_create_private
+from ovis.common.trust.proof import Signer
 from ovis.common.world.detection import DetectedObject, PlannerEntry
 from ovis.common.world.robots import RobotState
 
@@ -68,9 +70,23 @@ class _Lines:
         self._thread.join(timeout)
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _pose_key(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """The pose stage's key pair, as `ovis up` makes it: the test signs with it, the
+    example trusts its public half."""
+    global SIGNER, TRUST
+    key_file = tmp_path_factory.mktemp("keys") / "pose.key"
+    SIGNER, TRUST = Signer(load_or_create_private(key_file)), str(key_file.with_suffix(".pub"))
+    yield
+
+
+SIGNER: Signer
+TRUST = ""
+
+
 def _spawn(*args: str) -> subprocess.Popen[str]:
     return subprocess.Popen(
-        [sys.executable, str(EXAMPLE), *args],
+        [sys.executable, str(EXAMPLE), "--trust", TRUST, *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         stdin=subprocess.DEVNULL,
@@ -162,15 +178,22 @@ def _publish_until(
     sent: dict[int, ObstacleFrame] = {}
     deadline = time.monotonic() + TIMEOUT_S
     seq = 0
+    key = Topics("default").obstacles
+
+    def put(payload: bytes) -> None:  # as the pose stage publishes: with its proof
+        publisher.put(payload, attachment=SIGNER.attachment(key, payload))
+
     try:
         while len(out.lines) < n_lines and proc.poll() is None:
             assert time.monotonic() < deadline, f"only {out.lines} after {TIMEOUT_S} s"
             if junk:  # each must be skipped, not printed and not fatal
-                publisher.put(b"\xc1 not msgpack")
-                publisher.put(encode(TruthFrame(seq=seq, objects=[])))
-                publisher.put(b"\x93\x01\x02\x03")  # an array, not a map
+                put(b"\xc1 not msgpack")
+                put(encode(TruthFrame(seq=seq, objects=[])))
+                put(b"\x93\x01\x02\x03")  # an array, not a map
+                # and a frame without the proof (seq beyond any sent): dropped, counted
+                publisher.put(encode(_frame(10**6 + seq, robot=robot, marked=marked)))
             sent[seq] = _frame(seq, robot=robot, marked=marked)
-            publisher.put(encode(sent[seq]))
+            put(encode(sent[seq]))
             seq += 1
             time.sleep(0.05)
     finally:
@@ -212,6 +235,9 @@ def test_json_lines_carry_the_published_frames() -> None:
     assert any("not MessagePack" in line for line in skipped), err.lines
     assert any("expected type 'obstacles', got 'truth'" in line for line in skipped), err.lines
     assert any("expected a map, got list" in line for line in skipped), err.lines
+    assert all(g["seq"] < 10**6 for g in got)  # the unproven frames were never printed
+    assert any(line.startswith("dropped 1 unproven message(s) (no proof of origin)")
+               for line in err.lines), err.lines  # fmt: skip
 
 
 def test_text_output_names_robot_and_each_obstacle() -> None:
@@ -308,7 +334,7 @@ def test_ctrl_c_closes_the_session_and_exits() -> None:
 def test_no_router_is_a_one_line_error() -> None:
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     proc = subprocess.run(
-        [sys.executable, str(EXAMPLE), "--connect", endpoint, "--count", "1"],
+        [sys.executable, str(EXAMPLE), "--trust", TRUST, "--connect", endpoint, "--count", "1"],
         capture_output=True,
         text=True,
         timeout=TIMEOUT_S,
@@ -324,6 +350,7 @@ def test_no_router_is_a_one_line_error() -> None:
     [
         (["--arena", "a/b"], "arena name 'a/b' must be 1-64 letters"),
         (["--count", "0"], "must be >= 1, got 0"),
+        (["--trust", "/nonexistent/pose.pub"], "cannot read the pose stage's public key"),
     ],
 )
 def test_bad_arguments_exit_2(args: list[str], needle: str) -> None:
@@ -334,7 +361,7 @@ def test_bad_arguments_exit_2(args: list[str], needle: str) -> None:
     assert needle in proc.stderr
 
 
-def test_example_needs_only_zenoh_and_msgpack() -> None:
+def test_example_needs_only_zenoh_msgpack_and_cryptography() -> None:
     tree = ast.parse(EXAMPLE.read_text())
     imported = set()
     for node in ast.walk(tree):
@@ -343,7 +370,7 @@ def test_example_needs_only_zenoh_and_msgpack() -> None:
         elif isinstance(node, ast.ImportFrom) and node.module:
             imported.add(node.module.split(".")[0])
     third_party = imported - set(sys.stdlib_module_names) - {"__future__"}
-    assert third_party == {"zenoh", "msgpack"}
+    assert third_party == {"zenoh", "msgpack", "cryptography"}  # the last for the proof
 
 
 def test_ctrl_c_ends_it_even_when_the_suite_was_started_with_sigint_ignored() -> None:

@@ -39,10 +39,11 @@ LAYERS: dict[str, set[str]] = {
     "sim": {"config", "atomic", "camera", "vision"},
     "capture": {"config", "atomic", "camera", "sim", "vision"},
     "messages": {"config", "camera", "vision", "world", "calibration", "sim"},
-    "pipeline": FOUNDATION,
+    "pipeline": FOUNDATION | {"trust"},
     "analysis": FOUNDATION | {"fusion"},
     "view": {"config", "camera", "calibration", "messages"},
     "fusion": {"config", "camera"},
+    "trust": {"atomic", "config"},
 }
 
 #: Recording stores and replays messages: what they may import, plus them and atomic files.

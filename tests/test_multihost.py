@@ -515,10 +515,14 @@ def write_configs(tmp: Path) -> dict[str, Path]:
         "router-a": {"zenoh": {"config_file": str(conf / "router-a.json5")}},
         "router-b": {"zenoh": {"config_file": str(conf / "router-b.json5")}},
         "capture": {"service": {"source": "sim", "fps": FPS, "prerender": PRERENDER}},
-        "processing": {},
-        "calibrator": {"service": {"points": "simulator"}},
-        "subscriber": {},
-    }
+        # the key files where the lab's hosts share them (deploy/: /var/lib, /etc)
+        "processing": {"trust": {"keys_dir": str(conf / "keys"),
+                                 "calibrator_public": str(conf / "keys" / "calibrator.pub")}},
+        "calibrator": {"service": {"points": "simulator"},
+                       "trust": {"keys_dir": str(conf / "keys")}},
+        "subscriber": {"trust": {"pose_public": str(conf / "keys" / "pose.pub"),
+                                 "calibrator_public": str(conf / "keys" / "calibrator.pub")}},
+    }  # fmt: skip
     for role, extra in overrides.items():
         data = tomllib.loads((DEPLOY / "ovis" / f"{role}.toml").read_text())
         if not role.startswith("router"):

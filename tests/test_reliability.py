@@ -284,7 +284,15 @@ def test_frames_that_stop_are_reported_as_no_data(pipeline) -> None:
     try:
         wait_for(lambda: any(h.state == "ok" for h in health), 10, "health 'ok' while flowing")
         watch = subprocess.Popen(
-            ovis_cmd("watch", "--connect", pipeline.endpoint, "--duration", "12"),
+            ovis_cmd(
+                "watch",
+                "--connect",
+                pipeline.endpoint,
+                "--duration",
+                "12",
+                "--trust",
+                str(pipeline.tmp / "state" / "keys"),
+            ),
             stdout=subprocess.PIPE,
             text=True,
         )

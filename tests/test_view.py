@@ -144,6 +144,8 @@ def system(tmp_path_factory: pytest.TempPathFactory):
                     "default",
                     "--max-clients",
                     "3",
+                    "--trust",  # the keys `ovis up` made: it shows only what they signed
+                    str(tmp / "state" / "keys"),
                 ),
                 tmp / "lonely.log",
             )

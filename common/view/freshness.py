@@ -12,7 +12,7 @@ shown with that time, never with an age or a latency.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import msgspec
 
@@ -29,12 +29,24 @@ State = Literal["waiting", "live", "late", "replay", "stalled"]
 _marks = msgspec.msgpack.Decoder(ReplayMark)
 
 
+class _Keys(msgspec.Struct, forbid_unknown_fields=False):
+    """Whether an attachment map holds a replay mark (a live message's attachment holds
+    only the stage's proof of origin)."""
+
+    recording: Any = None
+
+
+_keys = msgspec.msgpack.Decoder(_Keys)
+
+
 def read_replay_mark(attachment: bytes | None) -> ReplayMark | None:
     """The replay mark of a message's attachment: None when there is none; ValueError
     saying why when there is one but it is not a valid mark."""
     if not attachment:
         return None
     try:
+        if _keys.decode(attachment).recording is None:
+            return None  # no mark in it: a live message's proof of origin
         return _marks.decode(attachment)
     except (msgspec.DecodeError, msgspec.ValidationError) as exc:
         raise ValueError(f"not a replay mark: {exc}") from None

@@ -86,6 +86,9 @@ class HealthSummary(msgspec.Struct, kw_only=True):
     fresh: dict[str, Freshness] = {}
     #: the recording the frames are replayed from ("": live); no latency is measured then
     replay: str = ""
+    #: messages dropped for lack of their signer's proof of origin, by kind (obstacles,
+    #: health: the pose stage's; calibration: the calibrator's)
+    unproven: dict[str, int] = {}
 
 
 class LatencyWindow:
@@ -183,6 +186,7 @@ def summarize(
     *,
     stream_age_s: float | None = None,
     fresh: Mapping[str, Freshness] | None = None,
+    unproven: Mapping[str, int] | None = None,
 ) -> HealthSummary:
     """The health of one arena: the five stages (and any other service that is alive
     or answered), latency over the window (none while the frames are a replay), the
@@ -210,4 +214,5 @@ def summarize(
         ),
         fresh=fresh,
         replay=replay,
+        unproven=dict(unproven or {}),
     )

@@ -1,14 +1,28 @@
 #!/usr/bin/env python3
-"""Print what ovis detects, without ovis: only ``zenoh`` (eclipse-zenoh 1.x) and ``msgpack``.
+"""Print what ovis detects, without ovis: only ``zenoh`` (eclipse-zenoh 1.x), ``msgpack``
+and ``cryptography`` (to check who sent it).
 
 A standalone consumer of the obstacle topic, to copy into a robot's code::
 
-    pip install eclipse-zenoh msgpack
-    python subscribe_obstacles.py --connect tcp/192.168.1.10:7447 --arena default
+    pip install eclipse-zenoh msgpack cryptography
+    python subscribe_obstacles.py --connect tcp/192.168.1.10:7447 --arena default \
+        --trust pose.pub
 
 It opens a Zenoh *client* session to a router (``ovis router`` or ``ovis up`` runs one),
-subscribes to ``ovis/<arena>/obstacles`` and decodes every sample with
+subscribes to ``ovis/<arena>/obstacles``, drops (and counts, on stderr) every sample
+without the pose stage's proof of origin, and decodes the others with
 ``msgpack.unpackb(payload, raw=False)``.
+
+The proof
+---------
+Anyone on the bus can publish on the obstacle key: believe only what the pose stage
+signed. Its public key is the PEM file ``pose.pub`` that ``ovis up`` (or the pose stage)
+writes in ``<state_dir>/keys/`` (``ovis-state/keys/pose.pub`` by default): copy it to this
+machine, over a channel you trust (scp, your configuration management), and give it with
+``--trust``. Each sample's Zenoh *attachment* is a MessagePack map with ``kid`` (8 bytes:
+the first 8 bytes of SHA-256 of the raw 32-byte public key) and ``sig`` (64 bytes: an
+Ed25519 signature of ``b"ovis-proof-v1\0" + key_expr + b"\0" + payload``, the key
+expression as UTF-8 and the payload's exact bytes). Any Ed25519 library checks it.
 
 The message
 -----------
@@ -45,21 +59,33 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import hashlib
 import json
 import math
 import queue
 import re
 import signal
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any, TextIO
 
 import msgpack
 import zenoh
 
-__all__ = ["BadMessageError", "client_config", "format_json", "format_text", "main", "parse"]
+__all__ = [
+    "BadMessageError",
+    "client_config",
+    "format_json",
+    "format_text",
+    "main",
+    "parse",
+    "proof_checker",
+]
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+DEFAULT_TRUST = "ovis-state/keys/pose.pub"
+DOMAIN = b"ovis-proof-v1\x00"
 #: Messages waiting to be printed, at most (more are skipped).
 INBOX = 1000
 MESSAGE_TYPE = "obstacles"
@@ -85,6 +111,37 @@ def client_config(connect: Sequence[str]) -> zenoh.Config:
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     conf.insert_json5("scouting/multicast/enabled", "false")
     return conf
+
+
+def proof_checker(pem_file: str) -> Callable[[str, bytes, bytes | None], str | None]:
+    """A function (key expression, payload, attachment) -> why the sample is not signed
+    by the key in ``pem_file``, or None. OSError/ValueError when the file is no key."""
+    from cryptography.exceptions import InvalidSignature
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
+
+    key = serialization.load_pem_public_key(Path(pem_file).read_bytes())
+    if not isinstance(key, Ed25519PublicKey):
+        raise ValueError(f"{pem_file} is not an Ed25519 public key")
+    raw = key.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)
+    kid = hashlib.sha256(raw).digest()[:8]
+
+    def problem(key_expr: str, payload: bytes, attachment: bytes | None) -> str | None:
+        try:
+            proof = msgpack.unpackb(attachment or b"", raw=False)
+        except (ValueError, TypeError, msgpack.UnpackException):
+            proof = None
+        if not isinstance(proof, dict) or "sig" not in proof:
+            return "no proof of origin"
+        if proof.get("kid") != kid:
+            return "signed by another key"
+        try:
+            key.verify(proof["sig"], DOMAIN + key_expr.encode() + b"\x00" + payload)
+        except (InvalidSignature, TypeError):
+            return "bad signature"
+        return None
+
+    return problem
 
 
 def parse(payload: bytes) -> dict[str, Any]:
@@ -170,32 +227,41 @@ def main(
     conf: zenoh.Config,
     key: str,
     *,
+    check: Callable[[str, bytes, bytes | None], str | None],
     count: int | None = None,
     as_json: bool = False,
     out: TextIO = sys.stdout,
 ) -> int:
     """Subscribe to ``key`` and print each obstacle message; stop after ``count`` of them.
 
-    Payloads that are not obstacle messages are reported on stderr and skipped. Raises
+    Samples that ``check`` finds unproven are dropped and counted on stderr; payloads
+    that are not obstacle messages are reported on stderr and skipped. Raises
     ``KeyboardInterrupt`` on Ctrl-C (the session is closed first).
     """
     session = zenoh.open(conf)
     try:
         # Zenoh's thread queues each sample; this (main) thread waits on the queue with a
         # timeout, so Ctrl-C and SIGTERM are handled at once whatever Zenoh is doing.
-        inbox: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize=INBOX)
+        inbox: queue.Queue[tuple[str, bytes, bytes | None]] = queue.Queue(maxsize=INBOX)
 
         def on_sample(sample: zenoh.Sample) -> None:
+            attachment = None if sample.attachment is None else sample.attachment.to_bytes()
             with contextlib.suppress(queue.Full):  # a printer that cannot keep up skips
-                inbox.put_nowait((str(sample.key_expr), sample.payload.to_bytes()))
+                inbox.put_nowait((str(sample.key_expr), sample.payload.to_bytes(), attachment))
 
         session.declare_subscriber(key, on_sample)
         print(f"subscribed to {key}", file=sys.stderr, flush=True)
-        seen = 0
+        seen = dropped = 0
         while count is None or seen < count:
             try:
-                where, payload = inbox.get(timeout=0.2)
+                where, payload, attachment = inbox.get(timeout=0.2)
             except queue.Empty:
+                continue
+            problem = check(where, payload, attachment)
+            if problem is not None:
+                dropped += 1
+                if dropped <= 5 or dropped % 100 == 0:
+                    print(f"dropped {dropped} unproven message(s) ({problem})", file=sys.stderr)
                 continue
             try:
                 msg = parse(payload)
@@ -231,6 +297,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--arena", default="default", help="Arena name (default: default).")
     parser.add_argument("--count", type=_positive, help="Stop after N messages.")
     parser.add_argument(
+        "--trust",
+        default=DEFAULT_TRUST,
+        metavar="FILE",
+        help="The pose stage's public key (PEM; copy <state_dir>/keys/pose.pub from the "
+        f"host of `ovis up`); default {DEFAULT_TRUST}. Only what it signed is printed.",
+    )
+    parser.add_argument(
         "--json", action="store_true", help="Print one JSON object per message and line."
     )
     return parser.parse_args(argv)
@@ -248,10 +321,19 @@ def cli(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    try:
+        check = proof_checker(args.trust)
+    except (OSError, ValueError) as exc:
+        print(
+            f"error: cannot read the pose stage's public key {args.trust}: {exc}; copy "
+            "pose.pub from the state folder of `ovis up` (ovis-state/keys/) and give --trust",
+            file=sys.stderr,
+        )
+        return 2
     connect = args.connect or [DEFAULT_CONNECT]
     signal.signal(signal.SIGTERM, _interrupt)
     try:
-        return main(client_config(connect), key, count=args.count, as_json=args.json)
+        return main(client_config(connect), key, check=check, count=args.count, as_json=args.json)
     except zenoh.ZError as exc:
         print(f"error: {exc} (connect: {', '.join(connect)})", file=sys.stderr)
         return 1

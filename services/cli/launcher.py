@@ -9,7 +9,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import msgspec
 import typer
@@ -25,9 +25,11 @@ from ovis.services.cli.options import (
     ConnectTimeoutOpt,
     JsonOpt,
     SummaryJsonOpt,
+    TrustOpt,
     arena_topics,
     config_with_options,
     stop_on_signals,
+    with_trust,
 )
 
 __all__ = ["register"]
@@ -293,8 +295,9 @@ def up(
     from ovis.services.placement import cpus_option, off_path_cpus
 
     # The services share the router's machine: they talk to each other directly.
-    services_cfg = startup.services_config(cfg, calib)
+    services_cfg = startup.with_keys(startup.services_config(cfg, calib))
     services_cfg = msgspec.structs.replace(services_cfg, zenoh=local_peers(cfg.zenoh))
+    cfg = msgspec.structs.replace(cfg, trust=services_cfg.trust)  # its live view verifies too
     cfg_path.write_text(dump_toml(services_cfg))
     from ovis.services.supervisor import Supervisor
 
@@ -317,7 +320,8 @@ def up(
         from ovis.services.cli.view import DEFAULT_LISTEN
         from ovis.services.placement import off_path_option
 
-        view_args = ["view", "--connect", listen, "--arena", topics.arena]
+        view_args = ["view", "--connect", listen, "--arena", topics.arena,
+                     "--trust", cfg.trust.keys_dir]  # fmt: skip
         fleet.start("view", [*view_args, *off_path_option(cpus)])
         where = os.environ.get("OVIS_VIEW_LISTEN", DEFAULT_LISTEN)
         print(f"ovis up: live view on http://{where}/ (log: {log_dir / 'view.log'})", file=out)
@@ -479,8 +483,12 @@ def watch(
     count: Annotated[int | None, typer.Option(min=1, help="Stop after N frames.")] = None,
     duration: Annotated[float | None, typer.Option(min=0.0, help="Stop after S seconds.")] = None,
     timeout: ConnectTimeoutOpt = CONNECT_S,
+    trust: TrustOpt = None,
 ) -> None:
     """Subscribe to the obstacle topic and print each frame's objects and planner inputs.
+
+    Only messages signed by the pose stage's key (--trust) are shown: the others are
+    dropped and counted, and a line on stderr says how many and why (docs/trust.md).
 
     Also follows the pose service's health topic: when frames stop, it says "no data"
     (instead of going quiet). With --json, one JSON object per line, as published:
@@ -491,22 +499,36 @@ def watch(
     stop = stop_on_signals()  # first: nothing below may block before it is in place
     from ovis.common.messages import ObstacleFrame, StreamHealth, decode
     from ovis.services.bus import client_session
-    from ovis.services.cli.watching import format_health, format_obstacles
+    from ovis.services.cli.watching import UnprovenCount, format_health, format_obstacles
     from ovis.services.inbox import Inbox
+    from ovis.services.trust import unproven, verifier_for
 
-    cfg = config_with_options(config, connect=connect, arena=arena)
+    cfg = with_trust(config_with_options(config, connect=connect, arena=arena), trust)
     topics = arena_topics(cfg)
+    verifier = verifier_for(cfg, "pose")
+    dropped = UnprovenCount("the pose stage")
     box = Inbox(depth=64)
     seen = 0
     deadline = time.monotonic() + duration if duration is not None else None
+
+    def on_sample(sample: Any) -> None:
+        payload = sample.payload.to_bytes()
+        problem = unproven(verifier, sample, payload)
+        if problem is None:
+            box.put(payload)
+        else:
+            dropped.add(problem)
+
     with client_session(cfg.zenoh, timeout, stop) as session:
         if session is None:  # stopped while waiting for the router
             return
-        session.declare_subscriber(topics.obstacles, lambda s: box.put(s.payload.to_bytes()))
-        session.declare_subscriber(topics.health, lambda s: box.put(s.payload.to_bytes()))
+        session.declare_subscriber(topics.obstacles, on_sample)
+        session.declare_subscriber(topics.health, on_sample)
         while not stop.is_set() and (count is None or seen < count):
             if deadline is not None and time.monotonic() > deadline:
                 break
+            if line := dropped.line():
+                print(f"ovis watch: {line}", file=sys.stderr, flush=True)
             payload = box.get(0.2)
             if payload is None:
                 continue
@@ -523,6 +545,8 @@ def watch(
                 sys.stdout.write(format_health(msg) + "\n")
             seen += isinstance(msg, ObstacleFrame)
             sys.stdout.flush()
+    if line := dropped.line(final=True):
+        print(f"ovis watch: {line}", file=sys.stderr, flush=True)
 
 
 def recalibrate(

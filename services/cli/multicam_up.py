@@ -102,12 +102,13 @@ def up_cameras(
     from ovis.common.messages import Topics
     from ovis.common.sim.scenes import marked_scene
     from ovis.services.cli.cameras import parse_grid
+    from ovis.services.cli.startup import with_keys
     from ovis.services.supervisor import Supervisor
 
     grid = parse_grid(grid_text)
     try:
         base = with_options(config, connect=[listen], seed=seed, fps=fps)
-        base = marked_scene(base, ROBOTS, OBSTACLES)
+        base = with_keys(marked_scene(base, ROBOTS, OBSTACLES))
         topics = Topics(base.service.arena)
         log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-cameras-"))
         chains, fusion_cfg = _configs(grid, base, log_dir)

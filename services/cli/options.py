@@ -29,10 +29,12 @@ __all__ = [
     "PaperPresetOpt",
     "PresetOpt",
     "SummaryJsonOpt",
+    "TrustOpt",
     "arena_topics",
     "config_with_options",
     "stop_on_signals",
     "time_left",
+    "with_trust",
 ]
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -92,6 +94,16 @@ ConnectTimeoutOpt = Annotated[
         help="Seconds to wait for a router to answer; then exit code 4 with the reason.",
     ),
 ]
+TrustOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--trust",
+        help="The pose stage's public key file (PEM), or a folder with pose.pub and "
+        "calibrator.pub: only what it signed is shown. Default: [trust] in --config, "
+        "else <state_dir>/keys/ (ovis-state/keys/, where `ovis up` makes them); copy "
+        "pose.pub from the pose stage's host to watch from another (docs/trust.md).",
+    ),
+]
 ArenaOpt = Annotated[
     str | None, typer.Option(help="Arena name: key expressions are rooted at ovis/<arena>/.")
 ]
@@ -102,6 +114,21 @@ def config_with_options(config: Path | None, **options: Any):
     from ovis.common.config import with_options
 
     return with_options(config, **options)
+
+
+def with_trust(cfg, trust: Path | None):
+    """The configuration with ``--trust`` laid over its ``[trust]``: a folder gives both
+    public keys, a file the pose stage's."""
+    import msgspec
+
+    if trust is None:
+        return cfg
+    if trust.is_dir():
+        keys = {"calibrator_public": str(trust / "calibrator.pub"),
+                "pose_public": str(trust / "pose.pub")}  # fmt: skip
+    else:
+        keys = {"pose_public": str(trust)}
+    return msgspec.structs.replace(cfg, trust=msgspec.structs.replace(cfg.trust, **keys))
 
 
 def arena_topics(cfg):

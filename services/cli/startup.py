@@ -13,7 +13,7 @@ import msgspec
 
 from ovis.services.cli.errors import UserError
 
-__all__ = ["PROBE_S", "calibration_for_run", "check_endpoint", "source_size"]
+__all__ = ["PROBE_S", "calibration_for_run", "check_endpoint", "source_size", "with_keys"]
 
 #: How long the source may take to deliver its first frame at start.
 PROBE_S = 8.0
@@ -176,3 +176,23 @@ def services_config(cfg: Any, calib: Any) -> Any:
     if calib is None or cfg.service.simulated_source:
         return cfg
     return msgspec.structs.replace(cfg, camera=calib.camera)
+
+
+def with_keys(cfg: Any) -> Any:
+    """The keys of the calibrator and the pose stage made (or, from an earlier run,
+    loaded) in the state folder's ``keys/`` before anything starts, and the services'
+    configuration naming that folder (absolute): every process it starts signs or
+    verifies with them, none takes a key from the bus. A folder that cannot be written
+    stops the start (exit 2)."""
+    from ovis.common.trust.keys import ROLES, KeyFileError, keys_dir, load_or_create_private
+
+    folder = keys_dir(cfg).resolve()
+    trust = msgspec.structs.replace(
+        cfg.trust, keys_dir=str(folder), calibrator_public="", pose_public=""
+    )
+    try:
+        for role in ROLES:
+            load_or_create_private(folder / f"{role}.key")
+    except KeyFileError as exc:
+        raise UserError(f"{exc} (nothing was started)") from None
+    return msgspec.structs.replace(cfg, trust=trust)

@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 
 from ovis.services.cli.errors import UserError
-from ovis.services.cli.options import ConfigOpt, ConnectOpt
+from ovis.services.cli.options import ConfigOpt, ConnectOpt, TrustOpt
 
 __all__ = ["DEFAULT_LISTEN", "register", "view"]
 
@@ -89,6 +89,7 @@ def view(
             "cores); default any."
         ),
     ] = None,
+    trust: TrustOpt = None,
 ) -> None:
     """Serve a live web page of what ovis sees: the camera frame with blobs, ids, robot
     headings and control points drawn on it (or the binarised frame), the arena from
@@ -98,13 +99,15 @@ def view(
 
     It joins the bus like any subscriber (it may run on a laptop far from the cameras)
     and takes frames from the bus only while a browser watches, so the frame path does
-    not pay for it. Stop it with Ctrl-C.
+    not pay for it. Obstacles and health are shown only with the pose stage's proof of
+    origin, calibrations with the calibrator's (--trust); the others are dropped and the
+    health panel counts them. Stop it with Ctrl-C.
     """
     from ovis.common.messages import Topics
     from ovis.common.view.guard import new_token
     from ovis.common.view.settings import parse_listen, view_settings
     from ovis.services.bus import open_session
-    from ovis.services.cli.options import config_with_options
+    from ovis.services.cli.options import config_with_options, with_trust
     from ovis.services.view.feed import Bus
     from ovis.services.view.server import bind, serve, url_of
 
@@ -113,7 +116,7 @@ def view(
         operator_token = new_token()
     try:
         host, port = parse_listen(listen)
-        cfg = config_with_options(config, connect=connect)
+        cfg = with_trust(config_with_options(config, connect=connect), trust)
         arenas = list(arena or [cfg.service.arena])
         for name in arenas:
             Topics(name)  # a bad name is refused here
@@ -139,7 +142,7 @@ def view(
     )
     give_way(nice, cpus)
     with open_session(cfg.zenoh) as session:
-        bus = Bus(session, arenas, discover=settings.discover)
+        bus = Bus(session, arenas, discover=settings.discover, config=cfg)
         mode = (
             "operator mode: the page asks for the token to recalibrate"
             if settings.operator_token

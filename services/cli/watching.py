@@ -24,10 +24,12 @@ from ovis.common.messages import (
 )
 from ovis.common.pipeline.totals import least
 from ovis.services.cli.ui import table, velocity_text
+from ovis.services.trust import unproven, verifier_for
 
 __all__ = [
     "LiveView",
     "RunSummary",
+    "UnprovenCount",
     "collect_status",
     "format_gaps",
     "format_health",
@@ -72,6 +74,36 @@ def format_health(msg: StreamHealth) -> str:
     if msg.state == "source lost":
         return f"NO DATA: source lost ({msg.reason}); {ago}"
     return f"NO DATA: frames {msg.state}; {ago}" + (f"; {msg.reason}" if msg.reason else "")
+
+
+class UnprovenCount:
+    """Messages dropped for lack of a signer's proof, and the line that says so: at the
+    first one, then every ``every_s`` while more come, and at the end (thread-safe:
+    Zenoh's threads count, the main thread says)."""
+
+    def __init__(self, signer: str, every_s: float = 5.0) -> None:
+        self.signer, self.every_s = signer, every_s
+        self.n, self.why = 0, ""
+        self._said, self._said_at = 0, -every_s
+        self._lock = threading.Lock()
+
+    def add(self, why: str) -> None:
+        with self._lock:
+            self.n += 1
+            self.why = why
+
+    def line(self, *, final: bool = False) -> str | None:
+        """The count line when it is due (``final``: if any was dropped), else None."""
+        now = time.monotonic()
+        with self._lock:
+            due = self.n > self._said and (final or now - self._said_at >= self.every_s)
+            if not due and not (final and self.n):
+                return None
+            self._said, self._said_at = self.n, now
+            return (
+                f"dropped {self.n} message(s) without {self.signer}'s proof of origin "
+                f"(last: {self.why})"
+            )
 
 
 class ServiceReport(msgspec.Struct):
@@ -186,6 +218,8 @@ class LiveView:
         self.config = config
         self.score = LiveScore()
         self.accept = accept  # whose statuses count (None: everyone's)
+        self.verifier = verifier_for(config, "pose")
+        self.unproven = UnprovenCount("the pose stage")
 
     def attach(self, session: zenoh.Session) -> None:
         session.declare_subscriber(self.topics.obstacles, self._on_obstacles)
@@ -197,8 +231,12 @@ class LiveView:
 
     def _on_obstacles(self, sample: zenoh.Sample) -> None:
         now = time.time_ns()
+        payload = sample.payload.to_bytes()
+        if problem := unproven(self.verifier, sample, payload):
+            self.unproven.add(problem)  # never scored, never shown
+            return
         with contextlib.suppress(MessageError):
-            self.score.add_obstacles(decode(sample.payload.to_bytes(), ObstacleFrame), now)
+            self.score.add_obstacles(decode(payload, ObstacleFrame), now)
 
     def run(
         self,
@@ -234,6 +272,8 @@ class LiveView:
                     break
                 for event in supervise():
                     console.print(f"[yellow]{event}[/]")
+                if line := self.unproven.line():
+                    console.print(f"[red]{line}[/]")
                 if ctx is not None:
                     ctx.update(render())
                 elif not quiet and time.monotonic() - last_print > 5.0 and self.score.latest:

@@ -4,7 +4,10 @@ and blobs only while a browser watches the arena), and the recalibration query.
 
 Callbacks only validate and store the newest items (bounded), never encode or draw:
 that is done by the server at the browser's rate. A message that fails validation is
-counted and dropped. Each item is kept with when it arrived and its replay mark (the
+counted and dropped, and so is an obstacle or health message without the pose stage's
+proof of origin, or a calibration without the calibrator's (:mod:`ovis.common.trust`;
+the health panel counts them), but for a replay: its recording kept no proofs, and the
+page says it is one. Each item is kept with when it arrived and its replay mark (the
 attachment ``ovis replay`` puts on what it publishes), so that the page can say how
 current it is and whether it is a replay.
 """
@@ -22,6 +25,7 @@ import msgspec
 import zenoh
 
 from ovis.common.calibration.file import Calibration
+from ovis.common.config import OvisConfig
 from ovis.common.messages import (
     CalibrateReply,
     CalibrateRequest,
@@ -35,6 +39,7 @@ from ovis.common.messages import (
     decode,
     encode,
 )
+from ovis.common.pipeline.following import newer
 from ovis.common.pipeline.limits import Input, oversized
 from ovis.common.view.freshness import (
     Freshness,
@@ -46,6 +51,7 @@ from ovis.common.view.freshness import (
 from ovis.common.view.health import HealthSummary, LatencyWindow, summarize
 from ovis.common.view.scene import camera_footprint
 from ovis.services.memory import GUARD
+from ovis.services.trust import attachment_of, every_reply, unproven, verifier_for
 
 __all__ = ["ArenaFeed", "Bus", "Item"]
 
@@ -81,8 +87,10 @@ def _newest(store: collections.OrderedDict[int, Any], seq: int, item: Any) -> No
 class ArenaFeed:
     """One arena as the view sees it."""
 
-    def __init__(self, session: zenoh.Session, arena: str) -> None:
+    def __init__(self, session: zenoh.Session, arena: str, config: OvisConfig) -> None:
         self.session = session
+        self.pose = verifier_for(config, "pose")
+        self.calibrator = verifier_for(config, "calibrator")
         self.topics = Topics(arena)
         self.arena = arena
         self.lock = threading.Lock()
@@ -107,6 +115,8 @@ class ArenaFeed:
         self.binaries: collections.OrderedDict[int, Item] = collections.OrderedDict()
         self.blobs: collections.OrderedDict[int, Item] = collections.OrderedDict()
         self.refused: collections.Counter[str] = collections.Counter()
+        #: messages dropped for lack of their signer's proof, by kind
+        self.unproven: collections.Counter[str] = collections.Counter()
         self.frames_seen = 0
         self._watchers = 0
         self._frame_subs: list[zenoh.Subscriber] = []
@@ -125,6 +135,20 @@ class ArenaFeed:
             n = self.refused[what]
         if n <= 3 or n % 100 == 0:
             log.warning("arena %s: refused a %s message: %s (#%d)", self.arena, what, exc, n)
+
+    def proven(self, sample: zenoh.Sample, payload: bytes, what: str) -> bool:
+        """Whether an obstacle or health message has the pose stage's proof; one without
+        is dropped and counted, unless it is a replay (kept: the page labels it)."""
+        problem = unproven(self.pose, sample, payload)
+        if problem is None or self._mark(sample) is not None:
+            return True
+        self.refuse_unproven(what, problem)
+        return False
+
+    def refuse_unproven(self, what: str, problem: str) -> None:
+        with self.lock:
+            self.unproven[what] += 1
+        self.refuse(f"unproven {what}", MessageError(problem))
 
     def take(self, payload: zenoh.ZBytes, kind: Input, what: str) -> bytes | None:
         """The bytes of a payload, or None (counted, never copied) when it is larger than
@@ -168,7 +192,7 @@ class ArenaFeed:
 
     def _on_obstacles(self, sample: zenoh.Sample) -> None:
         payload = self.take(sample.payload, "blobs", "obstacles")
-        if payload is None:
+        if payload is None or not self.proven(sample, payload, "obstacles"):
             return
         try:
             msg = decode(payload, ObstacleFrame)  # validates; the page gets every field
@@ -195,7 +219,7 @@ class ArenaFeed:
 
     def _on_health(self, sample: zenoh.Sample) -> None:
         payload = self.take(sample.payload, "small", "health")
-        if payload is None:
+        if payload is None or not self.proven(sample, payload, "health"):
             return
         try:
             msg = decode(payload, StreamHealth)
@@ -207,11 +231,20 @@ class ArenaFeed:
             self.stream_received_s = time.monotonic()
 
     def _on_calibration(self, sample: zenoh.Sample) -> None:
-        self.accept_calibration(sample.payload)
+        replay = self._mark(sample) is not None  # a recording's: kept no proof, and says so
+        self.accept_calibration(sample.payload, attachment_of(sample), replay=replay)
 
-    def accept_calibration(self, received: zenoh.ZBytes) -> None:
+    def accept_calibration(
+        self, received: zenoh.ZBytes, proof: bytes | None, *, replay: bool = False
+    ) -> None:
+        """A calibration with the calibrator's proof (or replayed), newer than the one
+        shown."""
         payload = self.take(received, "small", "calibration")
         if payload is None:
+            return
+        problem = self.calibrator.problem(self.topics.calibration, payload, proof)
+        if problem is not None and not replay:
+            self.refuse_unproven("calibration", problem)
             return
         try:
             calib = decode(payload, CalibrationUpdate).calibration
@@ -220,7 +253,7 @@ class ArenaFeed:
             self.refuse("calibration", MessageError(str(exc)))
             return
         with self.lock:
-            if self.calibration is None or calib.version >= self.calibration.version:
+            if self.calibration is None or newer(calib, self.calibration):
                 self.calibration = calib
                 self.footprint = footprint
 
@@ -298,9 +331,9 @@ class ArenaFeed:
             self.statuses = {n: s for n, s in statuses.items() if n in self.alive}
             need_calibration = self.calibration is None
         if need_calibration:
-            for reply in self.session.get(self.topics.calibration, timeout=timeout):
+            for reply in every_reply(self.session, self.topics.calibration, timeout=timeout):
                 if reply.ok is not None:
-                    self.accept_calibration(reply.ok.payload)
+                    self.accept_calibration(reply.ok.payload, attachment_of(reply.ok))
 
     def freshness(self, kind: str) -> Freshness:
         """How current the newest item of ``kind`` (camera, binary, obstacles) is now."""
@@ -324,6 +357,7 @@ class ArenaFeed:
                 self.calibration,
                 stream_age_s=now - self.stream_received_s if self.stream is not None else None,
                 fresh=fresh,
+                unproven=self.unproven,
             )
 
     def recalibrate(self, request: CalibrateRequest, timeout: float) -> CalibrateReply:
@@ -357,9 +391,16 @@ class Bus:
     when none is named) and a thread that polls their status every ``period_s``."""
 
     def __init__(
-        self, session: zenoh.Session, arenas: list[str], *, discover: bool, period_s: float = 1.0
+        self,
+        session: zenoh.Session,
+        arenas: list[str],
+        *,
+        discover: bool,
+        config: OvisConfig,
+        period_s: float = 1.0,
     ) -> None:
         self.session = session
+        self.config = config  # whose public keys the feeds trust
         self.period_s = period_s
         self.lock = threading.Lock()
         self.feeds: dict[str, ArenaFeed] = {}
@@ -386,7 +427,7 @@ class Bus:
         with self.lock:
             feed = self.feeds.get(arena)
             if feed is None:
-                feed = self.feeds[arena] = ArenaFeed(self.session, arena)
+                feed = self.feeds[arena] = ArenaFeed(self.session, arena, self.config)
                 log.info("following arena %s", arena)
             return feed
 
