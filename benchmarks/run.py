@@ -182,28 +182,65 @@ def summary_lines(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+#: What says how a group's rows were measured (the rest of machine.json is the machine).
+RUN_KEYS = ("date", "quick", "load_average_start", "load_average_end", "other_programs_cores")
+
+
+def group_runs(machine: dict[str, Any], names: list[str], partial: bool) -> dict[str, Any]:
+    """When and under what load each group's rows were measured: this run for ``names``,
+    the previous machine.json's record for the groups a partial run (``--only``) kept."""
+    runs: dict[str, Any] = {}
+    if partial and MACHINE.exists():
+        runs = dict(json.loads(MACHINE.read_text("utf-8")).get("groups", {}))
+    this = {k: machine.get(k) for k in RUN_KEYS}
+    runs.update({name: this for name in names})
+    return runs
+
+
+def _run_text(run: dict[str, Any]) -> str:
+    """``2026-11-26T01:08:26+00:00 (quick run), load average … at start …``."""
+    text = run["date"] + (" (quick run)" if run.get("quick") else "")
+    for when in ("start", "end"):
+        la = run.get(f"load_average_{when}")
+        if la:
+            text += f"; load average (1/5/15 min) at {when} {' / '.join(f'{x:.1f}' for x in la)}"
+    other = run.get("other_programs_cores")
+    if other is not None:
+        text += f"; other programs used {other:.1f} of the cores on average meanwhile"
+    return text
+
+
 def table(
     rows: list[dict[str, Any]],
     machine: dict[str, Any],
     render: Callable[[list[dict[str, Any]]], list[str]] = row_lines,
 ) -> str:
     lines = render(rows)
-    load = ""
-    for when in ("start", "end"):
-        la = machine.get(f"load_average_{when}")
-        if la:
-            load += f"; load average (1/5/15 min) at {when} {' / '.join(f'{x:.1f}' for x in la)}"
-    other = machine.get("other_programs_cores")
-    if other is not None:
-        load += f"; other programs used {other:.1f} of the cores on average meanwhile"
-    quick = " (quick run)" if machine.get("quick") else ""
+    runs = machine.get("groups") or {}
+    shown = [g for g in GROUPS if g in runs and any(group_of(r["name"]) == g for r in rows)]
+    # a machine.json from before groups were recorded: one run for all
+    when = "Measured on" if shown else f"Measured {_run_text(machine)} on"
     lines += [
         "",
-        f"Measured {machine['date']}{quick} on {machine['cpu']} ({machine['cores']} cores), "
+        f"{when} {machine['cpu']} ({machine['cores']} cores), "
         f"{machine['os']}, Python {machine['python']}, numpy {machine['numpy']}, "
-        f"OpenCV {machine['opencv']}, eclipse-zenoh {machine['zenoh']}{load}. "
+        f"OpenCV {machine['opencv']}, eclipse-zenoh {machine['zenoh']}. "
         "Floors are measured in the same run; ratio = value / floor.",
     ]
+    if shown:
+        unknown = [
+            g for g in GROUPS if g not in runs and any(group_of(r["name"]) == g for r in rows)
+        ]
+        lines += ["", "Each group's run:", ""]
+        same: dict[str, list[str]] = {}  # groups measured in one run share a line
+        for g in shown:
+            same.setdefault(_run_text(runs[g]), []).append(GROUPS[g])
+        lines += [f"- {', '.join(names)}: {text}" for text, names in same.items()]
+        if unknown:
+            lines.append(
+                f"- {', '.join(GROUPS[g] for g in unknown)}: before this record was kept "
+                "(date and load not recorded)"
+            )
     return "\n".join(lines)
 
 
@@ -285,6 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     machine["other_programs_cores"] = None if other is None else round(other, 2)
     machine["elapsed_s"] = round(time.perf_counter() - t0, 1)
     rows = merge(new, names) if args.only else new
+    machine["groups"] = group_runs(machine, names, args.only is not None)
     RESULTS.write_text(json.dumps(rows, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
     MACHINE.write_text(json.dumps(machine, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
     if not args.no_readme:

@@ -96,6 +96,19 @@ def initial_calibration(
         next_try = time.monotonic() + INITIAL_RETRY_S
 
 
+def restored(service: Service, store: CalibrationStore, saved: Calibration) -> Calibration:
+    """The newest valid version, saved again as the store's next version when newer
+    ones were skipped: stages take only a calibration newer than theirs (a lower version
+    would be a replay to them), and one may hold a version whose file is now invalid."""
+    try:
+        again = store.save(saved)
+    except StoreWriteError as exc:  # stages holding a newer version keep it
+        service.error("cannot_save", f"cannot save: {exc}")
+        return saved
+    service.log.info("restored %s as %s (newer versions skipped)", label(saved), label(again))
+    return again
+
+
 def main(service: Service) -> None:
     cfg = service.config
     store = CalibrationStore(cfg.service.state_dir, keep=cfg.service.keep_calibrations)
@@ -120,6 +133,8 @@ def main(service: Service) -> None:
     if saved is not None:
         service.calibration = msgspec.structs.replace(saved, epoch=saved.epoch or epoch)
         service.log.info("loaded calibration %s from %s", label(service.calibration), store.folder)
+        if problems and epoch:
+            service.calibration = restored(service, store, service.calibration)
     file_points: list[ControlPoint] | None = None
     if cfg.service.points != "simulator":
         file_points = load_points(cfg.service.points).points

@@ -134,7 +134,8 @@ def test_a_full_then_read_only_state_folder_never_kills_the_calibrator(tmp_path:
         assert "Traceback" not in (logs / "calibrator.log").read_text()
         assert (state / "calibration-v0002.json").exists()
         # An invalid newest version (a camera for another image size, hand-copied in):
-        # a calibrator started on this folder uses v2, the newest valid one.
+        # a calibrator started on this folder uses v2, the newest valid one, saved again
+        # as v4 (stages holding v3 take only a newer version).
         data = json.loads((state / "calibration-v0002.json").read_text())
         data["version"] = 3
         data["camera"]["rows"] = 100
@@ -148,9 +149,12 @@ def test_a_full_then_read_only_state_folder_never_kills_the_calibrator(tmp_path:
         try:
             client = wait_for(lambda: BusClient.connect(endpoint), 30, "the router")
             st = wait_for(lambda: client.status("calibrator"), 30, "the calibrator")
-            assert (st["state"], st["calibration_version"]) == ("ok", 2), st
+            assert (st["state"], st["calibration_version"]) == ("ok", 4), st
             assert st["errors"] == {"bad_saved_calibration": 1}, st
             assert "calibration-v0003.json: calibration v3 refused" in st["last_error"]
+            again = json.loads((state / "calibration-v0004.json").read_text())
+            v2 = json.loads((state / "calibration-v0002.json").read_text())
+            assert again["camera"] == v2["camera"], "v4 is v2 saved again"
         finally:
             if client is not None:
                 client.close()
