@@ -43,6 +43,7 @@ LAYERS: dict[str, set[str]] = {
     "analysis": FOUNDATION | {"fusion"},
     "view": {"config", "camera", "calibration", "messages"},
     "fusion": {"config", "camera"},
+    "ros2": {"config", "camera", "calibration", "messages", "fusion"},
 }
 
 #: Recording stores and replays messages: what they may import, plus them and atomic files.
