@@ -1,2 +1,5 @@
-"""ovis as ROS 2 sees it: standard messages (CDR), type hashes and definitions, and how
-ovis's floor frame maps to a ROS frame. Pure: no Zenoh, no processes."""
+"""ovis as ROS 2 sees it: its messages as standard ROS 2 messages in CDR, with their type
+hashes and definitions (``convert``), and how ovis's floor frame maps to a REP 103 frame,
+with the accuracy of a pose there (``floor``). Pure: no Zenoh, no processes.
+May import: ``config``, ``camera``, ``calibration``, ``messages``, ``fusion``.
+"""
