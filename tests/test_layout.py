@@ -43,12 +43,11 @@ LAYERS: dict[str, set[str]] = {
     "analysis": FOUNDATION | {"fusion"},
     "view": {"config", "camera", "calibration", "messages"},
     "fusion": {"config", "camera"},
+    "ros2": {"config", "camera", "calibration", "messages", "fusion", "vision"},
 }
 
 #: Recording stores and replays messages: what they may import, plus them and atomic files.
 LAYERS["recording"] = LAYERS["messages"] | {"messages", "atomic"}
-#: ROS 2 messages and the rmw_zenoh layout are built from ovis's own messages.
-LAYERS["ros2"] = LAYERS["messages"] | {"messages"}
 
 
 def part_of(path: Path) -> str:
