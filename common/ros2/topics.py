@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from ovis.common.ros2.wire import TRANSIENT_LOCAL, QoS
 
-__all__ = ["KEPT", "STREAM", "ImagePacer", "qos_of", "topic_kind"]
+__all__ = ["KEPT", "STREAM", "ImagePacer", "qos_of", "ros_topic", "topic_kind"]
 
 #: QoS of what is kept for late subscribers, and of the streams.
 KEPT = QoS(durability=TRANSIENT_LOCAL, depth=1)
@@ -30,6 +30,16 @@ def topic_kind(topic: str) -> str:
     if len(parts) == 3 and parts[0] == "robots" and parts[2] == "odom":
         return "odom"
     return _KINDS.get(topic, topic)
+
+
+def ros_topic(topic: str) -> str:
+    """A topic as ROS 2 accepts it: no name token may start with a digit (rmw's
+    ``RMW_TOPIC_INVALID_NAME_TOKEN_STARTS_WITH_NUMBER``), so robot 3's
+    ``robots/3/odom`` is published as ``robots/robot_3/odom``."""
+    parts = topic.split("/")
+    if topic_kind(topic) == "odom" and parts[1][:1].isdigit():
+        return f"robots/robot_{parts[1]}/odom"
+    return topic
 
 
 def qos_of(kind: str) -> QoS:
