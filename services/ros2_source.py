@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -39,18 +39,12 @@ PREFIX = "ros2:"
 GRAPH_S = 0.5
 
 
-def open_source(
-    spec: str,
-    config: OvisConfig,
-    *,
-    loop: bool | None = None,
-    progress: Callable[[int, int], None] | None = None,
-) -> FrameSource:
-    """Any capture source: ``ros2:/topic`` here, the others by
-    :func:`ovis.common.capture.sources.open_source`."""
+def open_source(spec: str, config: OvisConfig, **options: Any) -> FrameSource:
+    """Any capture source: ``ros2:/topic`` here, the others (with their ``options``:
+    ``loop``, ``progress``) by :func:`ovis.common.capture.sources.open_source`."""
     if spec.startswith(PREFIX):
         return Ros2Source(spec, config)
-    return open_common_source(spec, config, loop=loop, progress=progress)
+    return open_common_source(spec, config, **options)
 
 
 class Ros2Source:

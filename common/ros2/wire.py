@@ -145,23 +145,24 @@ def qualified_name(namespace: str, topic: str) -> str:
     return name
 
 
+def _type_parts(pattern: re.Pattern[str], text: str, form: str) -> tuple[str, ...]:
+    """(package, msg or srv, name) of a type name written as ``form``."""
+    match = pattern.fullmatch(text)
+    if match is None:
+        raise WireError(f"type {text!r} is not {form}")
+    return match.groups()
+
+
 def dds_type_name(type_name: str) -> str:
     """``geometry_msgs/msg/PoseArray`` as declared in DDS:
     ``geometry_msgs::msg::dds_::PoseArray_``."""
-    match = _TYPE_NAME.fullmatch(type_name)
-    if match is None:
-        raise WireError(f"type {type_name!r} is not package/msg/Name")
-    package, kind, name = match.groups()
+    package, kind, name = _type_parts(_TYPE_NAME, type_name, "package/msg/Name")
     return f"{package}::{kind}::dds_::{name}_"
 
 
 def ros_type_name(dds_name: str) -> str:
     """:func:`dds_type_name`'s inverse."""
-    match = _DDS_TYPE.fullmatch(dds_name)
-    if match is None:
-        raise WireError(f"type {dds_name!r} is not package::msg::dds_::Name_")
-    package, kind, name = match.groups()
-    return f"{package}/{kind}/{name}"
+    return "/".join(_type_parts(_DDS_TYPE, dds_name, "package::msg::dds_::Name_"))
 
 
 def _check_hash(type_hash: str) -> None:
