@@ -40,6 +40,7 @@ __all__ = [
     "PoseConfig",
     "RobotFilterConfig",
     "RobotSpec",
+    "Ros2Config",
     "ServiceConfig",
     "SimulatorConfig",
     "TrustConfig",
@@ -613,6 +614,30 @@ class FusionConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     lost_frames: Annotated[int, msgspec.Meta(ge=1, le=100000)] = 15
 
 
+#: What the ROS 2 bridge can publish (``[ros2] topics``).
+ROS2_TOPICS = ("obstacles", "markers", "odom", "camera_info", "image", "tf_static")
+
+
+class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """ovis as a ROS 2 node over rmw_zenoh (``ovis up --ros2``, docs/ros2.md): the ROS 2
+    domain, the node's namespace and name, the floor's TF frame, which topics it
+    publishes, the rate of the camera image, and the Zenoh router of the ROS 2 side
+    (``rmw_zenohd``; empty: ovis's own bus)."""
+
+    domain_id: Annotated[int, msgspec.Meta(ge=0, le=232)] = 0
+    namespace: Annotated[str, msgspec.Meta(pattern=r"^(/[A-Za-z_][A-Za-z0-9_]*)+$")] = "/ovis"
+    node: Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")] = "ovis"
+    frame_id: Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")] = "ovis_floor"
+    topics: list[Literal[ROS2_TOPICS]] = msgspec.field(default_factory=lambda: list(ROS2_TOPICS))
+    #: camera images per second on ``camera/image/compressed`` (0: none)
+    image_rate_hz: Annotated[float, msgspec.Meta(ge=0.0, le=1000.0)] = 2.0
+    #: JPEG quality of those images
+    image_quality: Annotated[int, msgspec.Meta(ge=1, le=100)] = 80
+    #: the ROS 2 side's router (e.g. rmw_zenohd's ``tcp/127.0.0.1:7447``); empty: the
+    #: ROS 2 topics go on ovis's own Zenoh bus
+    connect: list[str] = []
+
+
 class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Everything ovis needs: camera, image pipeline, GA ranges and settings, pose, simulator."""
 
@@ -629,6 +654,7 @@ class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     cameras: Annotated[list[CameraSpec], msgspec.Meta(max_length=64)] = []
     fusion: FusionConfig = msgspec.field(default_factory=FusionConfig)
     trust: TrustConfig = msgspec.field(default_factory=TrustConfig)
+    ros2: Ros2Config = msgspec.field(default_factory=Ros2Config)
 
     def __post_init__(self) -> None:
         names = [c.name for c in self.cameras]

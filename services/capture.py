@@ -19,12 +19,13 @@ import time
 import zenoh
 
 from ovis.common.capture.backoff import Backoff
-from ovis.common.capture.sources import FrameSource, SourceEndedError, SourceError, open_source
+from ovis.common.capture.sources import FrameSource, SourceEndedError, SourceError
 from ovis.common.messages import Frame, TruthFrame
 from ovis.common.pipeline.gaps import SourceGaps
 from ovis.common.pipeline.health import SOURCE_REPEAT_S
 from ovis.common.pipeline.pacing import Pacer
 from ovis.services.replay import capture_from_recording, is_recording
+from ovis.services.ros2_source import open_source
 from ovis.services.service import Service
 
 
@@ -97,6 +98,7 @@ def main(service: Service) -> None:
             backoff.reset()
             # a simulated camera on a shared trigger says when it exposed its frame
             stamp = truth.stamp_ns if truth is not None and truth.stamp_ns else time.time_ns()
+            stamp = getattr(source, "capture_ns", None) or stamp  # a ROS 2 camera's own
             frame = Frame.from_image(
                 image,
                 seq=seq,

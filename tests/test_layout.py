@@ -44,6 +44,7 @@ LAYERS: dict[str, set[str]] = {
     "view": {"config", "camera", "calibration", "messages"},
     "fusion": {"config", "camera"},
     "trust": {"atomic", "config"},
+    "ros2": {"config", "camera", "calibration", "messages", "fusion", "vision"},
 }
 
 #: Recording stores and replays messages: what they may import, plus them and atomic files.

@@ -34,7 +34,7 @@ from ovis.services.cli.options import (
 
 __all__ = ["register"]
 
-STAGES = ("capture", "preprocess", "label", "pose", "calibrator", "fusion")
+STAGES = ("capture", "preprocess", "label", "pose", "calibrator", "fusion", "ros2")
 #: Stages of the frame path that `ovis up` keeps a spare process ready for: a killed one
 #: is replaced without an interpreter start (the cost: one idle process each).
 STANDBY = ("preprocess", "label", "pose")
@@ -227,6 +227,14 @@ def up(
             "to read ([service] source_topic); needed when it has several."
         ),
     ] = None,
+    ros2: Annotated[
+        bool,
+        typer.Option(
+            "--ros2",
+            help="Also publish as a ROS 2 node over rmw_zenoh ([ros2] section): obstacles, "
+            "markers, odometry, camera info and image, /tf_static (docs/ros2.md).",
+        ),
+    ] = False,
 ) -> None:
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
@@ -248,7 +256,7 @@ def up(
     if cameras is not None:
         given = [f"--{n}" for n, v in (("source", source), ("calibration", calibration),
                  ("record", record), ("view", view or None), ("arena", arena),
-                 ("topic", topic)) if v]  # fmt: skip
+                 ("topic", topic), ("ros2", ros2 or None)) if v]  # fmt: skip
         if given:
             raise UserError(f"--cameras runs the simulated grid: not with {', '.join(given)}")
         from ovis.services.cli.multicam_up import up_cameras
@@ -333,6 +341,11 @@ def up(
     downstream = ("calibrator", "pose", "label", "preprocess")
     for stage in downstream:
         start(stage)
+    if ros2:
+        from ovis.services.placement import off_path_option
+
+        fleet.start("ros2", ["run", "ros2", "--config", str(cfg_path), *off_path_option(cpus)])
+        downstream = (*downstream, "ros2")
     if record is not None:
         fleet.start("recorder", ["record", "--connect", listen, "--arena", topics.arena,
                                  "--out", str(record)])  # fmt: skip

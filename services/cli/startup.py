@@ -50,7 +50,8 @@ def _first_frame(cfg: Any) -> tuple[int, int]:
     :data:`PROBE_S` (exit 2 with the source's reason otherwise)."""
     import cv2.utils.logging as cv_log
 
-    from ovis.common.capture.sources import SourceError, open_source
+    from ovis.common.capture.sources import SourceError
+    from ovis.services.ros2_source import open_source
 
     spec = cfg.service.source
     outcome: list[tuple[int, int] | str] = []

@@ -1,0 +1,106 @@
+"""How ovis's floor frame maps to a ROS frame (REP 103), and the accuracy of a pose there.
+
+**Frames.** ovis's floor frame has X and Y on the floor, Z up (the height of a plane),
+in cm, headings in degrees counter-clockwise from +X towards +Y, in (−180, 180]. REP 103
+wants metres, radians and a right-handed frame (x forward, y left, z up). Whether ovis's
+frame is right-handed depends on the camera model, as seen from above with Z up:
+
+* a **pinhole** calibration (``fx·fy > 0``, proper rotation): right-handed. ROS
+  ``(x, y, z) = (X, Y, Z) / 100``, ``yaw = heading``;
+* the **paper model** images the world mirror-inverted (its pinhole equivalent has
+  ``fy < 0``, see :mod:`ovis.common.camera.export`): the floor frame it calibrates is
+  left-handed. ROS ``(x, y, z) = (X, −Y, Z) / 100``, ``yaw = −heading``: y is mirrored
+  so that the frame is right-handed again and a robot turning left turns by +yaw, as
+  its own odometry says. The camera frame is mirrored with it (its y axis, i.e. the
+  image rows, keeps pointing down the image: ``fy`` and ``p1`` change sign), so that
+  ``/tf_static`` is a proper rotation and CameraInfo has a positive ``fy``.
+
+:func:`ros_floor` decides once per calibration (:attr:`RosFloor.mirrored`).
+
+**Accuracy.** A position's covariance is ovis's accuracy model
+(:func:`ovis.common.fusion.accuracy.position_covariance`): the calibration's measured
+pixel error (its mean DIPE, px) pushed through the back-projection Jacobian at the
+object. A marked robot's heading comes from its marker's edges (side ``s``): each of
+the two edge directions has an angular error ``σ/s`` for a corner position error ``σ``
+(per axis), and their mean ``σ/(s·√2)``. What ovis does not measure (z, roll, pitch;
+velocities; everything without a calibration) gets :data:`NOT_MEASURED`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ovis.common.calibration.file import Calibration
+from ovis.common.camera.export import as_pinhole
+from ovis.common.config import CameraModel
+from ovis.common.fusion.accuracy import position_covariance
+
+__all__ = ["NOT_MEASURED", "RIGHT_HANDED", "RosFloor", "ros_floor"]
+
+#: Variance (m², rad², m²/s², rad²/s²) of what ovis does not measure: large enough that
+#: a filter (robot_localization, Nav2) gives it no weight.
+NOT_MEASURED = 1e6
+
+
+class RosFloor(NamedTuple):
+    """One calibration's floor as ROS sees it: mirrored or not, and what the accuracy of
+    a position there is (``camera`` and ``pixel_sigma_px``; None: not calibrated)."""
+
+    mirrored: bool
+    camera: CameraModel | None = None
+    pixel_sigma_px: float | None = None
+    marker_side_cm: dict[int, float] = {}  # noqa: RUF012  (a NamedTuple default, never mutated)
+
+    @property
+    def y_sign(self) -> float:
+        """−1 where ROS y is ovis's −Y (mirrored), else 1."""
+        return -1.0 if self.mirrored else 1.0
+
+    def position_m(self, x_cm: float, y_cm: float, z_cm: float) -> tuple[float, float, float]:
+        """An ovis floor point (cm) in the ROS frame (m)."""
+        return x_cm / 100.0, self.y_sign * y_cm / 100.0, z_cm / 100.0
+
+    def yaw_rad(self, heading_deg: float) -> float:
+        """An ovis heading (degrees) as a ROS yaw (radians, counter-clockwise from x)."""
+        return self.y_sign * math.radians(heading_deg)
+
+    def planar_covariance(
+        self, x_cm: float, y_cm: float, z_cm: float
+    ) -> NDArray[np.float64] | None:
+        """The 2×2 covariance (m², ROS frame) of a position measured at this point, or
+        None when it is not known (no calibration, or the camera does not see it)."""
+        if self.camera is None or self.pixel_sigma_px is None:
+            return None
+        cov = position_covariance(x_cm, y_cm, z_cm, self.camera, self.pixel_sigma_px)[0]
+        if not np.isfinite(cov).all():
+            return None
+        flip = np.diag([1.0, self.y_sign])
+        return flip @ cov @ flip / 1e4
+
+    def yaw_variance(self, robot_id: int, planar: NDArray[np.float64] | None) -> float:
+        """The variance (rad²) of a marked robot's heading (see the module docstring)."""
+        side = self.marker_side_cm.get(robot_id)
+        if planar is None or side is None or side <= 0.0:
+            return NOT_MEASURED
+        sigma_m = math.sqrt(float(np.trace(planar)) / 2.0)
+        return (sigma_m / (side / 100.0 * math.sqrt(2.0))) ** 2
+
+
+#: A right-handed floor without accuracy: what a caller gets without a calibration.
+RIGHT_HANDED = RosFloor(False)
+
+
+def ros_floor(calib: Calibration) -> RosFloor:
+    """The ROS view of ``calib``'s floor: mirrored for a camera model that images the
+    world mirror-inverted, and the calibration's measured pixel error (None for the
+    configured, uncalibrated camera of version 0)."""
+    camera = as_pinhole(calib.camera).camera
+    mirrored = camera.fx * camera.fy < 0.0
+    sides = {r.id: float(r.marker_side_cm) for r in calib.pose.robots}
+    if calib.version == 0:
+        return RosFloor(mirrored, None, None, sides)
+    return RosFloor(mirrored, calib.camera, float(calib.dipe_px), sides)
