@@ -106,10 +106,14 @@ def follow_calibrations(service: Service, accuracy: dict[str, AccuracyMap]) -> N
         accuracy[name] = fresh  # one assignment: the loop sees the old map or the new
         service.log.info("camera %s: calibration v%d", name, update.calibration.version)
 
+    proven = service.proven("calibrator", "calibration")  # anyone may publish there
     for name in accuracy:
 
         def on_sample(sample: zenoh.Sample, name: str = name) -> None:
-            update = service.receive(sample.payload, "small", CalibrationUpdate, "calibration")
+            payload = service.take(sample.payload, "small", "calibration")
+            if payload is None or not proven(sample, payload):
+                return
+            update = service.decode(payload, CalibrationUpdate, "calibration")
             if update is None or update.calibration.version <= versions[name]:
                 return
             versions[name] = update.calibration.version
@@ -139,11 +143,12 @@ def main(service: Service) -> None:
     follow_calibrations(service, accuracy)
     inbox = Inbox(max(cfg.service.queue_depth, 8) * len(models))
     service._inboxes.append(inbox)  # its drops count in the status
+    proven = service.proven("pose", "obstacles")  # only the chains' pose stages count
     for name in models:
 
         def on_sample(sample: zenoh.Sample, name: str = name) -> None:
             payload = service.take(sample.payload, "blobs", "obstacles")
-            if payload is not None:
+            if payload is not None and proven(sample, payload):
                 inbox.put((name, payload))
 
         service.session.declare_subscriber(service.topics.of_camera(name).obstacles, on_sample)

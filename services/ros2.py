@@ -90,7 +90,9 @@ def bridge(service: Service, node: RosNode) -> None:
     service.follow_calibration(on_calibration)
     if calibrated():
         on_calibration(service.calibration)
-    box = service.inbox(service.topics.obstacles, service.config.service.queue_depth + 2)
+    box = service.inbox(
+        service.topics.obstacles, service.config.service.queue_depth + 2, proven_by="pose"
+    )
     pacer = ImagePacer(cfg.image_rate_hz if kinds & {"image", "camera_info"} else 0.0)
 
     def on_frame(sample: zenoh.Sample) -> None:

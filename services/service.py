@@ -80,9 +80,11 @@ class Service:
         self._status_q = session.declare_queryable(self.topics.status(name), self._on_status)
 
     # --- inputs -------------------------------------------------------------------
-    def inbox(self, key: str, depth: int | None = None) -> Inbox:
+    def inbox(self, key: str, depth: int | None = None, proven_by: str | None = None) -> Inbox:
         """Subscribe ``key`` into a newest-wins inbox of (payload bytes, receipt ns); a
-        payload larger than its kind may be (:meth:`take`) is refused unread."""
+        payload larger than its kind may be (:meth:`take`) is refused unread, and with
+        ``proven_by`` (a role: "pose") one without that role's proof of origin is dropped
+        and counted (:meth:`proven`)."""
         box = Inbox(depth or self.config.service.queue_depth)
         self._inboxes.append(box)
         kinds: dict[str, Input] = {
@@ -93,13 +95,28 @@ class Service:
         kind = kinds.get(key, "small")
         what = key.rsplit("/", 1)[-1] if kind == "small" else kind  # as bad_<what> is named
 
+        proven = self.proven(proven_by, what) if proven_by else None
+
         def on_sample(sample: zenoh.Sample) -> None:
             payload = self.take(sample.payload, kind, what)
-            if payload is not None:
+            if payload is not None and (proven is None or proven(sample, payload)):
                 box.put((payload, time.time_ns()))
 
         self.session.declare_subscriber(key, on_sample)
         return box
+
+    def proven(self, role: str, what: str) -> Callable[[zenoh.Sample, bytes], bool]:
+        """A check that a received sample carries ``role``'s proof of origin; one that
+        does not is counted (``unproven_<what>``), said, and must be dropped."""
+        verifier = verifier_for(self.config, role)
+
+        def check(sample: zenoh.Sample, payload: bytes) -> bool:
+            if (problem := unproven(verifier, sample, payload)) is None:
+                return True
+            self.error(f"unproven_{what}", f"dropped {what} without the {role}'s proof: {problem}")
+            return False
+
+        return check
 
     def fits(self, payload: zenoh.ZBytes | None, kind: Input, what: str) -> bool:
         """False when a received payload is larger than a message of ``kind`` may be

@@ -30,6 +30,8 @@ from ovis.common.messages import (
     encode,
 )
 from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena, measure
+from ovis.common.trust.keys import load_or_create_private
+from ovis.common.trust.proof import Signer
 
 CELL = (100.0, 75.0)
 #: The simulated cameras' frame period (30 frames/s).
@@ -46,6 +48,16 @@ def _base(endpoint: str, tmp: Path) -> dict:
     data["zenoh"]["connect"] = [endpoint]
     data["service"]["state_dir"] = str(tmp / "state")
     return data
+
+
+def _signer(tmp: Path, role: str) -> Signer:
+    """``role``'s signer with the key in :func:`_base`'s state folder, as the chains'
+    processes sign: fusion believes only what the pose stages and calibrators signed."""
+    return Signer(load_or_create_private(tmp / "state" / "keys" / f"{role}.key"))
+
+
+def _put_signed(pub, signer: Signer, payload: bytes) -> None:
+    pub.put(payload, attachment=signer.attachment(str(pub.key_expr), payload))
 
 
 class Collector:
@@ -139,13 +151,14 @@ def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
     # a shared, loaded 2-core machine: wait up to 60 ms for a camera's frame
     data["fusion"]["wait_ms"] = 60.0
     cfg = _write(tmp_path / "fusion.toml", data)
+    pose, calibrator = _signer(tmp_path, "pose"), _signer(tmp_path, "calibrator")
     procs = [spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")]
     procs.append(spawn(ovis_cmd("run", "fusion", "--config", str(cfg)), tmp_path / "fusion.log"))
     rng = np.random.default_rng(seed)
     sigma = FusionConfig().pixel_sigma_px
     topics = Topics("default")
     sent_truth: dict[int, tuple] = {}
-    frames, silent_from, recalibrated_at = 240, 150, 100
+    frames, silent_from, forged_at, recalibrated_at = 240, 150, 40, 100
     # cam00 recalibrated half-way: a focal length half as long, so each of its pixels
     # covers twice the floor and its sightings' sigma doubles; the others are untouched
     first = specs[0].camera
@@ -156,6 +169,16 @@ def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
             version=1,
         )
     )
+    # a forger's push before it, without the calibrator's proof (a focal length a quarter
+    # as long, a version above the genuine one): never taken
+    quartered = msgspec.structs.replace(first, fx=first.fx / 4, fy=first.fy / 4)
+    forged = CalibrationUpdate(
+        calibration=msgspec.structs.replace(
+            calibration_from_config(msgspec.structs.replace(load_config(), camera=quartered)),
+            version=2**62,
+        )
+    )
+    cam00_calibration = topics.of_camera("cam00").calibration
     try:
         with client(endpoint) as session:
             wait_for(lambda: "fusion" in alive(session), 60, "fusion alive")
@@ -173,11 +196,15 @@ def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
             start, start_ns = time.monotonic(), time.time_ns()
             for f in range(frames):
                 truth = scene.objects(f)
+                if f == forged_at:
+                    session.put(cam00_calibration, encode(forged), encoding=ENCODING)
                 if f == recalibrated_at:
+                    genuine = encode(recalibration)
                     session.put(
-                        topics.of_camera("cam00").calibration,
-                        encode(recalibration),
+                        cam00_calibration,
+                        genuine,
                         encoding=ENCODING,
+                        attachment=calibrator.attachment(cam00_calibration, genuine),
                     )
                 stamp = start_ns + f * PERIOD_NS
                 seen_ids: set[int] = set()
@@ -189,7 +216,7 @@ def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
                     seen_ids |= {o.id for o in seen}
                     payloads[s.name] = encode(detections_frame(f, stamp, seen))
                 for name, payload in payloads.items():
-                    pubs[name].put(payload)
+                    _put_signed(pubs[name], pose, payload)
                 sent_truth[stamp] = (truth, seen_ids)
                 time.sleep(max(0.0, start + (f + 1) * PERIOD_NS / 1e9 - time.monotonic()))
             wait_for(lambda: len(world.snapshot()) >= frames - 2, 10, "every world frame")
@@ -198,6 +225,7 @@ def test_four_cameras_fused_live_and_a_silent_camera_leaves_the_rest_flowing(
         stop(procs[:1])
     log = (tmp_path / "fusion.log").read_text()
     assert "Traceback" not in log, log
+    assert "unproven_calibration" in log and "no proof of origin" in log, log
     got = world.snapshot()
     assert len(got) >= frames - 2
     scorer = WorldScorer()
@@ -338,6 +366,7 @@ def test_status_says_every_camera_is_silent_when_all_stop(tmp_path: Path) -> Non
     data["cameras"] = [{"name": "west", "camera": cam}, {"name": "east", "camera": cam}]
     data["service"]["frame_timeout_s"] = 0.5
     cfg = _write(tmp_path / "fusion.toml", data)
+    pose = _signer(tmp_path, "pose")
     procs = [spawn(ovis_cmd("router", "--listen", endpoint), tmp_path / "router.log")]
     procs.append(spawn(ovis_cmd("run", "fusion", "--config", str(cfg)), tmp_path / "fusion.log"))
     topics = Topics("default")
@@ -357,7 +386,7 @@ def test_status_says_every_camera_is_silent_when_all_stop(tmp_path: Path) -> Non
             for seq in range(10):
                 stamp = time.time_ns()
                 for pub in pubs.values():
-                    pub.put(encode(detections_frame(seq, stamp, [])))
+                    _put_signed(pub, pose, encode(detections_frame(seq, stamp, [])))
                 time.sleep(1 / 15)
             wait_for(lambda: len(world.snapshot()) >= 5, 10, "world frames of both cameras")
             last = world.snapshot()[-1]
@@ -371,7 +400,7 @@ def test_status_says_every_camera_is_silent_when_all_stop(tmp_path: Path) -> Non
             frames = len(world.snapshot())
             # one camera back: its world frames flow, the other's area is still uncovered
             for seq in range(10, 20):
-                pubs["west"].put(encode(detections_frame(seq, time.time_ns(), [])))
+                _put_signed(pubs["west"], pose, encode(detections_frame(seq, time.time_ns(), [])))
                 time.sleep(1 / 15)
             wait_for(lambda: len(world.snapshot()) > frames, 10, "world frames of west")
             assert state(session) == ["no frames from east (area uncovered)"]
