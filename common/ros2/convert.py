@@ -75,6 +75,8 @@ _ROBOT_RGBA = (0.1, 0.8, 0.3, 0.9)
 _TEXT_RGBA = (1.0, 1.0, 1.0, 1.0)
 _TEXT_M = 0.05
 _SHAFT_M = 0.02
+#: The last second builtin_interfaces/Time holds (int32).
+_MAX_SEC = 2**31 - 1
 
 
 class RosMessage(msgspec.Struct, frozen=True):
@@ -117,6 +119,10 @@ class _Builders:
 
     def header(self, stamp_ns: int, frame_id: str) -> Any:
         sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+        if sec > _MAX_SEC:
+            raise ValueError(
+                f"stamp {stamp_ns} ns is after 2038-01-19: ROS 2 time holds int32 seconds"
+            )
         time = self.T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
         return self.T["std_msgs/msg/Header"](stamp=time, frame_id=frame_id)
 
