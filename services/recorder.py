@@ -1,6 +1,8 @@
 """The recorder behind ``ovis record``: Zenoh subscribers put every sample of the chosen
 topics in a queue (never blocking Zenoh, never dropping), one thread writes them into
-the session file, with the Foxglove views of frames and obstacles beside them."""
+the session file, with the Foxglove views of frames and obstacles beside them, and with
+``ros2`` the same data as ROS 2 messages (``cdr`` channels with ``ros2msg`` schemas,
+:mod:`ovis.common.ros2`) that rosbags and ``ros2 bag`` read."""
 
 from __future__ import annotations
 
@@ -14,10 +16,20 @@ from typing import Any
 
 import zenoh
 
-from ovis.common.messages import Frame, FrameHeader, MessageError, ObstacleFrame, Topics, decode
+from ovis.common.messages import (
+    CalibrationUpdate,
+    Frame,
+    FrameHeader,
+    MessageError,
+    ObstacleFrame,
+    Topics,
+    decode,
+)
 from ovis.common.recording.foxglove import compressed_image, scene_update
 from ovis.common.recording.pacing import FrameGate
 from ovis.common.recording.session import SessionWriter
+from ovis.common.ros2.convert import RosMessage, message_definition
+from ovis.common.ros2.stream import RosStream
 
 __all__ = ["Recorder", "topic_keys"]
 
@@ -52,6 +64,7 @@ class RecorderCounts:
     frames_skipped: int = 0  # left out by --frames
     frames_missed: int = 0  # gaps in the frames' sequence numbers (dropped upstream)
     view_errors: int = 0
+    ros2_errors: int = 0  # messages that could not be converted to ROS 2
     backlog_max: int = 0
     last_error: str = ""
     by_topic: dict[str, int] = field(default_factory=dict)
@@ -69,8 +82,10 @@ class Recorder:
         *,
         frames: FrameGate,
         views: bool = True,
+        ros2: RosStream | None = None,
     ) -> None:
         self.session = session
+        self.ros2 = ros2
         self.writer = writer
         self.topics = topics
         self.gate = frames
@@ -149,6 +164,8 @@ class Recorder:
                 c.frames_skipped += 1
                 return
             w.frame(key, payload, log_ns, published_ns)
+            if self.ros2 is not None:
+                self._ros2(payload, Frame, lambda f: [self.ros2.image(f)], log_ns)
             if self.views:
                 self._view(
                     f"/{self.topics.root}/image",
@@ -160,6 +177,15 @@ class Recorder:
                 )
             return
         w.bus(key, payload, log_ns, published_ns)
+        if self.ros2 is not None and key == self.topics.obstacles:
+            self._ros2(payload, ObstacleFrame, self.ros2.obstacles, log_ns)
+        if self.ros2 is not None and key == self.topics.calibration:
+            self._ros2(
+                payload,
+                CalibrationUpdate,
+                lambda u: self.ros2.calibration(u.calibration, log_ns),
+                log_ns,
+            )
         if self.views and key == self.topics.obstacles:
             self._view(
                 f"/{self.topics.root}/scene",
@@ -189,6 +215,25 @@ class Recorder:
             self.counts.last_error = str(exc)
             return
         self.writer.view(topic, schema, view, log_ns, msg.stamp_ns)
+
+    def _ros2(
+        self, payload: bytes, tp: Any, convert: Callable[[Any], list[RosMessage]], log_ns: int
+    ) -> None:
+        """Also write a message as ROS 2 messages, each on its topic's ``cdr`` channel
+        (one that does not convert is counted, and recorded all the same on its bus
+        channel)."""
+        assert self.ros2 is not None
+        try:
+            messages = convert(decode(payload, tp))
+        except (MessageError, ValueError) as exc:
+            self.counts.ros2_errors += 1
+            self.counts.last_error = str(exc)
+            return
+        for m in messages:
+            topic = self.ros2.topic(m)
+            definition = message_definition(m.type).encode()
+            cid = self.writer.channel(topic, "cdr", m.type, "ros2msg", definition)
+            self.writer.write(cid, topic, m.cdr, log_ns, m.stamp_ns)
 
     def close(self) -> None:
         """Stop listening, write what is queued, then the index; close the file."""

@@ -106,6 +106,17 @@ def record(
     compression: Annotated[
         str, typer.Option(help="Chunk compression: lz4 (fast), zstd (smaller) or none.")
     ] = "lz4",
+    ros2: Annotated[
+        bool,
+        typer.Option(
+            "--ros2",
+            help="Also write the data as ROS 2 channels (cdr, ros2msg schemas) that rosbags "
+            "and `ros2 bag` play: /ovis/obstacles (PoseArray), /ovis/markers, "
+            "/ovis/robots/<id>/odom, /ovis/camera/camera_info, /tf_static, "
+            "/ovis/camera/image/compressed (JPEG of each recorded frame). Obstacles are "
+            "converted from the first calibration on. See docs/cli.md.",
+        ),
+    ] = False,
     force: Annotated[bool, typer.Option(help="Overwrite --out if it exists.")] = False,
     recover_file: Annotated[
         Path | None,
@@ -149,6 +160,11 @@ def record(
     cfg = config_with_options(config, connect=connect, arena=arena)
     bus = arena_topics(cfg)
     keys = topic_keys(bus, topics)
+    stream = None
+    if ros2:
+        from ovis.common.ros2.stream import RosStream
+
+        stream = RosStream()
     import zenoh
 
     try:
@@ -163,7 +179,7 @@ def record(
             writer = SessionWriter(out, compression=compression, metadata=meta)
         except RecordingError as exc:
             raise UserError(str(exc)) from None
-        rec = Recorder(session, writer, bus, keys, frames=gate, views=views)
+        rec = Recorder(session, writer, bus, keys, frames=gate, views=views, ros2=stream)
         wants_calibration = any(
             zenoh.KeyExpr(k).intersects(zenoh.KeyExpr(bus.calibration)) for k in keys
         )
@@ -196,6 +212,10 @@ def record(
         notes.append("no calibrator answered: the session carries no calibration")
     if c.view_errors:
         notes.append(f"{c.view_errors} messages had no Foxglove view ({c.last_error})")
+    if stream is not None and stream.waiting:
+        notes.append(f"{stream.waiting} obstacle frames before any calibration: not in ROS 2")
+    if c.ros2_errors:
+        notes.append(f"{c.ros2_errors} messages had no ROS 2 conversion ({c.last_error})")
     print(
         f"wrote {out}: {sum(s.messages for s in writer.stats.values())} messages, "
         f"{_mb(out.stat().st_size)}"
