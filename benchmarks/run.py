@@ -49,6 +49,7 @@ GROUPS = {
     "memory": "Memory",
     "recording": "Recording",
     "recovery": "Recovery",
+    "ros2": "ROS 2 output",
 }
 DEFAULT = (
     "pipeline",
@@ -60,6 +61,7 @@ DEFAULT = (
     "robots",
     "recovery",
     "fusion",
+    "ros2",
 )
 
 
@@ -76,6 +78,7 @@ TIMED = {
     "robots": ("benchmarks.robots", "robots_rows"),
     "recovery": ("benchmarks.recovery", "recovery_rows"),
     "fusion": ("benchmarks.fusion", "fusion_rows"),
+    "ros2": ("benchmarks.ros2", "ros2_rows"),
 }
 
 

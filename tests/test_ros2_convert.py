@@ -242,10 +242,11 @@ def test_odometry_covariance_is_ovis_accuracy_model() -> None:
     (odom,) = decoded(obstacle_messages(frame, FLOOR, floor), f"robots/{r.id}/odom")
     cov = odom.pose.covariance.reshape(6, 6)
     expected = position_covariance(r.x_cm, r.y_cm, r.z_cm, calib.camera, calib.dipe_px)[0] / 1e4
-    np.testing.assert_allclose(cov[:2, :2], expected, rtol=1e-9)
+    # the accuracy map's grid node (2 cm away at most) against the point itself
+    np.testing.assert_allclose(cov[:2, :2], expected, rtol=0.05, atol=1e-3 * expected[0, 0])
     assert 0 < cov[0, 0] < 1e-4  # sub-cm
     side_m = calib.pose.robots[0].marker_side_cm / 100
-    sigma = math.sqrt(np.trace(expected) / 2)
+    sigma = math.sqrt(np.trace(cov[:2, :2]) / 2)
     assert cov[5, 5] == pytest.approx((sigma / (side_m * math.sqrt(2))) ** 2)
     assert cov[2, 2] == cov[3, 3] == cov[4, 4] == NOT_MEASURED
     assert (odom.twist.covariance.reshape(6, 6).diagonal() == NOT_MEASURED).all()

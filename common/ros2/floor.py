@@ -18,11 +18,12 @@ frame is right-handed depends on the camera model, as seen from above with Z up:
 :func:`ros_floor` decides once per calibration (:attr:`RosFloor.mirrored`).
 
 **Accuracy.** A position's covariance is ovis's accuracy model
-(:func:`ovis.common.fusion.accuracy.position_covariance`): the calibration's measured
-pixel error (its mean DIPE, px) pushed through the back-projection Jacobian at the
-object. A marked robot's heading comes from its marker's edges (side ``s``): each of
-the two edge directions has an angular error ``σ/s`` for a corner position error ``σ``
-(per axis), and their mean ``σ/(s·√2)``. What ovis does not measure (z, roll, pitch;
+(:class:`ovis.common.fusion.accuracy.AccuracyMap`): the calibration's measured pixel
+error (its mean DIPE, px) pushed through the back-projection Jacobian at the object
+(at the nearest node of a floor grid tabulated once per plane height). A marked
+robot's heading comes from its marker's edges (side ``s``): each of the two edge
+directions has an angular error ``σ/s`` for a corner position error ``σ`` (per axis),
+and their mean ``σ/(s·√2)``. What ovis does not measure (z, roll, pitch;
 velocities; everything without a calibration) gets :data:`NOT_MEASURED`.
 """
 
@@ -36,8 +37,7 @@ from numpy.typing import NDArray
 
 from ovis.common.calibration.file import Calibration
 from ovis.common.camera.export import as_pinhole
-from ovis.common.config import CameraModel
-from ovis.common.fusion.accuracy import position_covariance
+from ovis.common.fusion.accuracy import AccuracyMap
 
 __all__ = ["NOT_MEASURED", "RIGHT_HANDED", "RosFloor", "ros_floor"]
 
@@ -48,11 +48,11 @@ NOT_MEASURED = 1e6
 
 class RosFloor(NamedTuple):
     """One calibration's floor as ROS sees it: mirrored or not, and what the accuracy of
-    a position there is (``camera`` and ``pixel_sigma_px``; None: not calibrated)."""
+    a position there is (the camera's :class:`AccuracyMap`, tabulated on a floor grid per
+    plane height on first use; None: not calibrated)."""
 
     mirrored: bool
-    camera: CameraModel | None = None
-    pixel_sigma_px: float | None = None
+    accuracy: AccuracyMap | None = None
     marker_side_cm: dict[int, float] = {}  # noqa: RUF012  (a NamedTuple default, never mutated)
 
     @property
@@ -73,9 +73,9 @@ class RosFloor(NamedTuple):
     ) -> NDArray[np.float64] | None:
         """The 2×2 covariance (m², ROS frame) of a position measured at this point, or
         None when it is not known (no calibration, or the camera does not see it)."""
-        if self.camera is None or self.pixel_sigma_px is None:
+        if self.accuracy is None:
             return None
-        cov = position_covariance(x_cm, y_cm, z_cm, self.camera, self.pixel_sigma_px)[0]
+        cov = self.accuracy(x_cm, y_cm, z_cm)[0]
         if not np.isfinite(cov).all():
             return None
         flip = np.diag([1.0, self.y_sign])
@@ -102,5 +102,5 @@ def ros_floor(calib: Calibration) -> RosFloor:
     mirrored = camera.fx * camera.fy < 0.0
     sides = {r.id: float(r.marker_side_cm) for r in calib.pose.robots}
     if calib.version == 0:
-        return RosFloor(mirrored, None, None, sides)
-    return RosFloor(mirrored, calib.camera, float(calib.dipe_px), sides)
+        return RosFloor(mirrored, None, sides)
+    return RosFloor(mirrored, AccuracyMap(calib.camera, float(calib.dipe_px)), sides)
