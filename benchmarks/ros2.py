@@ -31,6 +31,8 @@ ROBOTS, OBSTACLES = 4, 6
 PRERENDER = 30
 #: one compressed image per this many frames (e.g. 5 images a second at 30 frames/s)
 IMAGE_EVERY = 6
+#: the extra cost allowed, as a share of the frame's processing
+TARGET = 0.10
 
 
 def ros2_rows(quick: bool, log=print) -> list[Row]:
@@ -69,16 +71,10 @@ def ros2_rows(quick: bool, log=print) -> list[Row]:
         f"  per frame: detect {frame_ms:.2f} ms; obstacle_messages {convert:.3f} ms, "
         f"image_message {jpeg:.2f} ms (1 in {IMAGE_EVERY}): extra {extra:.3f} ms"
     )
-    return [
-        Row(
-            name=f"{PREFIX} extra per-frame cost, {ROBOTS} robots + {OBSTACLES} obstacles, "
-            f"640×480 (obstacle_messages p50 + image_message p50 / {IMAGE_EVERY}; floor: "
-            "Detector.detect p50 of the same frames)",
-            unit="ms",
-            value=extra,
-            floor=frame_ms,
-            ratio=ratio(extra, frame_ms),
-            target="ratio ≤ 0.10",
-            met=bool(extra <= 0.10 * frame_ms),
-        )
-    ]
+    name = (
+        f"{PREFIX} extra per-frame cost, {ROBOTS} robots + {OBSTACLES} obstacles, 640×480 "
+        f"(obstacle_messages p50 + image_message p50 / {IMAGE_EVERY}; floor: Detector.detect "
+        "p50 of the same frames)"
+    )
+    met = bool(extra <= TARGET * frame_ms)
+    return [Row(name, "ms", extra, frame_ms, ratio(extra, frame_ms), f"ratio ≤ {TARGET:.2f}", met)]
