@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import cv2
@@ -364,3 +365,67 @@ def test_a_stamp_ros_time_cannot_hold_is_refused_with_the_reason() -> None:
 @given(obstacle_frames(), st.booleans())
 def test_random_frames_decode_to_their_values(frame: ObstacleFrame, mirrored: bool) -> None:
     check_frame(frame, RosFloor(mirrored))
+
+
+def test_a_frame_converts_the_same_whatever_came_before_and_on_any_thread() -> None:
+    """The message objects are kept between frames and rewritten (a frame's cost is then
+    what changes): a frame gives the same bytes after a larger and a smaller frame, and
+    threads converting at once do not mix their frames."""
+    calib, frames = simulated_frames("default", 3)
+    floor = ros_floor(calib)
+    few = msgspec.structs.replace(
+        frames[1], obstacles=frames[1].obstacles[:1], robots=[], robot=None
+    )
+    first = [m.cdr for m in obstacle_messages(frames[0], FLOOR, floor)]
+    obstacle_messages(frames[2], FLOOR, floor)
+    assert len(obstacle_messages(few, FLOOR, floor)) == 2  # poses and markers, no odometry
+    assert [m.cdr for m in obstacle_messages(frames[0], FLOOR, floor)] == first
+    check_frame(few, floor)
+    expected = {f.seq: [m.cdr for m in obstacle_messages(f, FLOOR, floor)] for f in frames}
+    mismatches: list[int] = []
+
+    def convert(frame: ObstacleFrame) -> None:
+        for _ in range(200):
+            if [m.cdr for m in obstacle_messages(frame, FLOOR, floor)] != expected[frame.seq]:
+                mismatches.append(frame.seq)
+
+    threads = [threading.Thread(target=convert, args=(f,)) for f in frames]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert mismatches == []
+
+
+def test_markers_can_be_left_out_of_a_frame() -> None:
+    """Between two frames of a lower marker rate: the same messages without markers."""
+    calib, (frame, *_) = simulated_frames("pinhole", 1)
+    floor = ros_floor(calib)
+    full = obstacle_messages(frame, FLOOR, floor)
+    lean = obstacle_messages(frame, FLOOR, floor, markers=False)
+    assert [m.topic for m in full if m.topic != "markers"] == [m.topic for m in lean]
+    assert [m.cdr for m in full if m.topic != "markers"] == [m.cdr for m in lean]
+    assert "markers" in {m.topic for m in full}
+
+
+def test_mirrored_floor_covariance_is_the_model_turned_and_off_grid_is_computed() -> None:
+    """The paper model's floor (y mirrored): the covariance terms are the accuracy
+    model's with the off-diagonal turned (F·C·F, F = diag(1, −1)), in m²; a point off
+    the model's grid gets the model's own value, not a neighbour's."""
+    calib = calibration_of(load_config(preset="default"), dipe_px=0.4)
+    floor = ros_floor(calib)
+    assert floor.mirrored and floor.accuracy is not None
+    seen = back_project(np.array([100.0, 300.0]), np.array([120.0, 500.0]), calib.camera, 5.0)
+    points = [(float(x), float(y), 5.0) for x, y in zip(seen.x_cm, seen.y_cm, strict=True)]
+    points.append((5000.0, -4000.0, 5.0))  # far outside the image: off the grid
+    terms = floor.planar_terms(points)
+    for (x, y, z), got in zip(points, terms, strict=True):
+        model = floor.accuracy(x, y, z)[0]
+        if not np.isfinite(model).all():
+            assert got is None
+            continue
+        assert got is not None
+        turned = np.diag([1.0, -1.0]) @ model @ np.diag([1.0, -1.0]) / 1e4
+        np.testing.assert_allclose([got[0], got[1], got[2]], turned[[0, 0, 1], [0, 1, 1]])
+        np.testing.assert_allclose(floor.planar_covariance(x, y, z), turned)
+    assert abs(terms[0][1]) > 0  # an off-diagonal that the turn changes

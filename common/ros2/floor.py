@@ -29,6 +29,7 @@ velocities; everything without a calibration) gets :data:`NOT_MEASURED`.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -39,7 +40,7 @@ from ovis.common.calibration.file import Calibration
 from ovis.common.camera.export import as_pinhole
 from ovis.common.fusion.accuracy import AccuracyMap
 
-__all__ = ["NOT_MEASURED", "RIGHT_HANDED", "RosFloor", "ros_floor"]
+__all__ = ["NOT_MEASURED", "RIGHT_HANDED", "RosFloor", "Terms", "ros_floor"]
 
 #: Variance (m², rad², m²/s², rad²/s²) of what ovis does not measure: large enough that
 #: a filter (robot_localization, Nav2) gives it no weight.
@@ -73,21 +74,75 @@ class RosFloor(NamedTuple):
     ) -> NDArray[np.float64] | None:
         """The 2×2 covariance (m², ROS frame) of a position measured at this point, or
         None when it is not known (no calibration, or the camera does not see it)."""
-        if self.accuracy is None:
+        terms = self.planar_terms([(x_cm, y_cm, z_cm)])[0]
+        if terms is None:
             return None
-        cov = self.accuracy(x_cm, y_cm, z_cm)[0]
-        if not np.isfinite(cov).all():
-            return None
-        flip = np.diag([1.0, self.y_sign])
-        return flip @ cov @ flip / 1e4
+        xx, xy, yy = terms
+        return np.array([[xx, xy], [xy, yy]])
 
-    def yaw_variance(self, robot_id: int, planar: NDArray[np.float64] | None) -> float:
-        """The variance (rad²) of a marked robot's heading (see the module docstring)."""
+    def planar_terms(self, points_cm: list[tuple[float, float, float]]) -> list[Terms | None]:
+        """:meth:`planar_covariance` of each point as its terms ``(xx, xy, yy)``, read
+        from the accuracy model's grid (nearest node, as the model does) without numpy
+        per point: a frame's robots cost a few look-ups."""
+        if self.accuracy is None:
+            return [None] * len(points_cm)
+        out: list[Terms | None] = []
+        for x, y, z in points_cm:
+            terms = _grid_terms(self.accuracy, x, y, z)
+            if terms is None:  # off the grid: the model computes it
+                cov = self.accuracy(x, y, z)[0]
+                terms = (float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1]))
+            xx, xy, yy = terms
+            if not (math.isfinite(xx) and math.isfinite(xy) and math.isfinite(yy)):
+                out.append(None)
+                continue
+            out.append((xx / 1e4, self.y_sign * xy / 1e4, yy / 1e4))
+        return out
+
+    def yaw_variance(self, robot_id: int, planar: Terms | None) -> float:
+        """The variance (rad²) of a marked robot's heading, from the terms of its
+        position's covariance (see the module docstring)."""
         side = self.marker_side_cm.get(robot_id)
         if planar is None or side is None or side <= 0.0:
             return NOT_MEASURED
-        sigma_m = math.sqrt(float(np.trace(planar)) / 2.0)
+        sigma_m = math.sqrt((planar[0] + planar[2]) / 2.0)
         return (sigma_m / (side / 100.0 * math.sqrt(2.0))) ** 2
+
+
+#: A covariance's terms (xx, xy, yy).
+Terms = tuple[float, float, float]
+
+
+class _FlatGrid(NamedTuple):
+    """One plane's covariance grid as Python floats (see AccuracyMap.cov_grid)."""
+
+    x0: float
+    y0: float
+    step: float
+    nx: int
+    ny: int
+    terms: list[Terms]
+
+
+@functools.lru_cache(maxsize=16)
+def _flat_grid(accuracy: AccuracyMap, z_cm: float) -> _FlatGrid | None:
+    grid = accuracy.cov_grid(z_cm)
+    if grid is None:
+        return None
+    x0, y0, step, nx, ny, flat = grid
+    return _FlatGrid(x0, y0, step, nx, ny, [tuple(t) for t in flat.tolist()])
+
+
+def _grid_terms(accuracy: AccuracyMap, x: float, y: float, z: float) -> Terms | None:
+    """The covariance terms (cm²) at the grid node nearest (x, y) on plane z, or None
+    off the grid."""
+    grid = _flat_grid(accuracy, round(float(z), 1))
+    if grid is None:
+        return None
+    i, j = round((x - grid.x0) / grid.step), round((y - grid.y0) / grid.step)
+    if 0 <= i < grid.nx and 0 <= j < grid.ny:
+        return grid.terms[i * grid.ny + j]
+    return None
 
 
 #: A right-handed floor without accuracy: what a caller gets without a calibration.
