@@ -1,8 +1,8 @@
 """The recorder behind ``ovis record``: Zenoh subscribers put every sample of the chosen
 topics in a queue (never blocking Zenoh, never dropping), one thread writes them into
 the session file, with the Foxglove views of frames and obstacles beside them, and with
-``ros2`` the same data as ROS 2 messages (``cdr`` channels with ``ros2msg`` schemas,
-:mod:`ovis.common.ros2`) that rosbags and ``ros2 bag`` read."""
+``ros2`` the same data as ROS 2 messages (:mod:`ovis.common.ros2`) into a rosbag2 bag
+beside it (:mod:`ovis.common.ros2.bag`) that ``ros2 bag play`` and rosbags read."""
 
 from __future__ import annotations
 
@@ -28,7 +28,8 @@ from ovis.common.messages import (
 from ovis.common.recording.foxglove import compressed_image, scene_update
 from ovis.common.recording.pacing import FrameGate
 from ovis.common.recording.session import SessionWriter
-from ovis.common.ros2.convert import RosMessage, message_definition
+from ovis.common.ros2.bag import RosBag
+from ovis.common.ros2.convert import RosMessage
 from ovis.common.ros2.stream import RosStream
 
 __all__ = ["Recorder", "topic_keys"]
@@ -83,9 +84,13 @@ class Recorder:
         frames: FrameGate,
         views: bool = True,
         ros2: RosStream | None = None,
+        bag: RosBag | None = None,
     ) -> None:
+        if (ros2 is None) != (bag is None):
+            raise ValueError("the ROS 2 stream and its bag go together")
         self.session = session
         self.ros2 = ros2
+        self.bag = bag
         self.writer = writer
         self.topics = topics
         self.gate = frames
@@ -219,10 +224,10 @@ class Recorder:
     def _ros2(
         self, payload: bytes, tp: Any, convert: Callable[[Any], list[RosMessage]], log_ns: int
     ) -> None:
-        """Also write a message as ROS 2 messages, each on its topic's ``cdr`` channel
-        (one that does not convert is counted, and recorded all the same on its bus
+        """Also write a message as ROS 2 messages into the bag, each on its topic (one
+        that does not convert is counted, and recorded all the same on its bus
         channel)."""
-        assert self.ros2 is not None
+        assert self.ros2 is not None and self.bag is not None
         try:
             messages = convert(decode(payload, tp))
         except (MessageError, ValueError) as exc:
@@ -230,10 +235,7 @@ class Recorder:
             self.counts.last_error = str(exc)
             return
         for m in messages:
-            topic = self.ros2.topic(m)
-            definition = message_definition(m.type).encode()
-            cid = self.writer.channel(topic, "cdr", m.type, "ros2msg", definition)
-            self.writer.write(cid, topic, m.cdr, log_ns, m.stamp_ns)
+            self.bag.write(self.ros2.topic(m), m, log_ns)
 
     def close(self) -> None:
         """Stop listening, write what is queued, then the index; close the file."""
@@ -242,4 +244,8 @@ class Recorder:
             sub.undeclare()
         self._queue.put(None)
         self._thread.join()
-        self.writer.close()
+        try:
+            self.writer.close()
+        finally:
+            if self.bag is not None:
+                self.bag.close()

@@ -125,7 +125,7 @@ def check_frame(frame: ObstacleFrame, floor: RosFloor) -> None:
     arrows = [m for m in markers.markers if m.ns == "robots"]
     assert [a.id for a in arrows] == [r.id for r in robots] and all(a.type == 0 for a in arrows)
     for r in robots:
-        (odom,) = decoded(messages, f"robots/{r.id}/odom")
+        (odom,) = decoded(messages, f"robots/robot_{r.id}/odom")
         assert odom.header.frame_id == FLOOR and stamp_ns(odom.header) == frame.stamp_ns
         pose = odom.pose.pose
         assert pose.position.x == pytest.approx(r.x_cm / 100, abs=MM)
@@ -240,7 +240,7 @@ def test_odometry_covariance_is_ovis_accuracy_model() -> None:
     floor = ros_floor(calib)
     frame = frames[0]
     r = frame.robots[0]
-    (odom,) = decoded(obstacle_messages(frame, FLOOR, floor), f"robots/{r.id}/odom")
+    (odom,) = decoded(obstacle_messages(frame, FLOOR, floor), f"robots/robot_{r.id}/odom")
     cov = odom.pose.covariance.reshape(6, 6)
     expected = position_covariance(r.x_cm, r.y_cm, r.z_cm, calib.camera, calib.dipe_px)[0] / 1e4
     # the accuracy map's grid node (2 cm away at most) against the point itself
@@ -253,7 +253,7 @@ def test_odometry_covariance_is_ovis_accuracy_model() -> None:
     assert (odom.twist.covariance.reshape(6, 6).diagonal() == NOT_MEASURED).all()
     # without a calibration (version 0) nothing is claimed
     uncalibrated = ros_floor(msgspec.structs.replace(calib, version=0))
-    (odom,) = decoded(obstacle_messages(frame, FLOOR, uncalibrated), f"robots/{r.id}/odom")
+    (odom,) = decoded(obstacle_messages(frame, FLOOR, uncalibrated), f"robots/robot_{r.id}/odom")
     assert (odom.pose.covariance.reshape(6, 6).diagonal() == NOT_MEASURED).all()
 
 

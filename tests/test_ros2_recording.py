@@ -1,18 +1,24 @@
 """`ovis record --ros2` end to end: a real `ovis up` on the simulated arena (two marked
-robots), recorded by a real `ovis record --ros2`; the file's ROS 2 channels (``cdr``,
-``ros2msg`` schemas) are read back with the `mcap` reader and decoded by rosbags from
-the definitions the file carries, and compared frame by frame with ovis's own channels
-in the same file: counts, stamps, positions to 1 mm, headings to 0.1°."""
+robots), recorded by a real `ovis record --ros2` stopped with Ctrl-C (SIGINT) as a user
+stops it; the rosbag2 bag it writes beside the session file is opened with rosbags'
+rosbag2 ``Reader`` (topics, types, type hashes, QoS, counts) and read through
+``AnyReader`` (which decodes with the definitions the bag carries), and compared frame
+by frame with ovis's own channels in the session file: counts, stamps, positions to
+1 mm, headings to 0.1°."""
 
 from __future__ import annotations
 
 import math
+import signal
+import time
 from pathlib import Path
 
 import msgspec
 from mcap.reader import make_reader
 from pipeline_helpers import Recorder, start_up
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import QosDurability
+from rosbags.rosbag2 import Reader
 from zenoh_helpers import client, ovis_cmd, spawn, stop, wait_for
 
 from ovis.common.calibration.file import calibration_from_config
@@ -20,28 +26,30 @@ from ovis.common.calibration.store import CalibrationStore
 from ovis.common.config import dump_toml, load_config
 from ovis.common.messages import Frame, ObstacleFrame, decode
 from ovis.common.recording.session import SessionReader
+from ovis.common.ros2.convert import type_hash
 from ovis.common.ros2.floor import ros_floor
 from ovis.common.sim.scenes import marked_scene
 
 RECORD_S = 8.0
+TYPES = {
+    "/ovis/obstacles": "geometry_msgs/msg/PoseArray",
+    "/ovis/markers": "visualization_msgs/msg/MarkerArray",
+    "/ovis/robots/robot_1/odom": "nav_msgs/msg/Odometry",
+    "/ovis/robots/robot_2/odom": "nav_msgs/msg/Odometry",
+    "/ovis/camera/camera_info": "sensor_msgs/msg/CameraInfo",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
+    "/ovis/camera/image/compressed": "sensor_msgs/msg/CompressedImage",
+}
 
 
-def ros2_channels(path: Path) -> dict[str, list[tuple[str, object]]]:
-    """Topic → [(type, decoded message)] of every ``cdr`` channel, decoded with the
-    ``ros2msg`` definition stored in the file (rosbags' parser and CDR deserialiser)."""
+def bag_messages(bag: Path) -> dict[str, list[tuple[str, object]]]:
+    """Topic → [(type, decoded message)], read with AnyReader from the bag's own
+    message definitions."""
     out: dict[str, list[tuple[str, object]]] = {}
-    stores: dict[str, object] = {}
-    with open(path, "rb") as fh:
-        for schema, channel, message in make_reader(fh).iter_messages():
-            if channel.message_encoding != "cdr":
-                continue
-            assert schema is not None and schema.encoding == "ros2msg"
-            store = stores.get(schema.name)
-            if store is None:
-                store = stores[schema.name] = get_typestore(Stores.EMPTY)
-                store.register(get_types_from_msg(schema.data.decode(), schema.name))
-            msg = store.deserialize_cdr(message.data, schema.name)
-            out.setdefault(channel.topic, []).append((schema.name, msg))
+    with AnyReader([bag]) as reader:
+        for connection, _, raw in reader.messages():
+            msg = reader.deserialize(raw, connection.msgtype)
+            out.setdefault(connection.topic, []).append((connection.msgtype, msg))
     return out
 
 
@@ -65,15 +73,18 @@ def test_record_ros2_writes_ros2_channels_matching_ovis_frame_by_frame(tmp_path:
             seen = Recorder(session)
             wait_for(lambda: seen.count() > 0, 120, "the first obstacles")
         record = spawn(
-            ovis_cmd("record", "--connect", endpoint, "--out", str(out), "--ros2",
-                     "--duration", str(RECORD_S)),
+            ovis_cmd("record", "--connect", endpoint, "--out", str(out), "--ros2"),
             tmp_path / "record.log",
-        )  # fmt: skip
-        assert record.wait(timeout=RECORD_S + 90) == 0, (tmp_path / "record.log").read_text()
+        )
+        time.sleep(RECORD_S)
+        record.send_signal(signal.SIGINT)  # Ctrl-C: the bag is closed, readable
+        assert record.wait(timeout=90) == 0, (tmp_path / "record.log").read_text()
     finally:
         stop([p for p in (record, up) if p is not None])
     log = (tmp_path / "record.log").read_text()
-    assert f"wrote {out}" in log, log
+    bag = tmp_path / "session.ros2"
+    assert f"wrote {out}" in log and f"wrote the ROS 2 bag {bag}/" in log, log
+    assert sorted(p.name for p in bag.iterdir()) == ["metadata.yaml", "session.ros2.mcap"]
 
     ovis = {
         m.stamp_ns: m
@@ -88,7 +99,22 @@ def test_record_ros2_writes_ros2_channels_matching_ovis_frame_by_frame(tmp_path:
         for r in SessionReader(out).bus_messages()
         if r.topic == "ovis/default/frames"
     ]
-    ros = ros2_channels(out)
+    # the bag as rosbag2 sees it: the ROS 2 topics only, with their types, hashes, QoS
+    with Reader(bag) as reader:
+        assert {c.topic: c.msgtype for c in reader.connections} == TYPES
+        for c in reader.connections:
+            assert c.digest == type_hash(c.msgtype)
+            (qos,) = c.ext.offered_qos_profiles
+            latched = c.topic in ("/tf_static", "/ovis/camera/camera_info")
+            assert (qos.durability == QosDurability.TRANSIENT_LOCAL) == latched
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        assert reader.message_count == sum(counts.values())
+    ros = bag_messages(bag)
+    assert {t: len(v) for t, v in ros.items()} == counts
+    # the session file keeps ovis's own channels, not a second copy of the ROS 2 ones
+    with open(out, "rb") as fh:
+        channels = make_reader(fh).get_summary().channels.values()
+        assert channels and all(c.message_encoding != "cdr" for c in channels)
     assert len(ovis) >= RECORD_S * 10 * 0.5, len(ovis)
     # every ROS 2 obstacle message is one of ovis's frames; at most the frames before the
     # recorder got the calibration are missing (the log says how many)
@@ -108,7 +134,7 @@ def test_record_ros2_writes_ros2_channels_matching_ovis_frame_by_frame(tmp_path:
     robot_ids = {r.id for f in ovis.values() for r in f.robots}
     assert robot_ids == {1, 2}
     for rid in robot_ids:
-        odoms = ros[f"/ovis/robots/{rid}/odom"]
+        odoms = ros[f"/ovis/robots/robot_{rid}/odom"]
         assert len(odoms) >= sum(1 for f in ovis.values() if any(r.id == rid for r in f.robots)) - 5
         for _, odom in odoms:
             (r,) = [r for r in ovis[stamp(odom.header)].robots if r.id == rid]

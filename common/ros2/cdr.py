@@ -40,7 +40,7 @@ _MAX_SEC = 2**31 - 1
 class RosMessage(msgspec.Struct, frozen=True):
     """One ROS 2 message ready to publish or record."""
 
-    topic: str  # relative to the namespace ("obstacles", "robots/3/odom"); absolute with "/"
+    topic: str  # relative to the namespace ("obstacles", "robots/robot_3/odom"); absolute with "/"
     type: str  # ROS 2 type name, e.g. "geometry_msgs/msg/PoseArray"
     cdr: bytes  # CDR little-endian, with the 4-byte encapsulation header
     stamp_ns: int  # the source time: the frame's capture time

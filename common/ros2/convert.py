@@ -13,7 +13,7 @@ Topics are relative to the namespace (``obstacles``) or absolute (``/tf_static``
 * ``markers`` — ``visualization_msgs/msg/MarkerArray``: a DELETEALL, then obstacles as
   cylinders of their radius and height, robots as arrows along their heading, ids as
   text above them;
-* ``robots/<id>/odom`` — ``nav_msgs/msg/Odometry`` per robot (marked robots; without
+* ``robots/robot_<id>/odom`` — ``nav_msgs/msg/Odometry`` per robot (marked robots; without
   them the unmarked robot): pose and heading in the floor frame, twist in the robot's
   own frame (``child_frame_id``), covariances from :mod:`ovis.common.ros2.floor`;
 * ``camera/camera_info`` — ``sensor_msgs/msg/CameraInfo``: ``ovis export --ros``'s

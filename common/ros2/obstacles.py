@@ -173,7 +173,8 @@ def obstacle_messages(
 ) -> list[RosMessage]:
     """The frame's PoseArray (``obstacles``), MarkerArray (``markers``; not with
     ``markers=False``, e.g. between two of a lower marker rate) and one Odometry per
-    robot (``robots/<id>/odom``), all stamped with its capture time, in the floor frame
+    robot (``robots/robot_<id>/odom``: ROS 2 refuses a name token that starts with a
+    digit), all stamped with its capture time, in the floor frame
     ``frame_id`` mapped by ``floor`` (see :mod:`ovis.common.ros2.convert`)."""
     kept = _KEPT
     header = kept.header
@@ -193,7 +194,7 @@ def obstacle_messages(
     odoms = _taken(kept.odometry, len(robots), kept.odom)
     for r, planar, odom in zip(robots, planars, odoms, strict=True):
         _odometry(odom, r, planar, frame_id, floor)
-        out.append(ros_message(ODOMETRY, odom, f"robots/{r.id}/odom", stamp))
+        out.append(ros_message(ODOMETRY, odom, f"robots/robot_{r.id}/odom", stamp))
     return out
 
 
