@@ -429,3 +429,15 @@ def test_mirrored_floor_covariance_is_the_model_turned_and_off_grid_is_computed(
         np.testing.assert_allclose([got[0], got[1], got[2]], turned[[0, 0, 1], [0, 1, 1]])
         np.testing.assert_allclose(floor.planar_covariance(x, y, z), turned)
     assert abs(terms[0][1]) > 0  # an off-diagonal that the turn changes
+
+
+def test_the_floor_of_the_same_calibration_is_kept() -> None:
+    """A caller may ask for the floor with every frame: the same calibration (the same
+    object or an equal one) gives the same floor, with its accuracy grids built once;
+    another calibration gets its own."""
+    calib = calibration_of(load_config(preset="pinhole"))
+    floor = ros_floor(calib)
+    assert ros_floor(calib) is floor
+    assert ros_floor(msgspec.structs.replace(calib)) is floor
+    other = ros_floor(msgspec.structs.replace(calib, dipe_px=0.9))
+    assert other is not floor and other.accuracy is not floor.accuracy

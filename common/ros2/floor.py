@@ -152,7 +152,22 @@ RIGHT_HANDED = RosFloor(False)
 def ros_floor(calib: Calibration) -> RosFloor:
     """The ROS view of ``calib``'s floor: mirrored for a camera model that images the
     world mirror-inverted, and the calibration's measured pixel error (None for the
-    configured, uncalibrated camera of version 0)."""
+    configured, uncalibrated camera of version 0). The last one is kept: a caller that
+    asks once per frame with the same calibration gets the same floor, whose accuracy
+    grids are then built once, not every frame."""
+    for last, floor in _LAST[:1]:
+        if last is calib or last == calib:
+            return floor
+    floor = _ros_floor(calib)
+    _LAST[:] = [(calib, floor)]
+    return floor
+
+
+#: the last calibration asked about, with its floor (one pair, replaced whole)
+_LAST: list[tuple[Calibration, RosFloor]] = []
+
+
+def _ros_floor(calib: Calibration) -> RosFloor:
     camera = as_pinhole(calib.camera).camera
     mirrored = camera.fx * camera.fy < 0.0
     sides = {r.id: float(r.marker_side_cm) for r in calib.pose.robots}
