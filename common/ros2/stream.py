@@ -32,7 +32,7 @@ DEFAULT_NAMESPACE = "/ovis"
 DEFAULT_FRAME_ID = "ovis_floor"
 #: rates (per second) of the visual-only topics where a live output paces them
 DEFAULT_MARKERS_HZ = 2.0
-DEFAULT_IMAGE_HZ = 2.0
+DEFAULT_IMAGE_HZ = 1.0
 
 
 class Rate:
