@@ -1,5 +1,5 @@
 """ovis's stream of messages as a stream of ROS 2 messages: what ``ovis record --ros2``
-writes beside ovis's own channels (and what any ROS 2 output needs).
+writes into its bag (and what any ROS 2 output needs).
 
 It follows the calibration: each one gives CameraInfo and ``/tf_static``, and the floor
 mapping (:func:`~ovis.common.ros2.floor.ros_floor`) for the obstacle frames after it.
