@@ -50,6 +50,7 @@ GROUPS = {
     "recording": "Recording",
     "recovery": "Recovery",
     "trust": "Proof of origin",
+    "ros2": "ROS 2 output",
 }
 DEFAULT = (
     "pipeline",
@@ -62,6 +63,7 @@ DEFAULT = (
     "recovery",
     "fusion",
     "trust",
+    "ros2",
 )
 
 
@@ -79,6 +81,7 @@ TIMED = {
     "recovery": ("benchmarks.recovery", "recovery_rows"),
     "fusion": ("benchmarks.fusion", "fusion_rows"),
     "trust": ("benchmarks.trust", "trust_rows"),
+    "ros2": ("benchmarks.ros2", "ros2_rows"),
 }
 
 

@@ -1,6 +1,8 @@
 """The recorder behind ``ovis record``: Zenoh subscribers put every sample of the chosen
 topics in a queue (never blocking Zenoh, never dropping), one thread writes them into
-the session file, with the Foxglove views of frames and obstacles beside them."""
+the session file, with the Foxglove views of frames and obstacles beside them, and with
+``ros2`` the same data as ROS 2 messages (:mod:`ovis.common.ros2`) into a rosbag2 bag
+beside it (:mod:`ovis.common.ros2.bag`) that ``ros2 bag play`` and rosbags read."""
 
 from __future__ import annotations
 
@@ -14,10 +16,21 @@ from typing import Any
 
 import zenoh
 
-from ovis.common.messages import Frame, FrameHeader, MessageError, ObstacleFrame, Topics, decode
+from ovis.common.messages import (
+    CalibrationUpdate,
+    Frame,
+    FrameHeader,
+    MessageError,
+    ObstacleFrame,
+    Topics,
+    decode,
+)
 from ovis.common.recording.foxglove import compressed_image, scene_update
 from ovis.common.recording.pacing import FrameGate
 from ovis.common.recording.session import SessionWriter
+from ovis.common.ros2.bag import RosBag
+from ovis.common.ros2.convert import RosMessage
+from ovis.common.ros2.stream import RosStream
 
 __all__ = ["Recorder", "topic_keys"]
 
@@ -52,6 +65,7 @@ class RecorderCounts:
     frames_skipped: int = 0  # left out by --frames
     frames_missed: int = 0  # gaps in the frames' sequence numbers (dropped upstream)
     view_errors: int = 0
+    ros2_errors: int = 0  # messages that could not be converted to ROS 2
     backlog_max: int = 0
     last_error: str = ""
     by_topic: dict[str, int] = field(default_factory=dict)
@@ -69,8 +83,14 @@ class Recorder:
         *,
         frames: FrameGate,
         views: bool = True,
+        ros2: RosStream | None = None,
+        bag: RosBag | None = None,
     ) -> None:
+        if (ros2 is None) != (bag is None):
+            raise ValueError("the ROS 2 stream and its bag go together")
         self.session = session
+        self.ros2 = ros2
+        self.bag = bag
         self.writer = writer
         self.topics = topics
         self.gate = frames
@@ -149,6 +169,8 @@ class Recorder:
                 c.frames_skipped += 1
                 return
             w.frame(key, payload, log_ns, published_ns)
+            if self.ros2 is not None:
+                self._ros2(payload, Frame, lambda f: [self.ros2.image(f)], log_ns)
             if self.views:
                 self._view(
                     f"/{self.topics.root}/image",
@@ -160,6 +182,15 @@ class Recorder:
                 )
             return
         w.bus(key, payload, log_ns, published_ns)
+        if self.ros2 is not None and key == self.topics.obstacles:
+            self._ros2(payload, ObstacleFrame, self.ros2.obstacles, log_ns)
+        if self.ros2 is not None and key == self.topics.calibration:
+            self._ros2(
+                payload,
+                CalibrationUpdate,
+                lambda u: self.ros2.calibration(u.calibration, log_ns),
+                log_ns,
+            )
         if self.views and key == self.topics.obstacles:
             self._view(
                 f"/{self.topics.root}/scene",
@@ -190,6 +221,22 @@ class Recorder:
             return
         self.writer.view(topic, schema, view, log_ns, msg.stamp_ns)
 
+    def _ros2(
+        self, payload: bytes, tp: Any, convert: Callable[[Any], list[RosMessage]], log_ns: int
+    ) -> None:
+        """Also write a message as ROS 2 messages into the bag, each on its topic (one
+        that does not convert is counted, and recorded all the same on its bus
+        channel)."""
+        assert self.ros2 is not None and self.bag is not None
+        try:
+            messages = convert(decode(payload, tp))
+        except (MessageError, ValueError) as exc:
+            self.counts.ros2_errors += 1
+            self.counts.last_error = str(exc)
+            return
+        for m in messages:
+            self.bag.write(self.ros2.topic(m), m, log_ns)
+
     def close(self) -> None:
         """Stop listening, write what is queued, then the index; close the file."""
         self._closed.set()
@@ -197,4 +244,8 @@ class Recorder:
             sub.undeclare()
         self._queue.put(None)
         self._thread.join()
-        self.writer.close()
+        try:
+            self.writer.close()
+        finally:
+            if self.bag is not None:
+                self.bag.close()

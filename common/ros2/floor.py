@@ -18,16 +18,18 @@ frame is right-handed depends on the camera model, as seen from above with Z up:
 :func:`ros_floor` decides once per calibration (:attr:`RosFloor.mirrored`).
 
 **Accuracy.** A position's covariance is ovis's accuracy model
-(:func:`ovis.common.fusion.accuracy.position_covariance`): the calibration's measured
-pixel error (its mean DIPE, px) pushed through the back-projection Jacobian at the
-object. A marked robot's heading comes from its marker's edges (side ``s``): each of
-the two edge directions has an angular error ``σ/s`` for a corner position error ``σ``
-(per axis), and their mean ``σ/(s·√2)``. What ovis does not measure (z, roll, pitch;
+(:class:`ovis.common.fusion.accuracy.AccuracyMap`): the calibration's measured pixel
+error (its mean DIPE, px) pushed through the back-projection Jacobian at the object
+(at the nearest node of a floor grid tabulated once per plane height). A marked
+robot's heading comes from its marker's edges (side ``s``): each of the two edge
+directions has an angular error ``σ/s`` for a corner position error ``σ`` (per axis),
+and their mean ``σ/(s·√2)``. What ovis does not measure (z, roll, pitch;
 velocities; everything without a calibration) gets :data:`NOT_MEASURED`.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -36,10 +38,9 @@ from numpy.typing import NDArray
 
 from ovis.common.calibration.file import Calibration
 from ovis.common.camera.export import as_pinhole
-from ovis.common.config import CameraModel
-from ovis.common.fusion.accuracy import position_covariance
+from ovis.common.fusion.accuracy import AccuracyMap
 
-__all__ = ["NOT_MEASURED", "RIGHT_HANDED", "RosFloor", "ros_floor"]
+__all__ = ["NOT_MEASURED", "RIGHT_HANDED", "RosFloor", "Terms", "ros_floor"]
 
 #: Variance (m², rad², m²/s², rad²/s²) of what ovis does not measure: large enough that
 #: a filter (robot_localization, Nav2) gives it no weight.
@@ -48,11 +49,11 @@ NOT_MEASURED = 1e6
 
 class RosFloor(NamedTuple):
     """One calibration's floor as ROS sees it: mirrored or not, and what the accuracy of
-    a position there is (``camera`` and ``pixel_sigma_px``; None: not calibrated)."""
+    a position there is (the camera's :class:`AccuracyMap`, tabulated on a floor grid per
+    plane height on first use; None: not calibrated)."""
 
     mirrored: bool
-    camera: CameraModel | None = None
-    pixel_sigma_px: float | None = None
+    accuracy: AccuracyMap | None = None
     marker_side_cm: dict[int, float] = {}  # noqa: RUF012  (a NamedTuple default, never mutated)
 
     @property
@@ -73,21 +74,75 @@ class RosFloor(NamedTuple):
     ) -> NDArray[np.float64] | None:
         """The 2×2 covariance (m², ROS frame) of a position measured at this point, or
         None when it is not known (no calibration, or the camera does not see it)."""
-        if self.camera is None or self.pixel_sigma_px is None:
+        terms = self.planar_terms([(x_cm, y_cm, z_cm)])[0]
+        if terms is None:
             return None
-        cov = position_covariance(x_cm, y_cm, z_cm, self.camera, self.pixel_sigma_px)[0]
-        if not np.isfinite(cov).all():
-            return None
-        flip = np.diag([1.0, self.y_sign])
-        return flip @ cov @ flip / 1e4
+        xx, xy, yy = terms
+        return np.array([[xx, xy], [xy, yy]])
 
-    def yaw_variance(self, robot_id: int, planar: NDArray[np.float64] | None) -> float:
-        """The variance (rad²) of a marked robot's heading (see the module docstring)."""
+    def planar_terms(self, points_cm: list[tuple[float, float, float]]) -> list[Terms | None]:
+        """:meth:`planar_covariance` of each point as its terms ``(xx, xy, yy)``, read
+        from the accuracy model's grid (nearest node, as the model does) without numpy
+        per point: a frame's robots cost a few look-ups."""
+        if self.accuracy is None:
+            return [None] * len(points_cm)
+        out: list[Terms | None] = []
+        for x, y, z in points_cm:
+            terms = _grid_terms(self.accuracy, x, y, z)
+            if terms is None:  # off the grid: the model computes it
+                cov = self.accuracy(x, y, z)[0]
+                terms = (float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1]))
+            xx, xy, yy = terms
+            if not (math.isfinite(xx) and math.isfinite(xy) and math.isfinite(yy)):
+                out.append(None)
+                continue
+            out.append((xx / 1e4, self.y_sign * xy / 1e4, yy / 1e4))
+        return out
+
+    def yaw_variance(self, robot_id: int, planar: Terms | None) -> float:
+        """The variance (rad²) of a marked robot's heading, from the terms of its
+        position's covariance (see the module docstring)."""
         side = self.marker_side_cm.get(robot_id)
         if planar is None or side is None or side <= 0.0:
             return NOT_MEASURED
-        sigma_m = math.sqrt(float(np.trace(planar)) / 2.0)
+        sigma_m = math.sqrt((planar[0] + planar[2]) / 2.0)
         return (sigma_m / (side / 100.0 * math.sqrt(2.0))) ** 2
+
+
+#: A covariance's terms (xx, xy, yy).
+Terms = tuple[float, float, float]
+
+
+class _FlatGrid(NamedTuple):
+    """One plane's covariance grid as Python floats (see AccuracyMap.cov_grid)."""
+
+    x0: float
+    y0: float
+    step: float
+    nx: int
+    ny: int
+    terms: list[Terms]
+
+
+@functools.lru_cache(maxsize=16)
+def _flat_grid(accuracy: AccuracyMap, z_cm: float) -> _FlatGrid | None:
+    grid = accuracy.cov_grid(z_cm)
+    if grid is None:
+        return None
+    x0, y0, step, nx, ny, flat = grid
+    return _FlatGrid(x0, y0, step, nx, ny, [tuple(t) for t in flat.tolist()])
+
+
+def _grid_terms(accuracy: AccuracyMap, x: float, y: float, z: float) -> Terms | None:
+    """The covariance terms (cm²) at the grid node nearest (x, y) on plane z, or None
+    off the grid."""
+    grid = _flat_grid(accuracy, round(float(z), 1))
+    if grid is None:
+        return None
+    i, j = round((x - grid.x0) / grid.step), round((y - grid.y0) / grid.step)
+    if 0 <= i < grid.nx and 0 <= j < grid.ny:
+        return grid.terms[i * grid.ny + j]
+    return None
 
 
 #: A right-handed floor without accuracy: what a caller gets without a calibration.
@@ -97,10 +152,25 @@ RIGHT_HANDED = RosFloor(False)
 def ros_floor(calib: Calibration) -> RosFloor:
     """The ROS view of ``calib``'s floor: mirrored for a camera model that images the
     world mirror-inverted, and the calibration's measured pixel error (None for the
-    configured, uncalibrated camera of version 0)."""
+    configured, uncalibrated camera of version 0). The last one is kept: a caller that
+    asks once per frame with the same calibration gets the same floor, whose accuracy
+    grids are then built once, not every frame."""
+    for last, floor in _LAST[:1]:
+        if last is calib or last == calib:
+            return floor
+    floor = _ros_floor(calib)
+    _LAST[:] = [(calib, floor)]
+    return floor
+
+
+#: the last calibration asked about, with its floor (one pair, replaced whole)
+_LAST: list[tuple[Calibration, RosFloor]] = []
+
+
+def _ros_floor(calib: Calibration) -> RosFloor:
     camera = as_pinhole(calib.camera).camera
     mirrored = camera.fx * camera.fy < 0.0
     sides = {r.id: float(r.marker_side_cm) for r in calib.pose.robots}
     if calib.version == 0:
-        return RosFloor(mirrored, None, None, sides)
-    return RosFloor(mirrored, calib.camera, float(calib.dipe_px), sides)
+        return RosFloor(mirrored, None, sides)
+    return RosFloor(mirrored, AccuracyMap(calib.camera, float(calib.dipe_px)), sides)

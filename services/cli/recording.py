@@ -106,6 +106,18 @@ def record(
     compression: Annotated[
         str, typer.Option(help="Chunk compression: lz4 (fast), zstd (smaller) or none.")
     ] = "lz4",
+    ros2: Annotated[
+        bool,
+        typer.Option(
+            "--ros2",
+            help="Also write the data as ROS 2 messages into a rosbag2 bag beside the "
+            "session (S.mcap -> S.ros2/, MCAP storage) that `ros2 bag play` and rosbags "
+            "read: /ovis/obstacles (PoseArray), /ovis/markers, /ovis/robots/robot_<id>/odom, "
+            "/ovis/camera/camera_info, /tf_static, /ovis/camera/image/compressed (JPEG of "
+            "each recorded frame). Obstacles are converted from the first calibration on. "
+            "See docs/recording.md.",
+        ),
+    ] = False,
     force: Annotated[bool, typer.Option(help="Overwrite --out if it exists.")] = False,
     recover_file: Annotated[
         Path | None,
@@ -149,6 +161,14 @@ def record(
     cfg = config_with_options(config, connect=connect, arena=arena)
     bus = arena_topics(cfg)
     keys = topic_keys(bus, topics)
+    stream = bag = None
+    if ros2:
+        from ovis.common.ros2.bag import BagError, RosBag, bag_path
+        from ovis.common.ros2.stream import RosStream
+
+        stream = RosStream()
+        bag_dir = bag_path(out)
+        _clear_bag(bag_dir, force)
     import zenoh
 
     try:
@@ -163,12 +183,20 @@ def record(
             writer = SessionWriter(out, compression=compression, metadata=meta)
         except RecordingError as exc:
             raise UserError(str(exc)) from None
-        rec = Recorder(session, writer, bus, keys, frames=gate, views=views)
+        if stream is not None:
+            try:
+                bag = RosBag(bag_dir)
+            except BagError as exc:
+                writer.close()
+                raise UserError(str(exc)) from None
+        rec = Recorder(session, writer, bus, keys, frames=gate, views=views, ros2=stream, bag=bag)
         wants_calibration = any(
             zenoh.KeyExpr(k).intersects(zenoh.KeyExpr(bus.calibration)) for k in keys
         )
         print(
-            f"recording {', '.join(keys)} into {out} (frames: {gate.spec}); "
+            f"recording {', '.join(keys)} into {out}"
+            + (f" and the ROS 2 bag {bag.path}/" if bag is not None else "")
+            + f" (frames: {gate.spec}); "
             + ("Ctrl-C stops" if duration is None else f"for {duration:g} s"),
             file=sys.stderr,
         )
@@ -196,12 +224,38 @@ def record(
         notes.append("no calibrator answered: the session carries no calibration")
     if c.view_errors:
         notes.append(f"{c.view_errors} messages had no Foxglove view ({c.last_error})")
+    if stream is not None and stream.waiting:
+        notes.append(f"{stream.waiting} obstacle frames before any calibration: not in ROS 2")
+    if c.ros2_errors:
+        notes.append(f"{c.ros2_errors} messages had no ROS 2 conversion ({c.last_error})")
     print(
         f"wrote {out}: {sum(s.messages for s in writer.stats.values())} messages, "
         f"{_mb(out.stat().st_size)}"
         + ("; " + "; ".join(notes) if notes else "")
         + ". Open it in Foxglove, or `ovis replay` it."
     )
+    if bag is not None:
+        print(
+            f"wrote the ROS 2 bag {bag.path}/: {sum(bag.counts.values())} messages on "
+            f"{len(bag.counts)} topics. Play it with `ros2 bag play {bag.path}`."
+        )
+
+
+def _clear_bag(path: Path, force: bool) -> None:
+    """Make room for the ROS 2 bag at ``path``: refuse if something is there, unless
+    ``force`` and it is a bag (its metadata.yaml and storage files, nothing else)."""
+    if not path.exists():
+        return
+    if not force:
+        raise UserError(f"{path} exists; give another --out or add --force to overwrite it")
+    files = list(path.iterdir()) if path.is_dir() else [path]
+    if not path.is_dir() or not all(
+        f.is_file() and (f.name == "metadata.yaml" or f.suffix in {".mcap", ".db3"}) for f in files
+    ):
+        raise UserError(f"{path} is in the way of the ROS 2 bag and is not one; move it away")
+    for f in files:
+        f.unlink()
+    path.rmdir()
 
 
 def _status_line(rec: Any, elapsed: float) -> str:
