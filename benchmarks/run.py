@@ -46,6 +46,7 @@ GROUPS = {
     "view": "Live view",
     "robots": "Marked robots",
     "fusion": "Fusion",
+    "budget": "CPU budget",
     "memory": "Memory",
     "recording": "Recording",
     "recovery": "Recovery",
@@ -60,6 +61,7 @@ DEFAULT = (
     "robots",
     "recovery",
     "fusion",
+    "budget",
 )
 
 
@@ -76,6 +78,7 @@ TIMED = {
     "robots": ("benchmarks.robots", "robots_rows"),
     "recovery": ("benchmarks.recovery", "recovery_rows"),
     "fusion": ("benchmarks.fusion", "fusion_rows"),
+    "budget": ("benchmarks.budget", "budget_rows"),
 }
 
 
