@@ -46,6 +46,7 @@ STEPS = (
     ("msgspec encode", "encode (", "messages.py"),
     ("Zenoh put", "<lambda> (", "service.py"),
     ("copy out of Zenoh (subscriber callback)", "take (", "service.py"),
+    ("copy into shared memory", "payload (", "shm.py"),
     ("waiting for the inbox", "get (", "inbox.py"),
 )
 

@@ -47,10 +47,14 @@ from ovis.services.bus import open_session
 from ovis.services.inbox import Inbox
 from ovis.services.memory import GUARD, keep_freed_memory
 from ovis.services.placement import pin_to_cpus
+from ovis.services.shm import ShmWriter
 
 __all__ = ["Service", "run"]
 
 log = logging.getLogger("ovis")
+
+#: Largest messages the shared memory of a service holds at once.
+SHM_FRAMES = 6
 
 
 class Service:
@@ -74,6 +78,8 @@ class Service:
         self._token: zenoh.LivelinessToken | None = None  # declared by ready()
         #: what a stage adds to its status (the capture: its source's losses)
         self.amend_status: Callable[[ServiceStatus], ServiceStatus] | None = None
+        #: the shared memory that large messages are written into (:meth:`publisher`)
+        self.shm: ShmWriter | None = None
         self._status_q = session.declare_queryable(self.topics.status(name), self._on_status)
 
     # --- inputs -------------------------------------------------------------------
@@ -195,7 +201,12 @@ class Service:
                 zenoh.CongestionControl.DROP if drop else zenoh.CongestionControl.BLOCK
             ),
         )
-        return lambda message: pub.put(encode(message))
+        if not self.config.zenoh.shared_memory:
+            return lambda message: pub.put(encode(message))
+        if self.shm is None:  # one pool for the service's publishers
+            self.shm = ShmWriter(SHM_FRAMES * max(PayloadLimits.of(self.config.camera)))
+        shm = self.shm
+        return lambda message: pub.put(shm.payload(encode(message)))
 
     def publish_result(self, publish: Callable[[Any], None], message: Any) -> None:
         """Publish one frame's result, count it, and say the stage works."""
