@@ -83,22 +83,11 @@ def _read(path: str) -> str | None:
 def process_cpu(root: int) -> dict[int, tuple[str, dict[str, float], int]]:
     """Every process under ``root`` (itself included) with a stage: pid → (stage, CPU
     seconds by thread kind, voluntary context switches)."""
+    from benchmarks.fusion import tree_cpu
+
     tick = os.sysconf("SC_CLK_TCK")
-    parent: dict[int, int] = {}
-    for entry in os.listdir("/proc"):
-        stat = _read(f"/proc/{entry}/stat") if entry.isdigit() else None
-        if stat:
-            parent[int(entry)] = int(stat.rsplit(")", 1)[1].split()[1])
-
-    def under(pid: int) -> bool:
-        while pid > 1:
-            if pid == root:
-                return True
-            pid = parent.get(pid, 0)
-        return False
-
     out = {}
-    for pid in filter(under, parent):
+    for pid in tree_cpu(root):
         cmdline = (_read(f"/proc/{pid}/cmdline") or "").split("\0")
         role = _role(cmdline)
         if role is None:

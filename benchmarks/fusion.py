@@ -200,6 +200,11 @@ def up_cameras(
 def tree_cpu_s(root: int) -> float:
     """CPU seconds (user + system, every thread) used so far by ``root`` and all the
     processes under it that are still running."""
+    return sum(tree_cpu(root).values())
+
+
+def tree_cpu(root: int) -> dict[int, float]:
+    """pid → CPU seconds used so far, of ``root`` and every running process under it."""
     tick = os.sysconf("SC_CLK_TCK")
     parent, used = {}, {}
     for entry in os.listdir("/proc"):
@@ -219,7 +224,7 @@ def tree_cpu_s(root: int) -> float:
             pid = parent.get(pid, 0)
         return False
 
-    return sum(t for pid, t in used.items() if under(pid))
+    return {pid: t for pid, t in used.items() if under(pid)}
 
 
 def _chain_rows(quick: bool, log=print) -> list[Row]:
