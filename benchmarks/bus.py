@@ -372,11 +372,14 @@ def e2e_rows(quick: bool, log=print) -> list[Row]:
                     value=anycore.latency.p50,
                 )
             )
+        overhead = ratio(lat.latency.p50, local.p50)
         rows.append(
             Row(
                 name=f"End to end {label} bus overhead: e2e p50 / in-process p50",
                 unit="×",
-                value=ratio(lat.latency.p50, local.p50),
+                value=overhead,
+                target="≤ 2" if small else None,
+                met=None if not small or overhead is None else overhead <= 2.0,
             )
         )
         rows.append(

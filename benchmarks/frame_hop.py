@@ -22,8 +22,9 @@ import zenoh
 from benchmarks.bus import free_port
 from benchmarks.core import Row, ratio
 from ovis.common.config import ZenohConfig
-from ovis.common.messages import ENCODING, Frame, encode
+from ovis.common.messages import ENCODING, Frame, FrameView, decode, encode
 from ovis.services.bus import zenoh_config
+from ovis.services.shm import ShmWriter
 
 __all__ = ["frame_hop_rows"]
 
@@ -32,22 +33,33 @@ FPS = 30.0
 WARM_UP = 30
 
 
-def _publish(port: int, keep: bool, n: int, shape: tuple[int, ...]) -> None:
+#: How a hop is made: plain bytes over the network (shared memory off on both sides),
+#: plain bytes with Zenoh's shared-memory transport (its default), ovis's way (the
+#: message written once into shared memory, decoded as a view), and a tiny message
+#: (the floor: what any message costs).
+HOWS = ("network", "zenoh", "ovis", "tiny")
+
+
+def _publish(port: int, keep: bool, n: int, shape: tuple[int, ...], how: str = "zenoh") -> None:
     """The publisher process: prints its CPU ms and minor faults per message as JSON."""
     if keep:
         from ovis.services.memory import keep_freed_memory
 
         keep_freed_memory()
-    zc = ZenohConfig(mode="peer", connect=[f"tcp/127.0.0.1:{port}"])
+    zc = ZenohConfig(mode="peer", connect=[f"tcp/127.0.0.1:{port}"], shared_memory=how != "network")
     session = zenoh.open(zenoh_config(zc))
     pub = session.declare_publisher(KEY, encoding=zenoh.Encoding(ENCODING))
     image = np.random.default_rng(0).integers(0, 256, shape, dtype=np.uint8)
+    if how == "tiny":
+        image = image[:1, :8]
+    shm = ShmWriter(8 * image.nbytes + 4096) if how == "ovis" else None
     time.sleep(1.0)  # the subscriber's declaration reaches us
     start = time.monotonic()
     for i in range(n):
         if i == WARM_UP:
             before = resource.getrusage(resource.RUSAGE_SELF)
-        pub.put(encode(Frame.from_image(image, seq=i, stamp_ns=time.time_ns())))
+        data = encode(Frame.from_image(image, seq=i, stamp_ns=time.time_ns(), copy=False))
+        pub.put(data if shm is None else shm.payload(data))
         time.sleep(max(0.0, start + (i + 1) / FPS - time.monotonic()))
     after = resource.getrusage(resource.RUSAGE_SELF)
     count = n - WARM_UP
@@ -57,19 +69,29 @@ def _publish(port: int, keep: bool, n: int, shape: tuple[int, ...]) -> None:
     session.close()
 
 
-def _measure(keep: bool, n: int, shape: tuple[int, ...]) -> tuple[dict[str, float], int]:
-    """One publisher run: its per-message figures, and how many messages arrived here."""
+def _measure(
+    keep: bool, n: int, shape: tuple[int, ...], how: str = "zenoh"
+) -> tuple[dict[str, float], int]:
+    """One publisher run: its per-message figures (with ``sub_ms``, this subscriber's CPU
+    per message: every thread of this otherwise idle process, receiving, copying out and
+    decoding as the stages do), and how many messages arrived here."""
     port = free_port()
-    zc = ZenohConfig(mode="peer", listen=[f"tcp/127.0.0.1:{port}"])
+    zc = ZenohConfig(mode="peer", listen=[f"tcp/127.0.0.1:{port}"], shared_memory=how != "network")
     received = 0
+    window: list[tuple[int, float]] = []  # (messages, CPU s) at the warm-up, at the last
+    kind = FrameView if how == "ovis" else Frame
 
-    def on_sample(_sample: zenoh.Sample) -> None:
+    def on_sample(sample: zenoh.Sample) -> None:
         nonlocal received
+        decode(sample.payload.to_bytes(), kind).image()
         received += 1
+        if received >= WARM_UP:
+            usage = resource.getrusage(resource.RUSAGE_SELF)
+            window[received > WARM_UP :] = [(received, usage.ru_utime + usage.ru_stime)]
 
     with zenoh.open(zenoh_config(zc)) as session:
         session.declare_subscriber(KEY, on_sample)
-        args = [str(port), "keep" if keep else "default", str(n), *map(str, shape)]
+        args = [str(port), "keep" if keep else "default", str(n), how, *map(str, shape)]
         out = subprocess.run(
             [sys.executable, "-m", "benchmarks.frame_hop", *args],
             capture_output=True,
@@ -78,7 +100,44 @@ def _measure(keep: bool, n: int, shape: tuple[int, ...]) -> tuple[dict[str, floa
             timeout=60 + n / FPS,
         )
         time.sleep(0.5)
-    return json.loads(out.stdout.strip().splitlines()[-1]), received
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    if len(window) == 2 and window[1][0] > window[0][0]:
+        result["sub_ms"] = (window[1][1] - window[0][1]) * 1e3 / (window[1][0] - window[0][0])
+    return result, received
+
+
+def hop_rows(quick: bool, log=print) -> list[Row]:
+    """One 640×480 grey frame hop, publisher + subscriber CPU, each way of :data:`HOWS`
+    (runs taking turns, the median of each), against a tiny message's hop."""
+    n, rounds = (150, 2) if quick else (450, 3)
+    cost: dict[str, list[float]] = {how: [] for how in HOWS}
+    lost: dict[str, int] = dict.fromkeys(HOWS, 0)
+    for _ in range(rounds):
+        for how in HOWS:
+            got, received = _measure(True, n, (480, 640), how)
+            cost[how].append(got["cpu_ms"] + got.get("sub_ms", float("nan")))
+            lost[how] += n - received
+    hop = {how: float(np.median(v)) for how, v in cost.items()}
+    log(f"  one hop, publisher + subscriber CPU ms: {hop} (runs {cost}); lost {lost}")
+    floor = hop["tiny"]
+    what = {
+        "network": "over the network (shared memory off)",
+        "zenoh": "plain bytes, Zenoh's shared-memory transport (its default)",
+        "ovis": "written once into shared memory, decoded as a view (ovis's way)",
+    }
+    return [
+        Row(
+            f"End to end, one hop of a 640×480 grey frame at 30 frames/s: publisher + "
+            f"subscriber CPU, {label} (floor: a {8}-pixel frame's hop; "
+            f"median of {rounds} runs of {n}, lost {lost[how]})",
+            "ms",
+            hop[how],
+            floor,
+            ratio(hop[how], floor),
+            *(("≤ 0.15 ms", hop[how] <= 0.15) if how == "ovis" else (None, None)),
+        )
+        for how, label in what.items()
+    ]
 
 
 def frame_hop_rows(quick: bool, log=print) -> list[Row]:
@@ -101,9 +160,9 @@ def frame_hop_rows(quick: bool, log=print) -> list[Row]:
                 ratio(kept["cpu_ms"], default["cpu_ms"]),
             )
         )
-    return rows
+    return rows + hop_rows(quick, log)
 
 
 if __name__ == "__main__":
-    port, mode, count, *dims = sys.argv[1:]
-    _publish(int(port), mode == "keep", int(count), tuple(map(int, dims)))
+    port, mode, count, how, *dims = sys.argv[1:]
+    _publish(int(port), mode == "keep", int(count), tuple(map(int, dims)), how)

@@ -28,6 +28,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import msgspec
@@ -147,10 +148,17 @@ def _live(frames: int, log=print) -> tuple[list[float], list[float], int]:
             return list(world_ms), list(hop_ms), frames
 
 
-def up_cameras(duration_s: float, *, pin: str = "auto", fps: float = FPS) -> dict:
+def up_cameras(
+    duration_s: float,
+    *,
+    pin: str = "auto",
+    fps: float = FPS,
+    probe: Callable[[int], object] | None = None,
+) -> dict:
     """The JSON summary of one ``ovis up --cameras 2x2`` run of ``duration_s`` seconds,
     with ``cpu_ms_per_frame``: the CPU time all its processes took per frame period
-    while every camera ran (from 3 s after the cameras all run to 2 s before the end)."""
+    while every camera ran (from 3 s after the cameras all run to 2 s before the end);
+    ``probe(pid of ovis up)`` is called at both ends of that window."""
     args = [sys.executable, "-m", "ovis.services.cli", "up", "--cameras", "2x2", "--json",
             "--duration", str(duration_s), "--seed", str(SEED % 1000), "--fps", str(fps),
             "--pin", pin, "--listen", f"tcp/127.0.0.1:{free_port()}"]  # fmt: skip
@@ -173,6 +181,8 @@ def up_cameras(duration_s: float, *, pin: str = "auto", fps: float = FPS) -> dic
         for wait_s in (3.0, duration_s - 5.0):
             time.sleep(wait_s)
             cpu.append((time.monotonic(), tree_cpu_s(proc.pid)))
+            if probe is not None:
+                probe(proc.pid)
     out = proc.stdout.read()  # the summary, at the end
     proc.wait(60)
     reader.join(5.0)
@@ -190,6 +200,11 @@ def up_cameras(duration_s: float, *, pin: str = "auto", fps: float = FPS) -> dic
 def tree_cpu_s(root: int) -> float:
     """CPU seconds (user + system, every thread) used so far by ``root`` and all the
     processes under it that are still running."""
+    return sum(tree_cpu(root).values())
+
+
+def tree_cpu(root: int) -> dict[int, float]:
+    """pid → CPU seconds used so far, of ``root`` and every running process under it."""
     tick = os.sysconf("SC_CLK_TCK")
     parent, used = {}, {}
     for entry in os.listdir("/proc"):
@@ -209,7 +224,7 @@ def tree_cpu_s(root: int) -> float:
             pid = parent.get(pid, 0)
         return False
 
-    return sum(t for pid, t in used.items() if under(pid))
+    return {pid: t for pid, t in used.items() if under(pid)}
 
 
 def _chain_rows(quick: bool, log=print) -> list[Row]:

@@ -46,6 +46,7 @@ GROUPS = {
     "view": "Live view",
     "robots": "Marked robots",
     "fusion": "Fusion",
+    "budget": "CPU budget",
     "memory": "Memory",
     "recording": "Recording",
     "recovery": "Recovery",
@@ -64,6 +65,7 @@ DEFAULT = (
     "fusion",
     "trust",
     "ros2",
+    "budget",
 )
 
 
@@ -82,6 +84,7 @@ TIMED = {
     "fusion": ("benchmarks.fusion", "fusion_rows"),
     "trust": ("benchmarks.trust", "trust_rows"),
     "ros2": ("benchmarks.ros2", "ros2_rows"),
+    "budget": ("benchmarks.budget", "budget_rows"),
 }
 
 

@@ -18,6 +18,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 
 import zenoh
 
@@ -109,8 +110,11 @@ def _listen(session: zenoh.Session, stage: str, camera: int) -> Inbox | None:
     return inbox
 
 
-def empty_chains(frames: int, fps: float = 30.0) -> tuple[Stats, int]:
-    """Capture stamp → world (ms) of the empty topology, and world frames received."""
+def empty_chains(
+    frames: int, fps: float = 30.0, probe: Callable[[int], object] | None = None
+) -> tuple[Stats, int]:
+    """Capture stamp → world (ms) of the empty topology, and world frames received;
+    ``probe(pid of this process)`` is called a fifth and four fifths into the frames."""
     port = free_port()
     zc = ZenohConfig(mode="peer", listen=[f"tcp/127.0.0.1:{port}"])
     got: list[float] = []
@@ -127,6 +131,9 @@ def empty_chains(frames: int, fps: float = 30.0) -> tuple[Stats, int]:
         procs = [_spawn(port, stage, c, frames, fps) for stage, c in [*roles, ("fusion", 0)]]
         try:
             start = _start_when_listening(session, len(procs), procs)
+            for part in (0.2, 0.8) if probe is not None else ():
+                time.sleep(max(0.0, start + part * frames / fps - time.time()))
+                probe(os.getpid())
             for p in procs:
                 p.wait(timeout=start - time.time() + frames / fps + 30)
         finally:

@@ -491,6 +491,10 @@ class ZenohConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     listen: list[str] = []
     config_file: str | None = None
     multicast_scouting: bool = False
+    #: frames and other large messages written once into shared memory, read by the
+    #: subscribers on the same host without the network (across hosts Zenoh sends the
+    #: bytes instead); false sends everything over the network
+    shared_memory: bool = True
 
 
 class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

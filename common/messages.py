@@ -29,6 +29,7 @@ __all__ = [
     "ENCODING",
     "MAX_IMAGE_SIDE",
     "BinaryFrame",
+    "BinaryFrameView",
     "BlobList",
     "BlobMeasure",
     "CalibrateReply",
@@ -37,6 +38,7 @@ __all__ = [
     "FloorMaps",
     "Frame",
     "FrameHeader",
+    "FrameView",
     "MarkerCorners",
     "Message",
     "MessageError",
@@ -142,6 +144,13 @@ class Frame(_Msg, tag="frame", kw_only=True):
         )
 
 
+class FrameView(Frame, tag="frame", kw_only=True):
+    """A received :class:`Frame` whose ``data`` is a view of the payload it was decoded
+    from (no copy of the pixels); decode-only, for the stages' hot path."""
+
+    data: memoryview  # type: ignore[assignment]
+
+
 class FrameHeader(_Msg, tag="frame", kw_only=True):
     """The small fields of a :class:`Frame` (decoding it skips the image bytes)."""
 
@@ -221,6 +230,14 @@ class BinaryFrame(_Msg, tag="binary", kw_only=True):
         """The 0/1 image, (rows, cols) uint8."""
         flat = np.unpackbits(np.frombuffer(self.bits, dtype=np.uint8), count=self.rows * self.cols)
         return flat.reshape(self.rows, self.cols)
+
+
+class BinaryFrameView(BinaryFrame, tag="binary", kw_only=True):
+    """A received :class:`BinaryFrame` whose ``bits`` and ``median`` are views of the
+    payload it was decoded from (no copy); decode-only, for the label stage."""
+
+    bits: memoryview  # type: ignore[assignment]
+    median: memoryview | None = None  # type: ignore[assignment]
 
 
 class BlobMeasure(msgspec.Struct):

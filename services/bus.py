@@ -56,6 +56,8 @@ def zenoh_config(
     if zc.listen:
         conf.insert_json5("listen/endpoints", msgspec.json.encode(zc.listen).decode())
     conf.insert_json5("scouting/multicast/enabled", "true" if zc.multicast_scouting else "false")
+    if not zc.shared_memory:
+        conf.insert_json5("transport/shared_memory/enabled", "false")
     return conf
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 from ovis.common.calibration.file import Calibration
 from ovis.common.camera.plane_table import PlaneTables
 from ovis.common.config import PinholeParams
-from ovis.common.messages import BinaryFrame
+from ovis.common.messages import BinaryFrameView
 from ovis.common.pipeline.stages import SizeFilter, blob_list
 from ovis.common.world.marker_search import BlobMarkers
 from ovis.services.service import Service
@@ -40,7 +40,7 @@ def main(service: Service) -> None:
     publish = service.publisher(service.topics.blobs)
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
-        frame = service.decode(payload, BinaryFrame, "binary")
+        frame = service.decode(payload, BinaryFrameView, "binary")
         if frame is None:
             return
         calib = service.calibration

@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 
 from ovis.common.calibration.file import Calibration
-from ovis.common.messages import Frame
+from ovis.common.messages import FrameView
 from ovis.common.pipeline.stages import binary_frame, clock_skew
 from ovis.common.vision.preprocess import ImageError, as_gray
 from ovis.common.vision.segmentation import ObjectWindow
@@ -34,7 +34,7 @@ def main(service: Service) -> None:
     publish = service.publisher(service.topics.binary)
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
-        frame = service.decode(payload, Frame, "frame")
+        frame = service.decode(payload, FrameView, "frame")
         if frame is None or service.refused("bad_frame", clock_skew(frame, time.time_ns())):
             return
         calib = service.calibration

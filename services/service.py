@@ -49,11 +49,15 @@ from ovis.services.bus import open_session
 from ovis.services.inbox import Inbox
 from ovis.services.memory import GUARD, keep_freed_memory
 from ovis.services.placement import pin_to_cpus
+from ovis.services.shm import ShmWriter
 from ovis.services.trust import attachment_of, every_reply, unproven, verifier_for
 
 __all__ = ["Service", "run"]
 
 log = logging.getLogger("ovis")
+
+#: Largest messages the shared memory of a service holds at once.
+SHM_FRAMES = 6
 
 
 class Service:
@@ -77,6 +81,8 @@ class Service:
         self._token: zenoh.LivelinessToken | None = None  # declared by ready()
         #: what a stage adds to its status (the capture: its source's losses)
         self.amend_status: Callable[[ServiceStatus], ServiceStatus] | None = None
+        #: the shared memory that large messages are written into (:meth:`publisher`)
+        self.shm: ShmWriter | None = None
         self._status_q = session.declare_queryable(self.topics.status(name), self._on_status)
 
     # --- inputs -------------------------------------------------------------------
@@ -210,7 +216,8 @@ class Service:
         self, key: str, *, drop: bool = True, signer: Signer | None = None
     ) -> Callable[[Any], None]:
         """A function that publishes a message (msgpack, ``application/msgpack``) on key,
-        with ``signer``'s proof of origin in the attachment if given."""
+        with ``signer``'s proof of origin in the attachment if given; written into the
+        shared-memory pool when ``[zenoh] shared_memory`` is on (large messages only)."""
         pub = self.session.declare_publisher(
             key,
             encoding=zenoh.Encoding(ENCODING),
@@ -218,14 +225,24 @@ class Service:
                 zenoh.CongestionControl.DROP if drop else zenoh.CongestionControl.BLOCK
             ),
         )
+        wrap = self._shared_memory()
         if signer is None:
-            return lambda message: pub.put(encode(message))
+            return lambda message: pub.put(wrap(encode(message)))
 
         def put(message: Any) -> None:
             payload = encode(message)
-            pub.put(payload, attachment=signer.attachment(key, payload))
+            pub.put(wrap(payload), attachment=signer.attachment(key, payload))
 
         return put
+
+    def _shared_memory(self) -> Callable[[bytes], Any]:
+        """What a payload is put as: the bytes, or their copy in the service's one
+        shared-memory pool (:class:`~ovis.services.shm.ShmWriter`)."""
+        if not self.config.zenoh.shared_memory:
+            return lambda payload: payload
+        if self.shm is None:  # one pool for the service's publishers
+            self.shm = ShmWriter(SHM_FRAMES * max(PayloadLimits.of(self.config.camera)))
+        return self.shm.payload
 
     def publish_result(self, publish: Callable[[Any], None], message: Any) -> None:
         """Publish one frame's result, count it, and say the stage works."""

@@ -102,7 +102,8 @@ def binary_frame(
         threshold=min(255, seg.level),
         calibration_version=calib.version,
         stream=frame.stream,
-        median=None if search is None else search.tobytes(),
+        # a view, not a copy: the message is encoded straight away, the image not changed
+        median=None if search is None else memoryview(np.ascontiguousarray(search)).cast("B"),  # type: ignore[arg-type]
     )
 
 
