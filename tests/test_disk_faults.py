@@ -1,5 +1,6 @@
 """Issue 28 item 6 on real filesystems: `ovis up` with its state folder on a full 256 KiB
-tmpfs, then the same folder remounted read-only, then an invalid newest calibration.
+tmpfs (with no room for its keys: exit 2; with its keys made earlier: it runs), then
+the same folder remounted read-only, then an invalid newest calibration.
 The calibrator stays alive (same pid, no restart), its status says `cannot save:
 <reason>`, `ovis recalibrate` gets the reason (exit 3), it calibrates by itself once
 there is room, keeps the calibration in use while the folder is read-only, and a
@@ -23,6 +24,8 @@ from pathlib import Path
 import pytest
 from bus_client import BusClient
 from zenoh_helpers import free_port, ovis_cmd, spawn, stop, wait_for
+
+from ovis.common.trust.keys import ROLES, load_or_create_private
 
 
 def _mount(*args: str) -> None:
@@ -66,6 +69,22 @@ def recalibrate(endpoint: str) -> subprocess.CompletedProcess[str]:
 def test_a_full_then_read_only_state_folder_never_kills_the_calibrator(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     with small_tmpfs(tmp_path / "state") as state:
+        filler = fill(state)
+        # no room for the keys of the proof of origin: nothing starts, one line says why
+        t0 = time.monotonic()
+        first = subprocess.run(
+            ovis_cmd("up", "--listen", endpoint, "--no-live", "--state-dir", str(state)),
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert first.returncode == 2 and time.monotonic() - t0 < 10, first
+        assert "cannot write the private key" in first.stderr, first.stderr
+        assert "No space left on device" in first.stderr, first.stderr
+        # the keys made while there was room (an earlier run), then the folder full again
+        filler.unlink()
+        for role in ROLES:
+            load_or_create_private(state / "keys" / f"{role}.key")
         filler = fill(state)
         up = spawn(
             ovis_cmd(
