@@ -170,7 +170,7 @@ class Recorder:
                 return
             w.frame(key, payload, log_ns, published_ns)
             if self.ros2 is not None:
-                self._ros2(payload, Frame, lambda f: [self.ros2.image(f)], log_ns)
+                self._ros2(payload, Frame, self.ros2.images_due, log_ns)
             if self.views:
                 self._view(
                     f"/{self.topics.root}/image",

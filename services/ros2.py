@@ -1,13 +1,16 @@
 """The ROS 2 bridge (``ovis up --ros2``, ``ovis run ros2``): ovis's own topics, as they
-are published, turned into standard ROS 2 messages (:mod:`ovis.common.ros2.convert`)
+are published, turned into standard ROS 2 messages by a paced
+:class:`~ovis.common.ros2.stream.RosStream` (what the benchmark row ``ros2`` measures)
 and published as a ROS 2 node over rmw_zenoh (:mod:`ovis.services.ros2_node`), on
 ovis's bus or on the ROS 2 side's router (``[ros2] connect``).
 
-Each obstacle frame gives the obstacle poses, the RViz markers and each robot's
-odometry, stamped with the frame's capture time; a camera frame, at most
-``image_rate_hz`` times a second (the others are not even copied), gives the JPEG image
-with the camera's model and the floor → camera transform of the calibration in use
-(also published as soon as a calibration is adopted, and kept for late subscribers)."""
+Each obstacle frame gives the obstacle poses and each robot's odometry, stamped with
+the frame's capture time, and the RViz markers ``markers_rate_hz`` times a second; a
+camera frame, ``image_rate_hz`` times a second by capture stamps (the others' images
+are not decoded), gives the JPEG image with the camera's model. A calibration, as soon as it
+is adopted, gives the camera's model and the floor → camera transform (kept for late
+subscribers) and the floor mapping of the frames after it (built once per
+calibration)."""
 
 from __future__ import annotations
 
@@ -20,15 +23,10 @@ import zenoh
 
 from ovis.common.calibration.file import Calibration
 from ovis.common.config import ZenohConfig
-from ovis.common.messages import Frame, ObstacleFrame
-from ovis.common.ros2.convert import (
-    RosMessage,
-    camera_messages,
-    image_message,
-    obstacle_messages,
-)
-from ovis.common.ros2.floor import ros_floor
-from ovis.common.ros2.topics import ImagePacer, qos_of, ros_topic, topic_kind
+from ovis.common.messages import Frame, FrameHeader, ObstacleFrame
+from ovis.common.ros2.convert import RosMessage
+from ovis.common.ros2.stream import RosStream
+from ovis.common.ros2.topics import qos_of
 from ovis.common.ros2.wire import WireError
 from ovis.services.bus import zenoh_config
 from ovis.services.ros2_node import RosNode
@@ -65,19 +63,15 @@ def main(service: Service) -> None:
 
 
 def bridge(service: Service, node: RosNode) -> None:
-    cfg = service.config.ros2
-    kinds = set(cfg.topics)
+    stream = RosStream(service.config.ros2)
     lock = threading.Lock()
     router = RouterWatch(service, node.session)
 
     def send(messages: Iterable[RosMessage]) -> None:
         for message in messages:
-            kind = topic_kind(message.topic)
-            if kind not in kinds:
-                continue
             try:
                 with lock:
-                    node.publish(message, qos_of(kind), ros_topic(message.topic))
+                    node.publish(message, qos_of(message.topic))
             except WireError as exc:  # a name ROS 2 refuses: said, counted, the rest goes on
                 service.error("ros2_name", f"not published on ROS 2: {exc}")
 
@@ -85,7 +79,7 @@ def bridge(service: Service, node: RosNode) -> None:
         return service.calibration.version > 0 or service.config.service.simulated_source
 
     def on_calibration(calib: Calibration) -> None:
-        send(camera_messages(calib, cfg.frame_id, time.time_ns()))
+        send(stream.calibration(calib, time.time_ns()))
 
     service.follow_calibration(on_calibration)
     if calibrated():
@@ -93,26 +87,29 @@ def bridge(service: Service, node: RosNode) -> None:
     box = service.inbox(
         service.topics.obstacles, service.config.service.queue_depth + 2, proven_by="pose"
     )
-    pacer = ImagePacer(cfg.image_rate_hz if kinds & {"image", "camera_info"} else 0.0)
 
     def on_frame(sample: zenoh.Sample) -> None:
-        if pacer.due(time.time_ns()):
-            payload = service.take(sample.payload, "frame", "frame")
-            if payload is not None:
-                box.put((payload, time.time_ns()))
+        payload = service.take(sample.payload, "frame", "frame")
+        header = None if payload is None else service.decode(payload, FrameHeader, "frame")
+        if header is not None and stream.image_due(header.stamp_ns):
+            box.put((payload, time.time_ns()))
 
-    service.session.declare_subscriber(service.topics.frames, on_frame)
+    if stream.images.hz != 0.0:  # no image nor camera info on ROS 2: frames not read
+        service.session.declare_subscriber(service.topics.frames, on_frame)
 
     def handle(payload: bytes, _receipt_ns: int) -> None:
         msg = service.decode(payload, ObstacleFrame | Frame, "input")
         if isinstance(msg, ObstacleFrame):
             service.saw_frame(msg.seq, msg.stamp_ns, msg.stream)
-            send(obstacle_messages(msg, cfg.frame_id, ros_floor(service.calibration)))
+            waiting = stream.waiting
+            messages = stream.obstacles(msg)
+            if stream.waiting > waiting:
+                why = "no calibration yet (its floor's handedness is unknown)"
+                service.error("no_calibration", f"obstacle frame {msg.seq} not on ROS 2: {why}")
+                return
+            send(messages)
         elif isinstance(msg, Frame):
-            if "image" in kinds:
-                send([image_message(msg, cfg.image_quality)])
-            if calibrated():  # the camera info of this image, at its capture time
-                send(camera_messages(service.calibration, cfg.frame_id, msg.stamp_ns))
+            send(stream.image(msg))
         else:
             return
         service.sent()

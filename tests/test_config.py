@@ -11,6 +11,7 @@ import pytest
 from ovis.common.config import (
     ConfigError,
     OvisConfig,
+    Ros2Config,
     config_from_dict,
     dump_toml,
     load_config,
@@ -59,6 +60,8 @@ def test_override_on_top_of_a_preset(tmp_path: Path) -> None:
         ('[image]\npolarity = "up"\n', "at `$.image.polarity`"),
         ("[ga]\npopulaton = 10\n", "unknown field `populaton`"),
         ('preset = "nope"\n', "unknown preset 'nope'"),
+        ("[ros2]\nmarkers_rate_hz = -1.0\n", "at `$.ros2.markers_rate_hz`"),
+        ("[ros2]\nimage_rate_hz = 2000.0\n", "<= 1000.0 - at `$.ros2.image_rate_hz`"),
         ("[ga\n", "not valid TOML"),
     ],
 )
@@ -69,6 +72,14 @@ def test_errors_name_the_field_and_the_range(tmp_path: Path, text: str, needle: 
         load_config(f)
     assert needle in str(err.value)
     assert str(f) in str(err.value)
+
+
+def test_presets_ship_the_ros2_rates_the_benchmark_measures() -> None:
+    """benchmarks/ros2.py measures Ros2Config's defaults: every preset ships them."""
+    for preset in ("default", "paper", "pinhole"):
+        ros2 = load_config(preset=preset).ros2
+        assert (ros2.markers_rate_hz, ros2.image_rate_hz) == (2.0, 1.0), preset
+        assert ros2 == Ros2Config(), preset
 
 
 def test_missing_file() -> None:

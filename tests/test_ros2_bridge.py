@@ -32,12 +32,13 @@ TYPES = {
 }
 ODOM = "nav_msgs/msg/Odometry"
 RUN_S = 40
+FPS, MARKERS_HZ, IMAGE_HZ = 10, 3.0, 4.0  # rates unlike the defaults: the config's are used
 
 
 def test_ovis_up_ros2_is_a_ros2_node_with_ovis_numbers(tmp_path: Path) -> None:
     cfg = tmp_path / "ovis.toml"
-    cfg.write_text("[ros2]\nimage_rate_hz = 4.0\n")
-    proc, endpoint, _ = start_up(tmp_path, "--ros2", "--pin", "none", "--fps", "10",
+    cfg.write_text(f"[ros2]\nimage_rate_hz = {IMAGE_HZ}\nmarkers_rate_hz = {MARKERS_HZ}\n")
+    proc, endpoint, _ = start_up(tmp_path, "--ros2", "--pin", "none", "--fps", str(FPS),
                                    "--duration", str(RUN_S), "--config", str(cfg))  # fmt: skip
     samples: list[tuple[str, bytes, bytes]] = []
     frames: dict[int, ObstacleFrame] = {}
@@ -58,7 +59,7 @@ def test_ovis_up_ros2_is_a_ros2_node_with_ovis_numbers(tmp_path: Path) -> None:
 
             subs = [session.declare_subscriber("0/**", on_ros),
                     session.declare_subscriber("ovis/default/obstacles", on_ovis)]  # fmt: skip
-            wait_for(lambda: len(frames) >= 40, 60, "40 obstacle frames")
+            wait_for(lambda: len(frames) >= 60, 90, "60 obstacle frames")
             tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/**", timeout=2)
                       if r.ok is not None]  # fmt: skip
             for sub in subs:
@@ -72,6 +73,7 @@ def test_ovis_up_ros2_is_a_ros2_node_with_ovis_numbers(tmp_path: Path) -> None:
                      *sorted({k for k, _, _ in samples})]))  # fmt: skip
     check_graph(tokens, samples)
     check_values(samples, frames)
+    check_rates(samples, frames)
 
 
 def check_graph(tokens: list[str], samples: list[tuple[str, bytes, bytes]]) -> None:
@@ -162,3 +164,30 @@ def check_values(samples: list[tuple[str, bytes, bytes]], frames: dict[int, Obst
         if ros_type != "tf2_msgs/msg/TFMessage":
             assert compared[ros_type] >= 3, (ros_type, dict(compared))
     assert len(image_stamps) >= 3
+
+
+def check_rates(samples: list[tuple[str, bytes, bytes]], frames: dict[int, ObstacleFrame]) -> None:
+    """PoseArray and Odometry with every obstacle frame; the markers and the image at
+    their configured rates, by the frames' capture stamps (as benchmarks/ros2.py
+    measures them)."""
+    stamps = defaultdict(list)
+    for key, _, attachment in samples:
+        ros_type = wire.parse_topic_key(key).type_name
+        stamps[ros_type].append(wire.decode_attachment(attachment).source_timestamp_ns)
+    first, last = min(frames), max(frames)  # the frames both sides saw
+    span_s = (last - first) / 1e9
+    assert span_s > 4.0, span_s
+
+    def within(ros_type: str) -> list[int]:
+        return [t for t in stamps[ros_type] if first <= t <= last]
+
+    poses = within("geometry_msgs/msg/PoseArray")
+    assert set(poses) <= set(frames)  # each one an ovis frame's
+    assert len(poses) >= 0.9 * len(frames), (len(poses), len(frames))  # drops under load only
+    assert len(set(within(ODOM))) >= 0.9 * len(frames)
+    for ros_type, hz in (("visualization_msgs/msg/MarkerArray", MARKERS_HZ),
+                         ("sensor_msgs/msg/CompressedImage", IMAGE_HZ)):  # fmt: skip
+        got, want = len(within(ros_type)), hz * span_s
+        print(f"{ros_type}: {got} in {span_s:.1f} s of frames ({want:.1f} at {hz:g} Hz)")
+        assert abs(got - want) <= max(2.0, 0.15 * want), (ros_type, got, want)
+    assert len(within("visualization_msgs/msg/MarkerArray")) < len(poses) / 2

@@ -10,7 +10,7 @@ from real_photos import photo_paths
 from rosbags.typesys import Stores, get_typestore
 
 from ovis.common.ros2.images import COMPRESSED, RAW, ImageError, image_from_cdr
-from ovis.common.ros2.topics import KEPT, STREAM, ImagePacer, qos_of, ros_topic, topic_kind
+from ovis.common.ros2.topics import KEPT, STREAM, qos_of, topic_kind
 
 TS = get_typestore(Stores.ROS2_JAZZY)
 T = TS.types
@@ -61,18 +61,8 @@ def test_images_ovis_cannot_read_say_why() -> None:
 
 
 def test_topic_rules() -> None:
-    assert ros_topic("robots/3/odom") == "robots/robot_3/odom"
-    assert ros_topic("robots/robot_3/odom") == "robots/robot_3/odom"
-    assert [topic_kind(t) for t in ("robots/3/odom", "/tf_static", "camera/image/compressed")] == [
-        "odom", "tf_static", "image"]  # fmt: skip
-    assert qos_of("tf_static") == qos_of("camera_info") == KEPT and qos_of("odom") == STREAM
-    pacer = ImagePacer(4.0)  # every 250 ms at most
-    assert [pacer.due(t * 100_000_000) for t in range(6)] == [
-        True,
-        False,
-        False,
-        True,
-        False,
-        False,
-    ]
-    assert not ImagePacer(0.0).due(10**18)
+    topics = ("robots/robot_3/odom", "/tf_static", "camera/image/compressed", "robots/3/pose")
+    assert [topic_kind(t) for t in topics] == ["odom", "tf_static", "image", "robots/3/pose"]
+    assert qos_of("/tf_static") == qos_of("camera/camera_info") == KEPT
+    assert qos_of("robots/robot_3/odom") == qos_of("markers") == STREAM
+    assert (KEPT.durability, KEPT.depth, STREAM.durability, STREAM.depth) == (1, 1, 2, 10)

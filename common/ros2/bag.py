@@ -6,10 +6,11 @@ bag: ``ros2 bag`` and rosbags' rosbag2 reader want a directory with a
 ``ovis record --ros2`` writes one beside the session, with rosbags' own rosbag2 writer
 (format version 9, MCAP storage): ``S.mcap`` → ``S.ros2/`` holding ``metadata.yaml``
 and ``S.ros2.mcap``. Each topic's connection carries its type's ``ros2msg`` definition
-and ``RIHS01`` hash, and the QoS a player offers it with: reliable, and transient local
-for what late subscribers need (``/tf_static``, CameraInfo), as ovis's ROS 2 node
-offers them. A message's bag time is when the recorder received it (as ``ros2 bag
-record`` stamps); its header keeps the frame's capture time.
+and ``RIHS01`` hash, and the QoS a player offers it with: ovis's ROS 2 node's
+(:mod:`ovis.common.ros2.topics`: reliable, and transient local for what late
+subscribers need, ``/tf_static`` and CameraInfo). A message's bag time is when the
+recorder received it (as ``ros2 bag record`` stamps); its header keeps the frame's
+capture time.
 
 rosbags writes ``metadata.yaml`` and the MCAP's index when the bag is closed: a
 recorder stopped by Ctrl-C or SIGTERM closes it; one killed outright leaves a bag
@@ -32,12 +33,11 @@ from rosbags.interfaces import (
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 
 from ovis.common.ros2.cdr import RosMessage, message_definition, type_hash
+from ovis.common.ros2.topics import qos_of
+from ovis.common.ros2.wire import QoS
 
 __all__ = ["BagError", "RosBag", "bag_path"]
 
-#: Topics whose last message a late subscriber needs (transient local), by their end.
-_LATCHED = ("/tf_static", "/camera_info")
-_DEPTH = 10
 _ZERO = QosTime(0, 0)  # ROS 2's default (infinite) deadline, lifespan and lease
 
 
@@ -50,13 +50,14 @@ def bag_path(session: Path) -> Path:
     return session.with_suffix(".ros2")
 
 
-def _qos(topic: str) -> Qos:
-    latched = topic.endswith(_LATCHED)
+def _bag_qos(qos: QoS) -> Qos:
+    """A topic's QoS (:func:`~ovis.common.ros2.topics.qos_of`, the node's) as rosbags
+    writes it (the same rmw enum numbers)."""
     return Qos(
-        QosHistory.KEEP_LAST,
-        1 if latched else _DEPTH,
-        QosReliability.RELIABLE,
-        QosDurability.TRANSIENT_LOCAL if latched else QosDurability.VOLATILE,
+        QosHistory(qos.history),
+        qos.depth,
+        QosReliability(qos.reliability),
+        QosDurability(qos.durability),
         _ZERO,
         _ZERO,
         QosLiveliness.AUTOMATIC,
@@ -89,7 +90,7 @@ class RosBag:
                     message.type,
                     msgdef=message_definition(message.type),
                     rihs01=type_hash(message.type),
-                    offered_qos_profiles=[_qos(topic)],
+                    offered_qos_profiles=[_bag_qos(qos_of(message.topic))],
                 )
             except WriterError as exc:  # the same topic with another type
                 raise BagError(f"{topic}: {exc}") from None

@@ -114,8 +114,9 @@ def record(
             "session (S.mcap -> S.ros2/, MCAP storage) that `ros2 bag play` and rosbags "
             "read: /ovis/obstacles (PoseArray), /ovis/markers, /ovis/robots/robot_<id>/odom, "
             "/ovis/camera/camera_info, /tf_static, /ovis/camera/image/compressed (JPEG of "
-            "each recorded frame). Obstacles are converted from the first calibration on. "
-            "See docs/recording.md.",
+            "each recorded frame, with its camera_info). Obstacles are converted from the "
+            "first calibration on. The [ros2] namespace, frame_id and topics apply; its "
+            "rates do not (every message is recorded). See docs/recording.md.",
         ),
     ] = False,
     force: Annotated[bool, typer.Option(help="Overwrite --out if it exists.")] = False,
@@ -166,7 +167,7 @@ def record(
         from ovis.common.ros2.bag import BagError, RosBag, bag_path
         from ovis.common.ros2.stream import RosStream
 
-        stream = RosStream()
+        stream = RosStream(cfg.ros2, paced=False)  # a record: every message
         bag_dir = bag_path(out)
         _clear_bag(bag_dir, force)
     import zenoh
