@@ -177,6 +177,8 @@ def fusion_configs(conf: dict[str, Path]) -> None:
     for name, seed, shift in (("west", 11, 0.0), ("east", 12, EAST_SHIFT_CM)):
         data = copy.deepcopy(capture)
         data["service"].update(camera_name=name, seed=seed)
+        # the chains sign with the keys the lab's hosts share (fusion trusts them there)
+        data["trust"] = {"keys_dir": str(folder / "keys")}
         data["camera"] = {"X0_cm": default.camera.X0_cm + shift}
         data["simulator"] = {"arena_x_cm": [x + shift for x in default.simulator.arena_x_cm]}
         conf[name] = folder / f"{name}.toml"
