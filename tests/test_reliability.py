@@ -126,12 +126,15 @@ def test_corrupt_or_hand_edited_calibration_is_refused_and_the_previous_kept(
     try:
         with client(endpoint) as session:
             st = wait_for(lambda: _statuses(session).get("calibrator"), 30, "calibrator status")
-            assert st.calibration_version == 1
+            # v1 saved again as the next version: stages that hold v2 take only a newer one
+            assert st.calibration_version == 4
             assert st.errors.get("bad_saved_calibration") == 2
     finally:
         stop([calibrator, router])
     log = (tmp_path / "calibrator.log").read_text()
     assert "loaded calibration v1" in log and "lam_mm" in log and "Traceback" not in log
+    assert "restored v1@" in log and " as v4@" in log
+    assert load_calibration(store.path(4)).camera == load_calibration(store.path(1)).camera
 
 
 # --- a running pipeline ---------------------------------------------------------------
