@@ -462,7 +462,13 @@ def run(name: str, config: OvisConfig, main: Callable[[Service], None]) -> int:
             service.stop.set()
             service.log.info("stopped: %s", msgspec.json.encode(service.status()).decode())
             exit_anyway_after(EXIT_GRACE_S, service.log)
-    return 0
+    # The session is closed: end here rather than in the interpreter's shutdown, where
+    # Zenoh's threads (shared memory's among them) still inside its native code can
+    # abort the process ("FATAL: exception not rethrown", SIGABRT) after a clean stop.
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
 
 
 #: Seconds a stopped service may take to close its Zenoh session and exit.

@@ -167,7 +167,11 @@ def test_a_full_then_read_only_state_folder_never_kills_the_calibrator(tmp_path:
         client = None
         try:
             client = wait_for(lambda: BusClient.connect(endpoint), 30, "the router")
-            st = wait_for(lambda: client.status("calibrator"), 30, "the calibrator")
+            st = wait_for(
+                lambda: (st := client.status("calibrator")) and st["state"] != "starting" and st,
+                30,
+                "the calibrator to have started",
+            )
             assert (st["state"], st["calibration_version"]) == ("ok", 4), st
             assert st["errors"] == {"bad_saved_calibration": 1}, st
             assert "calibration-v0003.json: calibration v3 refused" in st["last_error"]

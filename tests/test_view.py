@@ -495,6 +495,7 @@ def test_a_page_whose_view_server_stops_greys_its_health_to_unknown(system, tmp_
         "view",
         *("--connect", system.endpoint, "--listen", url.removeprefix("http://").rstrip("/")),
         *("--arena", "default"),
+        *("--trust", str(system.tmp / "state" / "keys")),  # the keys `ovis up` made
     )
     server = spawn(args, tmp_path / "view.log")
     try:
