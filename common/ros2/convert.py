@@ -39,7 +39,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ovis.common.calibration.file import Calibration
-from ovis.common.camera.export import as_pinhole, ros_camera_info
+from ovis.common.camera.export import ros_camera_info
 from ovis.common.messages import Frame
 from ovis.common.ros2.cdr import (
     COMPRESSED_IMAGE,
@@ -51,7 +51,7 @@ from ovis.common.ros2.cdr import (
     type_hash,
     typestore,
 )
-from ovis.common.ros2.floor import ros_floor
+from ovis.common.ros2.floor import pinhole_of, ros_floor
 from ovis.common.ros2.obstacles import obstacle_messages
 
 __all__ = [
@@ -103,7 +103,7 @@ def camera_messages(
     it is turned, from the calibration's pose)."""
     b = _builders()
     T = b.T
-    cam = as_pinhole(calib.camera).camera
+    cam = pinhole_of(calib)
     floor = ros_floor(calib)
     info = ros_camera_info(cam)
     flip = np.diag([1.0, floor.y_sign, 1.0])  # the floor's and the camera's y flip

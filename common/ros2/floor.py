@@ -31,16 +31,28 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.calibration.file import Calibration
 from ovis.common.camera.export import as_pinhole
+from ovis.common.config import PinholeParams
 from ovis.common.fusion.accuracy import AccuracyMap
 
-__all__ = ["NOT_MEASURED", "RIGHT_HANDED", "RosFloor", "Terms", "ros_floor"]
+__all__ = [
+    "NOT_MEASURED",
+    "RIGHT_HANDED",
+    "RosFloor",
+    "Terms",
+    "last_kept",
+    "pinhole_of",
+    "ros_floor",
+]
+
+T = TypeVar("T")
 
 #: Variance (m², rad², m²/s², rad²/s²) of what ovis does not measure: large enough that
 #: a filter (robot_localization, Nav2) gives it no weight.
@@ -149,26 +161,40 @@ def _grid_terms(accuracy: AccuracyMap, x: float, y: float, z: float) -> Terms | 
 RIGHT_HANDED = RosFloor(False)
 
 
+def last_kept(compute: Callable[[Calibration], T]) -> Callable[[Calibration], T]:
+    """``compute`` remembering its last calibration and answer: a caller that asks once
+    per frame with the calibration in use gets the answer worked out once."""
+    last: list[tuple[Calibration, T]] = []  # one pair, replaced whole
+
+    def kept(calib: Calibration) -> T:
+        for seen, answer in last[:1]:
+            if seen is calib or seen == calib:
+                return answer
+        answer = compute(calib)
+        last[:] = [(calib, answer)]
+        return answer
+
+    return functools.wraps(compute)(kept)
+
+
+@last_kept
+def pinhole_of(calib: Calibration) -> PinholeParams:
+    """``calib``'s camera as OpenCV's pinhole model (:func:`as_pinhole`: a fit for the
+    paper's model)."""
+    return as_pinhole(calib.camera).camera
+
+
+@last_kept
 def ros_floor(calib: Calibration) -> RosFloor:
     """The ROS view of ``calib``'s floor: mirrored for a camera model that images the
     world mirror-inverted, and the calibration's measured pixel error (None for the
-    configured, uncalibrated camera of version 0). The last one is kept: a caller that
-    asks once per frame with the same calibration gets the same floor, whose accuracy
-    grids are then built once, not every frame."""
-    for last, floor in _LAST[:1]:
-        if last is calib or last == calib:
-            return floor
-    floor = _ros_floor(calib)
-    _LAST[:] = [(calib, floor)]
-    return floor
-
-
-#: the last calibration asked about, with its floor (one pair, replaced whole)
-_LAST: list[tuple[Calibration, RosFloor]] = []
+    configured, uncalibrated camera of version 0). Its accuracy grids are built once
+    per calibration (:func:`last_kept`)."""
+    return _ros_floor(calib)
 
 
 def _ros_floor(calib: Calibration) -> RosFloor:
-    camera = as_pinhole(calib.camera).camera
+    camera = pinhole_of(calib)
     mirrored = camera.fx * camera.fy < 0.0
     sides = {r.id: float(r.marker_side_cm) for r in calib.pose.robots}
     if calib.version == 0:
