@@ -32,10 +32,11 @@ the floor is taken as right-handed (a pinhole calibration's) with no accuracy kn
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from ovis.common.calibration.file import Calibration
@@ -51,13 +52,14 @@ from ovis.common.ros2.cdr import (
     type_hash,
     typestore,
 )
-from ovis.common.ros2.floor import pinhole_of, ros_floor
+from ovis.common.ros2.floor import last_kept, pinhole_of, ros_floor
 from ovis.common.ros2.obstacles import obstacle_messages
 
 __all__ = [
     "CAMERA_FRAME",
     "STORE",
     "RosMessage",
+    "camera_info_message",
     "camera_messages",
     "image_message",
     "message_definition",
@@ -94,15 +96,23 @@ def _builders() -> _Builders:
     return _Builders()
 
 
-def camera_messages(
-    calib: Calibration, frame_id: str, stamp_ns: int, camera_frame: str = CAMERA_FRAME
-) -> list[RosMessage]:
-    """CameraInfo (``camera/camera_info``, ``ovis export --ros``'s numbers, in the
-    mirrored camera frame for a mirrored floor: see :mod:`ovis.common.ros2.floor`) and
-    ``/tf_static`` (floor ``frame_id`` → ``camera_frame``: where the camera is and how
-    it is turned, from the calibration's pose)."""
-    b = _builders()
-    T = b.T
+class _CameraParts(NamedTuple):
+    """What a calibration's CameraInfo and ``/tf_static`` hold, stamp and frame names
+    aside: worked out once per calibration (:func:`_camera_parts`)."""
+
+    height: int
+    width: int
+    distortion_model: str
+    d: NDArray[np.float64]
+    k: NDArray[np.float64]
+    r: NDArray[np.float64]
+    p: NDArray[np.float64]
+    centre: tuple[float, float, float]
+    rotation: tuple[float, float, float, float]
+
+
+@last_kept
+def _camera_parts(calib: Calibration) -> _CameraParts:
     cam = pinhole_of(calib)
     floor = ros_floor(calib)
     info = ros_camera_info(cam)
@@ -114,31 +124,57 @@ def camera_messages(
     p = np.array(info["projection_matrix"]["data"]).reshape(3, 4) @ np.diag(
         [1.0, floor.y_sign, 1.0, 1.0]
     )
-    camera_header = b.header(stamp_ns, camera_frame)
-    roi = T["sensor_msgs/msg/RegionOfInterest"](
-        x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
-    )
-    camera_info = T[CAMERA_INFO](
-        header=camera_header, height=info["image_height"], width=info["image_width"],
-        distortion_model=info["distortion_model"], d=d, k=k.ravel(),
-        r=np.array(info["rectification_matrix"]["data"], dtype=np.float64), p=p.ravel(),
-        binning_x=0, binning_y=0, roi=roi,
-    )  # fmt: skip
     # world (cm, ovis) → camera: c = R·P + t; in ROS (m): c' = F·R·F·P' + F·t/100
     R = flip @ cv2.Rodrigues(np.array(cam.rvec, dtype=np.float64))[0] @ flip
     t = flip @ np.array(cam.tvec_cm, dtype=np.float64) / 100.0
     centre = -R.T @ t
     q = Rotation.from_matrix(R.T).as_quat()  # x, y, z, w: the camera's axes in the floor
+    return _CameraParts(
+        info["image_height"], info["image_width"], info["distortion_model"], d, k.ravel(),
+        np.array(info["rectification_matrix"]["data"], dtype=np.float64), p.ravel(),
+        (float(centre[0]), float(centre[1]), float(centre[2])),
+        (float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+    )  # fmt: skip
+
+
+def camera_info_message(
+    calib: Calibration, stamp_ns: int, camera_frame: str = CAMERA_FRAME
+) -> RosMessage:
+    """CameraInfo (``camera/camera_info``): ``ovis export --ros``'s numbers, in the
+    mirrored camera frame for a mirrored floor (see :mod:`ovis.common.ros2.floor`)."""
+    b = _builders()
+    T = b.T
+    c = _camera_parts(calib)
+    roi = T["sensor_msgs/msg/RegionOfInterest"](
+        x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+    )
+    camera_info = T[CAMERA_INFO](
+        header=b.header(stamp_ns, camera_frame), height=c.height, width=c.width,
+        distortion_model=c.distortion_model, d=c.d, k=c.k, r=c.r, p=c.p,
+        binning_x=0, binning_y=0, roi=roi,
+    )  # fmt: skip
+    return ros_message(CAMERA_INFO, camera_info, "camera/camera_info", stamp_ns)
+
+
+def camera_messages(
+    calib: Calibration, frame_id: str, stamp_ns: int, camera_frame: str = CAMERA_FRAME
+) -> list[RosMessage]:
+    """CameraInfo (:func:`camera_info_message`) and ``/tf_static`` (floor ``frame_id``
+    → ``camera_frame``: where the camera is and how it is turned, from the
+    calibration's pose)."""
+    b = _builders()
+    T = b.T
+    c = _camera_parts(calib)
     transform = T["geometry_msgs/msg/TransformStamped"](
         header=b.header(stamp_ns, frame_id),
         child_frame_id=camera_frame,
         transform=T["geometry_msgs/msg/Transform"](
-            translation=b.vector(*(float(v) for v in centre)),
-            rotation=T["geometry_msgs/msg/Quaternion"](*(float(v) for v in q)),
+            translation=b.vector(*c.centre),
+            rotation=T["geometry_msgs/msg/Quaternion"](*c.rotation),
         ),
     )
     return [
-        ros_message(CAMERA_INFO, camera_info, "camera/camera_info", stamp_ns),
+        camera_info_message(calib, stamp_ns, camera_frame),
         ros_message(TF_MESSAGE, T[TF_MESSAGE](transforms=[transform]), "/tf_static", stamp_ns),
     ]
 

@@ -22,6 +22,7 @@ from ovis.common.config import Ros2Config
 from ovis.common.messages import Frame, ObstacleFrame
 from ovis.common.ros2.convert import (
     RosMessage,
+    camera_info_message,
     camera_messages,
     image_message,
     obstacle_messages,
@@ -118,8 +119,7 @@ class RosStream:
         out = [image_message(frame, self.jpeg_quality)] if "image" in self.kinds else []
         calib = self.calib
         if calib is not None:
-            info, _tf = camera_messages(calib, self.frame_id, frame.stamp_ns)
-            out += self.selected([info])
+            out += self.selected([camera_info_message(calib, frame.stamp_ns)])
         return out
 
     def images_due(self, frame: Frame) -> list[RosMessage]:
