@@ -517,6 +517,9 @@ class ServiceStatus(_Msg, tag="status", kw_only=True):
     source_gap_s: float = 0.0  # capture: seconds without its source, in total
     gaps: list[SourceGap] = []  # capture: the latest losses, oldest first
     stream: str = ""  # the capture's stream identity of the last frame (the capture's own)
+    shm_pool_bytes: int = 0  # the shared-memory pool its large messages go into (0: none)
+    shm_written: int = 0  # messages written into that pool (read in place on this host)
+    shm_fallbacks: int = 0  # messages sent as plain bytes instead: the pool was full
 
 
 class ReplayMark(msgspec.Struct, kw_only=True, forbid_unknown_fields=False):

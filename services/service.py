@@ -241,7 +241,7 @@ class Service:
         if not self.config.zenoh.shared_memory:
             return lambda payload: payload
         if self.shm is None:  # one pool for the service's publishers
-            self.shm = ShmWriter(SHM_FRAMES * max(PayloadLimits.of(self.config.camera)))
+            self.shm = ShmWriter(SHM_FRAMES * max(PayloadLimits.of(self.config.camera)), self.log)
         return self.shm.payload
 
     def publish_result(self, publish: Callable[[Any], None], message: Any) -> None:
@@ -353,6 +353,13 @@ class Service:
             calibration_epoch=self.calibration.epoch,
             problem=self.follower.problem() if self.follower is not None else None,
         )
+        if self.shm is not None:  # its shared memory: what went in, what went as bytes
+            status = msgspec.structs.replace(
+                status,
+                shm_pool_bytes=self.shm.pool_bytes,
+                shm_written=self.shm.written,
+                shm_fallbacks=self.shm.fallbacks,
+            )
         return status if self.amend_status is None else self.amend_status(status)
 
     def _on_status(self, query: zenoh.Query) -> None:

@@ -5,7 +5,11 @@ over the network instead, with nothing else changing."""
 
 from __future__ import annotations
 
+import logging
+
 import zenoh
+
+from ovis.common.pipeline.counters import worth_logging
 
 __all__ = ["SHM_MIN_BYTES", "ShmWriter"]
 
@@ -19,15 +23,18 @@ class ShmWriter:
 
     :meth:`payload` copies a message into a buffer of the pool (its only copy on the
     publisher's side: Zenoh sends the buffer as it is). A full pool (subscribers still
-    holding earlier messages) is not waited for: the message goes as plain bytes, and
-    ``fallbacks`` counts it."""
+    holding earlier messages) is not waited for: the message goes as plain bytes (it
+    still arrives, copied as over the network), ``fallbacks`` counts it and ``log`` says
+    so (the first 5, then every 100th); the service's status shows both counts."""
 
-    def __init__(self, pool_bytes: int) -> None:
+    def __init__(self, pool_bytes: int, log: logging.Logger | None = None) -> None:
         from zenoh import shm
 
         self._shm = shm
         self._provider = shm.ShmProvider.default_backend(pool_bytes)
         self._policy = shm.GarbageCollect()
+        self._log = log or logging.getLogger("ovis.shm")
+        self.pool_bytes = pool_bytes
         self.written = 0
         self.fallbacks = 0
 
@@ -38,8 +45,17 @@ class ShmWriter:
             return data
         try:
             buf = self._provider.alloc(len(data), self._policy)
-        except zenoh.ZError:
+        except zenoh.ZError as exc:
             self.fallbacks += 1
+            if worth_logging(self.fallbacks):
+                self._log.warning(
+                    "shared-memory pool of %d bytes full (%s): a %d-byte message sent as "
+                    "plain bytes (shm_fallbacks #%d)",
+                    self.pool_bytes,
+                    exc,
+                    len(data),
+                    self.fallbacks,
+                )
             return data
         buf[:] = data
         self.written += 1

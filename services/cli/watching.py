@@ -34,6 +34,7 @@ __all__ = [
     "format_gaps",
     "format_health",
     "format_obstacles",
+    "format_shm",
     "query_statuses",
     "status_table",
     "summary_table",
@@ -162,28 +163,29 @@ def collect_status(
     return [ServiceReport(n, n in alive, statuses.get(n) if n in alive else None) for n in names]
 
 
+def format_shm(s: ServiceStatus) -> str:
+    """A service's shared memory as table markup: messages written into its pool, and
+    those sent as plain bytes because the pool was full ("N pool full"; "-": no pool)."""
+    if not s.shm_pool_bytes:
+        return "-"
+    full = f", [yellow]{s.shm_fallbacks} pool full[/]" if s.shm_fallbacks else ""
+    return f"{s.shm_written}{full}"
+
+
 def status_table(report: list[ServiceReport], topics: Topics):
     columns = ("service", "alive", "state", "fps", "in", "out", "dropped", "errors", "calib")
+    shm = any(r.status is not None and r.status.shm_pool_bytes for r in report)
+    extra = ("shm",) if shm else ()  # only where shared memory is in use
     t = table(
         f"ovis services of arena {topics.arena}",
-        (*columns, "pid@host"),
-        left={"service", "alive", "state", "errors", "calib", "pid@host"},
+        (*columns, "pid@host", *extra),
+        left={"service", "alive", "state", "errors", "calib", "pid@host", *extra},
     )
     for r in report:
         s = r.status
         if s is None:
-            t.add_row(
-                r.service,
-                "yes" if r.alive else "[red]NO[/]",
-                "-",
-                "-",
-                "-",
-                "-",
-                "-",
-                "-",
-                "-",
-                "-",
-            )
+            alive = "yes" if r.alive else "[red]NO[/]"
+            t.add_row(r.service, alive, *["-"] * (len(columns) - 1 + len(extra)))
             continue
         errors = ", ".join(f"{k} {v}" for k, v in s.errors.items()) or "0"
         state = s.state
@@ -200,6 +202,7 @@ def status_table(report: list[ServiceReport], topics: Topics):
             errors,
             f"v{s.calibration_version}",
             f"{s.pid}@{s.host}",
+            *([format_shm(s)] if shm else []),
         )
     return t
 
