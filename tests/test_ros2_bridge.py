@@ -11,8 +11,10 @@ import threading
 from collections import defaultdict
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import rmw_zenoh_design as design
+from cli_helpers import ovis
 from pipeline_helpers import start_up
 from rosbags.typesys import Stores, get_typestore
 from zenoh_helpers import alive, client, wait_for
@@ -22,6 +24,7 @@ from ovis.common.config import load_config
 from ovis.common.messages import ObstacleFrame, decode
 from ovis.common.ros2 import wire
 from ovis.common.ros2.floor import ros_floor
+from ovis.common.view.health import STAGES
 
 TYPES = {
     "/ovis/obstacles": "geometry_msgs/msg/PoseArray",
@@ -60,6 +63,7 @@ def test_ovis_up_ros2_is_a_ros2_node_with_ovis_numbers(tmp_path: Path) -> None:
             subs = [session.declare_subscriber("0/**", on_ros),
                     session.declare_subscriber("ovis/default/obstacles", on_ovis)]  # fmt: skip
             wait_for(lambda: len(frames) >= 60, 90, "60 obstacle frames")
+            listed = check_status(endpoint)
             tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/**", timeout=2)
                       if r.ok is not None]  # fmt: skip
             for sub in subs:
@@ -71,9 +75,22 @@ def test_ovis_up_ros2_is_a_ros2_node_with_ovis_numbers(tmp_path: Path) -> None:
         samples, frames = list(samples), dict(frames)
     print("\n".join(["liveliness tokens:", *sorted(tokens), "data keys:",
                      *sorted({k for k, _, _ in samples})]))  # fmt: skip
+    print("ovis status:", listed)
     check_graph(tokens, samples)
     check_values(samples, frames)
     check_rates(samples, frames)
+
+
+def check_status(endpoint: str) -> list[str]:
+    """`ovis status` lists the bridge, after the stages, alive and working (as it would
+    any service that runs beside them); the services it listed."""
+    rows = msgspec.json.decode(ovis("status", "--json", "--connect", endpoint).stdout)
+    names = [r["service"] for r in rows]
+    assert names == [*STAGES, "ros2"], names
+    (bridge,) = (r for r in rows if r["service"] == "ros2")
+    assert bridge["alive"] and bridge["status"]["state"] == "ok", bridge
+    assert bridge["status"]["frames_in"] > 0 and bridge["status"]["frames_out"] > 0, bridge
+    return names
 
 
 def check_graph(tokens: list[str], samples: list[tuple[str, bytes, bytes]]) -> None:

@@ -31,7 +31,9 @@ from ovis.common.view.freshness import (
 from ovis.common.view.grid import MAX_LINES, grid_step_cm, map_grid_step
 from ovis.common.view.health import (
     HEALTH_STALE_S,
+    STAGES,
     LatencyWindow,
+    listed,
     summarize,
     summarize_calibration,
 )
@@ -226,6 +228,22 @@ def test_health_summary_says_which_stage_is_dead() -> None:
     assert s0.stream == "no pose service" and s0.calibration is None
     assert not any(st.alive for st in s0.stages)
     assert summarize_calibration(msgspec.structs.replace(calib, created="garbage")).age_s is None
+
+
+def test_optional_services_are_listed_while_they_run_and_never_missing() -> None:
+    """`ovis status` and the page list the stages always (one not running is a problem)
+    and the ROS 2 bridge or the fusion only when they run: not started is not missing."""
+    assert listed(STAGES, {}) == list(STAGES)
+    assert listed({"capture", "ros2"}, {}) == [*STAGES, "ros2"]
+    assert listed(STAGES, {"ros2": _status("ros2"), "fusion": _status("fusion")}) == [
+        *STAGES,
+        "fusion",
+        "ros2",
+    ]
+    s = summarize("a", set(STAGES), {}, LatencyWindow(), None, None)
+    assert [st.name for st in s.stages] == list(STAGES) and all(st.alive for st in s.stages)
+    s = summarize("a", {"pose", "ros2"}, {"ros2": _status("ros2")}, LatencyWindow(), None, None)
+    assert [(st.name, st.alive) for st in s.stages][-2:] == [("calibrator", False), ("ros2", True)]
 
 
 def test_settings_are_validated() -> None:

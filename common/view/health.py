@@ -25,12 +25,23 @@ __all__ = [
     "HealthSummary",
     "LatencyWindow",
     "StageHealth",
+    "listed",
     "summarize",
     "summarize_calibration",
 ]
 
-#: The stages of an arena, in frame order, then the calibrator.
+#: The stages of an arena, in frame order, then the calibrator: always listed, so that
+#: one that is not running shows as such.
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
+
+
+def listed(alive: Iterable[str], answered: Iterable[str]) -> list[str]:
+    """The services a health listing shows: the :data:`STAGES` always, then every other
+    service alive or answering, by name (the optional ones, the fusion or the ROS 2
+    bridge, only while they run: one not started is not missing)."""
+    return list(STAGES) + sorted((set(alive) | set(answered)) - set(STAGES))
+
+
 #: Seconds after which the pose stage's last health message (it sends one every status
 #: period) no longer tells the stream's state: it is then "unknown".
 HEALTH_STALE_S = 3.0
@@ -196,7 +207,7 @@ def summarize(
     alive = set(alive)
     fresh = dict(fresh or {})
     replay = next((f.recording for f in fresh.values() if f.recording), "")
-    names = list(STAGES) + sorted((alive | set(statuses)) - set(STAGES))
+    names = listed(alive, statuses)
     p50, p99, n = (None, None, 0) if replay else latency.percentiles()
     state, reason = _stream(stream, stream_age_s)
     return HealthSummary(

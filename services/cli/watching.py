@@ -23,6 +23,7 @@ from ovis.common.messages import (
     decode,
 )
 from ovis.common.pipeline.totals import least
+from ovis.common.view.health import listed
 from ovis.services.cli.ui import table, velocity_text
 from ovis.services.trust import unproven, verifier_for
 
@@ -39,8 +40,6 @@ __all__ = [
     "status_table",
     "summary_table",
 ]
-
-STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
 
 
 def format_obstacles(msg: ObstacleFrame) -> str:
@@ -159,7 +158,7 @@ def collect_status(
     """Liveliness tokens and status replies of every service of the arena."""
     alive = alive_services(session, topics, timeout)
     statuses = query_statuses(session, topics, timeout, accept)
-    names = list(STAGES) + sorted((alive | set(statuses)) - set(STAGES))
+    names = listed(alive, statuses)  # the stages, then the optional services running
     return [ServiceReport(n, n in alive, statuses.get(n) if n in alive else None) for n in names]
 
 
