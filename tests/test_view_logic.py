@@ -37,6 +37,7 @@ from ovis.common.view.health import (
     summarize,
     summarize_calibration,
 )
+from ovis.common.view.pairing import DETECTIONS_WAIT_S, frame_to_draw
 from ovis.common.view.picture import (
     POINT,
     ROBOT,
@@ -244,6 +245,21 @@ def test_optional_services_are_listed_while_they_run_and_never_missing() -> None
     assert [st.name for st in s.stages] == list(STAGES) and all(st.alive for st in s.stages)
     s = summarize("a", {"pose", "ros2"}, {"ros2": _status("ros2")}, LatencyWindow(), None, None)
     assert [(st.name, st.alive) for st in s.stages][-2:] == [("calibrator", False), ("ros2", True)]
+
+
+def test_a_camera_frame_waits_for_its_detections_before_it_is_drawn() -> None:
+    """The frame just seen, its detections not yet come, is not drawn bare (the page
+    would show its robots as not found); the newest with detections is; without any,
+    the newest is drawn bare only once waiting no longer helps."""
+    t = 100.0
+    kept = [(1, t), (2, t + 0.05), (3, t + 0.1)]
+    assert frame_to_draw([(1, t)], set(), t + 0.01, full=False) is None  # the race
+    assert frame_to_draw(kept, {1, 2}, t + 0.11, full=False) == (2, True)
+    assert frame_to_draw(kept, {1, 2, 3}, t + 0.11, full=False) == (3, True)
+    assert frame_to_draw(kept, set(), t + DETECTIONS_WAIT_S - 0.01, full=False) is None
+    assert frame_to_draw(kept, set(), t + DETECTIONS_WAIT_S, full=False) == (3, False)
+    assert frame_to_draw(kept, set(), t + 0.11, full=True) == (3, False)
+    assert frame_to_draw([], {1}, t, full=False) is None
 
 
 def test_settings_are_validated() -> None:

@@ -11,6 +11,7 @@ import msgspec
 
 from ovis.common.messages import BinaryFrame, BlobList, Frame, MessageError, decode
 from ovis.common.view.freshness import Freshness, freshness
+from ovis.common.view.pairing import frame_to_draw
 from ovis.common.view.picture import (
     binary_image,
     calibration_frame,
@@ -21,7 +22,7 @@ from ovis.common.view.picture import (
     to_jpeg,
 )
 from ovis.common.view.scene import scene_objects
-from ovis.services.view.feed import ArenaFeed
+from ovis.services.view.feed import KEEP, ArenaFeed
 
 __all__ = ["KINDS", "DrawnRobot", "Picture", "make_pictures"]
 
@@ -57,17 +58,28 @@ class Picture(msgspec.Struct, kw_only=True):
     points: int = 0
     calibration_frame: int | None = None
     calibration_version: int = 0
+    #: the camera frame's detections are drawn (False: they had not come when waiting
+    #: no longer helped, :func:`~ovis.common.view.pairing.frame_to_draw`)
+    detected: bool = True
 
 
 def _pick(feed: ArenaFeed, kind: str):
-    """The newest frame (or binary frame) whose detections have arrived, else the newest;
-    with its obstacle message and blobs (copied under the lock)."""
+    """The newest frame (or binary frame) whose detections have arrived; for the camera,
+    none while they may still come (:func:`frame_to_draw`), for the binarised frame
+    (nothing drawn on it) the newest; with its obstacle message and blobs (copied under
+    the lock)."""
     with feed.lock:
         store = feed.frames if kind == "camera" else feed.binaries
         if not store:
             return None
-        seqs = list(store)
-        seq = next((s for s in reversed(seqs) if s in feed.obstacles), seqs[-1])
+        kept = [(s, item[1].received_s) for s, item in store.items()]
+        if kind == "camera":
+            chosen = frame_to_draw(kept, feed.obstacles, time.monotonic(), full=len(kept) >= KEEP)
+            if chosen is None:
+                return None
+            seq = chosen[0]
+        else:
+            seq = next((s for s, _ in reversed(kept) if s in feed.obstacles), kept[-1][0])
         blobs = feed.blobs.get(seq)
         return (
             seq,
@@ -112,6 +124,7 @@ def make_pictures(
             points = control_points(calib, seq)
             small = draw_overlay(small, scale, marks=marks, blobs=blobs, points=points)
             extra = {
+                "detected": obstacles is not None,
                 "objects": len(marks),
                 "robots": [
                     DrawnRobot(

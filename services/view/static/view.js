@@ -124,7 +124,7 @@ function onPicture(buf) {
   img.dataset.robots = (header.robots || []).map((r) => r.label).join(",");
   view.pictures += 1;
   view.pictureLog.push({ seq: header.seq, kind: header.kind, points: header.points || 0,
-    calibration_frame: header.calibration_frame, robots: header.robots || [],
+    calibration_frame: header.calibration_frame, robots: header.robots || [], detected: header.detected,
     width: header.width, height: header.height, state: header.fresh ? header.fresh.state : null });
   if (view.pictureLog.length > PICTURES_KEPT) view.pictureLog.shift();
   if (header.fresh) setFresh(header.kind, header.fresh);
@@ -132,7 +132,8 @@ function onPicture(buf) {
   const robots = (header.robots || []).map((r) => r.label);
   let info = `${header.kind} frame ${header.seq}, ${header.width}×${header.height}`;
   if (header.kind === "camera") {
-    info += `, ${header.objects} objects drawn` + (robots.length ? ` (robots ${robots.join(", ")})` : "");
+    if (header.detected === false) info += ", its detections have not arrived (none drawn)";
+    else info += `, ${header.objects} objects drawn` + (robots.length ? ` (robots ${robots.join(", ")})` : "");
     if (header.points) info += `; the ${header.points} control points of calibration v${header.calibration_version} (its own frame)`;
     else if (header.calibration_frame != null) info += `; control points only on frame ${header.calibration_frame}, the calibration's`;
   }
