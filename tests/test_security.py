@@ -526,3 +526,25 @@ def test_operator_can_no_longer_publish_calibrations_or_frames(secure: Secure):
         # calibration (the operator's recalibration: test_operator_recalibrates)
         out = _status(op, "pose").frames_out
         wait_for(lambda: _status(op, "pose").frames_out > out + 5, 10, "obstacles")
+
+
+def test_frames_go_through_shared_memory_in_the_secure_profile(secure: Secure):
+    """Issue 31 item 4: with TLS, passwords and access control, a frame still reaches a
+    subscriber on the same host as a shared buffer (the capture's, through the router):
+    the capture's own writer put them there, not only Zenoh's transport."""
+    got: list[tuple[bool, int]] = []
+    lock = threading.Lock()
+
+    def on_frame(sample: zenoh.Sample) -> None:
+        header = decode(sample.payload.to_bytes(), FrameHeader)
+        with lock:
+            got.append((sample.payload.as_shm() is not None, header.seq))
+
+    with secure.session("operator") as op:
+        op.declare_subscriber("ovis/default/frames", on_frame)
+        wait_for(lambda: len(got) >= 5, 20, "frames at the operator")
+        capture = _status(op, "capture")
+        assert capture.shm_written >= capture.frames_out - 1 > 0, capture
+    with lock:
+        assert all(shm for shm, _ in got), f"frames came as bytes: {got}"
+        assert [seq for _, seq in got] == sorted({seq for _, seq in got})
