@@ -243,9 +243,44 @@ def budget_rows(quick: bool, log=print) -> list[Row]:
             rows.append(Row(f"{what}: one camera's Python code, {step} per frame (py-spy, "
                             f"{n} samples; floor: one empty stage's process, every thread)",
                             "ms", value, floor, ratio(value, floor)))  # fmt: skip
+    rows += _stage_work_rows(used, frames, quick, log)
     rows.append(Row(f"{PREFIX}: all processes per world frame (floor: the empty topology's)",
                     "ms", total, floor_total, ratio(total, floor_total)))  # fmt: skip
     log(f"  total {total:.2f} ms per world frame, empty topology {floor_total:.2f} ms")
+    return rows
+
+
+#: The thread each stage works on (pose: its worker thread, main: its status loop).
+WORKS_ON = {"preprocess": "main", "label": "main", "pose": "python"}
+#: Memory written between the stages in the eviction run (more than the caches hold).
+EVICT_MB = 32.0
+
+
+def _stage_work_rows(used: dict[str, Usage], frames: float, quick: bool, log) -> list[Row]:
+    """Each stage's thread per camera frame in the run (decode, compute, encode, publish)
+    against the same compute in one process on camera cam00's frames, warm; and that
+    compute with :data:`EVICT_MB` written between the stages, against warm."""
+    from benchmarks.fusion import SEED
+    from benchmarks.stage_work import stage_work_ms
+
+    reps = 150 if quick else 600
+    warm = stage_work_ms(SEED % 1000, reps)
+    evicted = stage_work_ms(SEED % 1000, reps, EVICT_MB)
+    log(f"  stages in one process, warm {warm}, {EVICT_MB:g} MB evicted between: {evicted}")
+    rows = []
+    for stage, kind in WORKS_ON.items():
+        u = used.get(stage)
+        if u is None:
+            continue
+        value = u.cpu[kind] * 1e3 / frames / u.processes
+        rows.append(Row(f"{PREFIX} {stage}: its thread per camera frame in the run (decode, "
+                        "compute, encode, publish; floor: the compute alone in one process, "
+                        "warm, on cam00's frames)", "ms", value, warm[stage],
+                        ratio(value, warm[stage])))  # fmt: skip
+        rows.append(Row(f"{PREFIX} {stage}: the compute alone in one process with "
+                        f"{EVICT_MB:g} MB written between the stages, as other processes "
+                        "do between a stage's frames (floor: warm)", "ms", evicted[stage],
+                        warm[stage], ratio(evicted[stage], warm[stage])))  # fmt: skip
     return rows
 
 

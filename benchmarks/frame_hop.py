@@ -11,6 +11,7 @@ publishes ``N`` frames (grey 640×480, BGR 1920×1080) as :class:`Frame` message
 from __future__ import annotations
 
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -81,9 +82,13 @@ def _measure(
     window: list[tuple[int, float]] = []  # (messages, CPU s) at the warm-up, at the last
     kind = FrameView if how == "ovis" else Frame
 
+    latency: list[float] = []  # ms from the publisher's stamp to the decoded frame here
+
     def on_sample(sample: zenoh.Sample) -> None:
         nonlocal received
-        decode(sample.payload.to_bytes(), kind).image()
+        frame = decode(sample.payload.to_bytes(), kind)
+        frame.image()
+        latency.append((time.time_ns() - frame.stamp_ns) / 1e6)
         received += 1
         if received >= WARM_UP:
             usage = resource.getrusage(resource.RUSAGE_SELF)
@@ -103,7 +108,44 @@ def _measure(
     result = json.loads(out.stdout.strip().splitlines()[-1])
     if len(window) == 2 and window[1][0] > window[0][0]:
         result["sub_ms"] = (window[1][1] - window[0][1]) * 1e3 / (window[1][0] - window[0][0])
+    result["latency_ms"] = float(np.median(latency[WARM_UP:])) if latency[WARM_UP:] else None
     return result, received
+
+
+def _pipe_publish(fd: int, n: int) -> None:
+    """The publisher process of the OS floor: its clock's ns (8 bytes) into a pipe at 30
+    messages/s; prints its CPU ms per message as JSON."""
+    start = time.monotonic()
+    for i in range(n):
+        if i == WARM_UP:
+            before = resource.getrusage(resource.RUSAGE_SELF)
+        os.write(fd, time.time_ns().to_bytes(8, "little"))
+        time.sleep(max(0.0, start + (i + 1) / FPS - time.monotonic()))
+    after = resource.getrusage(resource.RUSAGE_SELF)
+    cpu_s = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    print(json.dumps({"cpu_ms": cpu_s * 1e3 / (n - WARM_UP)}), flush=True)
+
+
+def _pipe_hop(n: int) -> tuple[float, float]:
+    """Publisher + subscriber CPU ms of one 8-byte message through a pipe between two
+    Python processes at 30/s, paced as the Zenoh hops are, and its median latency (ms):
+    what any message between processes costs this machine (the OS's floor, no Zenoh)."""
+    read_fd, write_fd = os.pipe()
+    args = [sys.executable, "-m", "benchmarks.frame_hop", "pipe", str(write_fd), str(n)]
+    child = subprocess.Popen(args, pass_fds=(write_fd,), stdout=subprocess.PIPE, text=True)
+    os.close(write_fd)
+    latency: list[float] = []
+    for i in range(n):
+        if i == WARM_UP:
+            before = resource.getrusage(resource.RUSAGE_SELF)
+        sent_ns = int.from_bytes(os.read(read_fd, 8), "little")
+        latency.append((time.time_ns() - sent_ns) / 1e6)
+    after = resource.getrusage(resource.RUSAGE_SELF)
+    os.close(read_fd)
+    out, _ = child.communicate(timeout=60)
+    sub_s = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    cpu_ms = json.loads(out.strip().splitlines()[-1])["cpu_ms"] + sub_s * 1e3 / (n - WARM_UP)
+    return cpu_ms, float(np.median(latency[WARM_UP:]))
 
 
 def hop_rows(quick: bool, log=print) -> list[Row]:
@@ -112,20 +154,48 @@ def hop_rows(quick: bool, log=print) -> list[Row]:
     n, rounds = (150, 2) if quick else (450, 3)
     cost: dict[str, list[float]] = {how: [] for how in HOWS}
     lost: dict[str, int] = dict.fromkeys(HOWS, 0)
+    latency: dict[str, list[float]] = {how: [] for how in (*HOWS, "pipe")}
+    pipe: list[float] = []
     for _ in range(rounds):
         for how in HOWS:
             got, received = _measure(True, n, (480, 640), how)
             cost[how].append(got["cpu_ms"] + got.get("sub_ms", float("nan")))
+            latency[how].append(got["latency_ms"] if got["latency_ms"] is not None else np.nan)
             lost[how] += n - received
+        cpu_ms, latency_ms = _pipe_hop(n)
+        pipe.append(cpu_ms)
+        latency["pipe"].append(latency_ms)
     hop = {how: float(np.median(v)) for how, v in cost.items()}
+    os_floor = float(np.median(pipe))
+    wall = {how: float(np.median(v)) for how, v in latency.items()}
     log(f"  one hop, publisher + subscriber CPU ms: {hop} (runs {cost}); lost {lost}")
+    log(f"  an 8-byte pipe message between two processes: {os_floor:.3f} ms (runs {pipe})")
+    log(f"  one hop's latency p50 ms: {wall}")
     floor = hop["tiny"]
     what = {
         "network": "over the network (shared memory off)",
         "zenoh": "plain bytes, Zenoh's shared-memory transport (its default)",
         "ovis": "written once into shared memory, decoded as a view (ovis's way)",
     }
-    return [
+    tiny = Row(
+        f"End to end, one hop of an 8-pixel frame (any Zenoh message) at 30 frames/s: "
+        f"publisher + subscriber CPU (floor: 8 bytes through a pipe between two Python "
+        f"processes at the same pace, no Zenoh; median of {rounds} runs of {n})",
+        "ms",
+        floor,
+        os_floor,
+        ratio(floor, os_floor),
+    )
+    tiny_latency = Row(
+        f"End to end, one hop of an 8-pixel frame (any Zenoh message) at 30 frames/s: "
+        f"latency p50, publisher's stamp to the decoded frame (floor: the pipe's; median "
+        f"of {rounds} runs of {n}; a frame's own hop, ovis's way: {wall['ovis']:.2f} ms)",
+        "ms",
+        wall["tiny"],
+        wall["pipe"],
+        ratio(wall["tiny"], wall["pipe"]),
+    )
+    return [tiny, tiny_latency] + [
         Row(
             f"End to end, one hop of a 640×480 grey frame at 30 frames/s: publisher + "
             f"subscriber CPU, {label} (floor: a {8}-pixel frame's hop; "
@@ -164,5 +234,8 @@ def frame_hop_rows(quick: bool, log=print) -> list[Row]:
 
 
 if __name__ == "__main__":
+    if sys.argv[1] == "pipe":
+        _pipe_publish(int(sys.argv[2]), int(sys.argv[3]))
+        sys.exit()
     port, mode, count, how, *dims = sys.argv[1:]
     _publish(int(port), mode == "keep", int(count), tuple(map(int, dims)), how)

@@ -25,20 +25,14 @@ import time
 import msgspec
 
 from benchmarks.core import Row, ratio, stats
-from ovis.common.calibration.file import calibration_from_config
-from ovis.common.camera.plane_table import PlaneTables
+from benchmarks.stage_work import FramePath
 from ovis.common.capture.sources import SimSource
 from ovis.common.config import Ros2Config, load_config
 from ovis.common.messages import Frame
-from ovis.common.pipeline.stages import SizeFilter, binary_frame, blob_list, obstacle_frame
 from ovis.common.ros2.cdr import COMPRESSED_IMAGE, MARKER_ARRAY
 from ovis.common.ros2.convert import obstacle_messages
 from ovis.common.ros2.stream import RosStream
 from ovis.common.sim.scenes import marked_scene
-from ovis.common.vision.preprocess import as_gray
-from ovis.common.vision.segmentation import ObjectWindow
-from ovis.common.world.detection import Detector
-from ovis.common.world.marker_search import BlobMarkers
 
 __all__ = ["ros2_rows"]
 
@@ -60,30 +54,11 @@ def _stamp(i: int) -> int:
     return 1_700_000_000_000_000_000 + round(i * 1e9 / FPS)
 
 
-class _FramePath:
-    """The three stages of one frame, in one process, with what each service keeps
-    between frames."""
-
-    def __init__(self, config) -> None:
-        self.calib = msgspec.structs.replace(calibration_from_config(config), version=1)
-        self.detector = Detector(config.camera, config.image, config.pose)
-        self.markers, self.window = BlobMarkers(), ObjectWindow()
-        self.find_markers, self.size_filter = BlobMarkers(), SizeFilter()
-        self.tables = PlaneTables()
-
-    def __call__(self, frame: Frame):
-        calib = self.calib
-        binary = binary_frame(frame, as_gray(frame.image()), calib, self.markers, self.window)
-        area = self.size_filter.min_area_px(calib)
-        blobs = blob_list(binary, calib, area, self.find_markers, self.tables)
-        return obstacle_frame(blobs, self.detector, calib.version, "default", frame.stamp_ns)
-
-
 def ros2_rows(quick: bool, log=print) -> list[Row]:
     config = marked_scene(load_config(), ROBOTS, OBSTACLES)
     source = SimSource(config, 9200, prerender=PRERENDER)
     images = [source.read()[0] for _ in range(PRERENDER)]
-    path = _FramePath(config)
+    path = FramePath(config)
     stream = RosStream(ROS2)
     stream.calibration(path.calib, 0)
     frame_ms: list[float] = []
