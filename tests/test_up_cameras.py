@@ -37,6 +37,9 @@ def test_up_cameras_2x2_gives_one_clean_world(tmp_path: Path) -> None:
     summary = json.loads(done.stdout)
     # it said where each camera's chain runs and where the logs are
     assert all(f"{name} on" in done.stderr for name in CAMERAS) and "logs in" in done.stderr
+    # fusion on the last core, as a single camera's stages (any core on a 1-core host)
+    allowed = sorted(os.sched_getaffinity(0))
+    assert f"fusion on {allowed[-1] if len(allowed) >= 2 else 'any'}" in done.stderr
     assert summary["grid"] == "2x2" and summary["seed"] == 7
     cams = summary["cameras"]
     assert sorted(cams) == sorted(CAMERAS)

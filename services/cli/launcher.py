@@ -190,7 +190,8 @@ def up(
         str,
         typer.Option(
             help="Cores for capture, preprocess, label and pose: 'auto' (one core, the "
-            "last, when there are two or more: lowest latency at camera rates), 'none' "
+            "last, when there are two or more: lowest latency at camera rates; with "
+            "--cameras, the chains dealt round the cores and fusion on the last), 'none' "
             "(any core: most frames per second on many cores), or e.g. '1' or '2,3'."
         ),
     ] = "auto",

@@ -103,6 +103,7 @@ def up_cameras(
     from ovis.common.sim.scenes import marked_scene
     from ovis.services.cli.cameras import parse_grid
     from ovis.services.cli.startup import with_keys
+    from ovis.services.placement import pick_cpus
     from ovis.services.supervisor import Supervisor
 
     grid = parse_grid(grid_text)
@@ -116,9 +117,11 @@ def up_cameras(
         raise UserError(str(exc)) from None
     names = list(chains)
     cores = chain_cores(sorted(os.sched_getaffinity(0)), len(names), pin)
+    fusion_on = pick_cpus(pin)  # auto: the last core, as one camera's stages
     out = sys.stderr if json else sys.stdout
     placed = ", ".join(
-        f"{n} on {','.join(map(str, c)) or 'any'}" for n, c in zip(names, cores, strict=True)
+        f"{n} on {','.join(map(str, c)) or 'any'}"
+        for n, c in [*zip(names, cores, strict=True), ("fusion", fusion_on)]
     )
     print(
         f"ovis up: {grid_text} cameras over arena {topics.arena} (seed {base.service.seed}), "
@@ -133,7 +136,8 @@ def up_cameras(
     _prerender(chains, grid, max(1, len(os.sched_getaffinity(0))), out, stop)
     fleet.start("router", ["router", "--listen", listen])
     time.sleep(0.5)
-    fleet.start("fusion", ["run", "fusion", "--config", str(fusion_cfg)])
+    fusion_cpus = ["--cpus", ",".join(map(str, fusion_on)) or "none"]
+    fleet.start("fusion", ["run", "fusion", "--config", str(fusion_cfg), *fusion_cpus])
 
     def start(name: str, stage: str, where: list[int]) -> None:
         cpus = ["--cpus", ",".join(map(str, where)) or "none"]
