@@ -308,7 +308,8 @@ def test_after_poisoning_the_store_and_a_restarted_calibrator_keep_the_genuine_o
     log = deployment.tmp / "calibrator.log"  # the next tests read the running one's
     config = str(deployment.tmp / "config.toml")
     deployment.procs["calibrator"] = _ovis("run", "calibrator", "--config", config, log=log)
-    wait_for(lambda: attacker.ask("status/calibrator", timeout=1.0), 30, "the calibrator back")
+    # its status answers from the start, its calibration once it has read the store
+    wait_for(lambda: attacker.ask("calibration", timeout=1.0), 30, "the calibrator back")
     assert attacker.calibration()["version"] == genuine["version"]
     assert _newest_version(deployment) == newest
     assert attacker.status("calibrator")["state"] == "ok"
