@@ -73,13 +73,12 @@ def _pick(feed: ArenaFeed, kind: str):
         if not store:
             return None
         kept = [(s, item[1].received_s) for s, item in store.items()]
-        if kind == "camera":
-            chosen = frame_to_draw(kept, feed.obstacles, time.monotonic(), full=len(kept) >= KEEP)
-            if chosen is None:
-                return None
-            seq = chosen[0]
-        else:
-            seq = next((s for s, _ in reversed(kept) if s in feed.obstacles), kept[-1][0])
+        # a binarised frame has nothing drawn on it: never waited for
+        never_wait = kind != "camera" or len(kept) >= KEEP
+        chosen = frame_to_draw(kept, feed.obstacles, time.monotonic(), full=never_wait)
+        if chosen is None:
+            return None
+        seq = chosen[0]
         blobs = feed.blobs.get(seq)
         return (
             seq,
