@@ -83,6 +83,7 @@ class Service:
         self.amend_status: Callable[[ServiceStatus], ServiceStatus] | None = None
         #: the shared memory that large messages are written into (:meth:`publisher`)
         self.shm: ShmWriter | None = None
+        self._shm_lock = threading.Lock()  # publishers are declared from several threads
         self._status_q = session.declare_queryable(self.topics.status(name), self._on_status)
 
     # --- inputs -------------------------------------------------------------------
@@ -240,9 +241,11 @@ class Service:
         shared-memory pool (:class:`~ovis.services.shm.ShmWriter`)."""
         if not self.config.zenoh.shared_memory:
             return lambda payload: payload
-        if self.shm is None:  # one pool for the service's publishers
-            self.shm = ShmWriter(SHM_FRAMES * max(PayloadLimits.of(self.config.camera)), self.log)
-        return self.shm.payload
+        with self._shm_lock:  # one pool for all the service's publishers, whichever thread
+            if self.shm is None:
+                pool = SHM_FRAMES * max(PayloadLimits.of(self.config.camera))
+                self.shm = ShmWriter(pool, self.log)
+            return self.shm.payload
 
     def publish_result(self, publish: Callable[[Any], None], message: Any) -> None:
         """Publish one frame's result, count it, and say the stage works."""
