@@ -566,13 +566,14 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
 class TrustConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Where the keys of the proof of origin are (``[trust]``, docs/trust.md): the
-    calibrator and the pose stage sign with ``<keys_dir>/<role>.key`` (made on first
+    calibrator, the pose stage and fusion sign with ``<keys_dir>/<role>.key`` (made on first
     start); the others trust ``<keys_dir>/<role>.pub``, or the public key files named
     here (copied from the host that made them)."""
 
     keys_dir: Annotated[str, msgspec.Meta(max_length=4096)] = ""  # "": <state_dir>/keys
     calibrator_public: Annotated[str, msgspec.Meta(max_length=4096)] = ""
     pose_public: Annotated[str, msgspec.Meta(max_length=4096)] = ""
+    fusion_public: Annotated[str, msgspec.Meta(max_length=4096)] = ""
 
 
 class CameraSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

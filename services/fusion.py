@@ -1,9 +1,9 @@
 """Fusion service: the detections of several cameras (``[[cameras]]``), each from its own
 capture → preprocess → label → pose chain on ``ovis/<arena>/cam/<name>/obstacles``,
-merged into one world on ``ovis/<arena>/world`` (:class:`WorldFrame`; the logic is
-:mod:`ovis.common.fusion`). A camera that stops leaves its area uncovered: after
-``service.frame_timeout_s`` it is no longer waited for, and each world frame names the
-cameras missing from it."""
+merged into one world on ``ovis/<arena>/world`` (:class:`WorldFrame`, signed with the
+"fusion" role's key; the logic is :mod:`ovis.common.fusion`). A camera that stops
+leaves its area uncovered: after ``service.frame_timeout_s`` it is no longer waited
+for, and each world frame names the cameras missing from it."""
 
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ from ovis.common.fusion.world import WorldFrameResult, WorldFuser
 from ovis.common.messages import CalibrationUpdate, ObstacleFrame, WorldFrame, WorldObject
 from ovis.services.inbox import Inbox
 from ovis.services.service import Service
+from ovis.services.trust import signer_for
 
 __all__ = ["camera_model", "main"]
 
@@ -152,7 +153,8 @@ def main(service: Service) -> None:
                 inbox.put((name, payload))
 
         service.session.declare_subscriber(service.topics.of_camera(name).obstacles, on_sample)
-    publish = service.publisher(service.topics.world)
+    # readers believe only world frames this key signed (docs/trust.md)
+    publish = service.publisher(service.topics.world, signer=signer_for(cfg, "fusion"))
     seq = received = 0
 
     def emit(results: list[WorldFrameResult]) -> None:

@@ -30,8 +30,9 @@ from ovis.common.messages import (
     encode,
 )
 from ovis.common.sim.multiview import GridScene, camera_grid, grid_arena, measure
-from ovis.common.trust.keys import load_or_create_private
-from ovis.common.trust.proof import Signer
+from ovis.common.trust.keys import PublicKeyFile, load_or_create_private
+from ovis.common.trust.proof import Signer, Verifier
+from ovis.services.trust import attachment_of
 
 CELL = (100.0, 75.0)
 #: The simulated cameras' frame period (30 frames/s).
@@ -359,7 +360,9 @@ def test_two_real_chains_fused_and_a_killed_chain_recovers(tmp_path: Path) -> No
 
 def test_status_says_every_camera_is_silent_when_all_stop(tmp_path: Path) -> None:
     """When every camera stops at once (a cut network link), no world frame is made any
-    more; the status must still say which areas are uncovered, not the last "ok"."""
+    more; the status must still say which areas are uncovered, not the last "ok". Each
+    world frame carries the fusion key's proof of origin (its public key, made on
+    fusion's first start, verifies it; the pose key's does not)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     data = _base(endpoint, tmp_path)
     cam = data["camera"]
@@ -379,6 +382,11 @@ def test_status_says_every_camera_is_silent_when_all_stop(tmp_path: Path) -> Non
         with client(endpoint) as session:
             wait_for(lambda: "fusion" in alive(session), 60, "fusion alive")
             world = Collector(session, topics.world, WorldFrame)
+            signed: list[tuple[str, bytes, bytes | None]] = []
+            session.declare_subscriber(
+                topics.world,
+                lambda s: signed.append((str(s.key_expr), s.payload.to_bytes(), attachment_of(s))),
+            )
             pubs = {
                 c: session.declare_publisher(topics.of_camera(c).obstacles, encoding=ENCODING)
                 for c in ("west", "east")
@@ -391,6 +399,12 @@ def test_status_says_every_camera_is_silent_when_all_stop(tmp_path: Path) -> Non
             wait_for(lambda: len(world.snapshot()) >= 5, 10, "world frames of both cameras")
             last = world.snapshot()[-1]
             assert (last.cameras, last.missing) == (["east", "west"], [])
+            keys = tmp_path / "state" / "keys"
+            fusion = Verifier(PublicKeyFile(keys / "fusion.pub"))
+            proofs = [fusion.problem(*s) for s in list(signed)]
+            assert len(proofs) >= 5 and set(proofs) == {None}, proofs
+            wrong = Verifier(PublicKeyFile(keys / "pose.pub")).problem(*signed[0])
+            assert wrong is not None and wrong.startswith("signed by key"), wrong
             # both silent: after frame_timeout_s neither is live any more
             wait_for(
                 lambda: state(session) == ["no frames from east, west (area uncovered)"],

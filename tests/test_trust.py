@@ -144,6 +144,11 @@ def test_where_keys_are_looked_for() -> None:
         CFG, trust=msgspec.structs.replace(CFG.trust, calibrator_public="/etc/ovis/c.pub")
     )
     assert public_key_path(named, "calibrator") == Path("/etc/ovis/c.pub")
+    assert public_key_path(CFG, "fusion") == Path("ovis-state/keys/fusion.pub")
+    named = msgspec.structs.replace(
+        CFG, trust=msgspec.structs.replace(CFG.trust, fusion_public="/etc/ovis/f.pub")
+    )
+    assert public_key_path(named, "fusion") == Path("/etc/ovis/f.pub")
 
 
 # --- which proven calibration a stage adopts --------------------------------------------

@@ -3,8 +3,8 @@
 Ed25519 library reads (``openssl pkey -pubin -in calibrator.pub -text``).
 
 Where they are: ``[trust] keys_dir`` (default ``<state_dir>/keys``) holds
-``<role>.key`` and ``<role>.pub``; ``[trust] calibrator_public`` and ``pose_public``
-name a public key copied from another host instead (docs/trust.md).
+``<role>.key`` and ``<role>.pub``; ``[trust] calibrator_public``, ``pose_public`` and
+``fusion_public`` name a public key copied from another host instead (docs/trust.md).
 """
 
 from __future__ import annotations
@@ -37,9 +37,9 @@ __all__ = [
     "public_pem",
 ]
 
-#: The stages whose word counts: the calibrator (calibrations) and the pose stage
-#: (obstacles, robots, the stream's health).
-ROLES = ("calibrator", "pose")
+#: The stages whose word counts: the calibrator (calibrations), the pose stage
+#: (obstacles, robots, the stream's health) and fusion (the several cameras' world).
+ROLES = ("calibrator", "pose", "fusion")
 #: Seconds between two reads of a public key file that is missing or bad.
 RETRY_S = 1.0
 
@@ -60,8 +60,9 @@ def private_key_path(cfg: OvisConfig, role: str) -> Path:
 
 def public_key_path(cfg: OvisConfig, role: str) -> Path:
     """The public key of ``role`` that this configuration trusts."""
-    named = {"calibrator": cfg.trust.calibrator_public, "pose": cfg.trust.pose_public}[role]
-    return Path(named) if named else keys_dir(cfg) / f"{role}.pub"
+    t = cfg.trust
+    named = {"calibrator": t.calibrator_public, "pose": t.pose_public, "fusion": t.fusion_public}
+    return Path(named[role]) if named[role] else keys_dir(cfg) / f"{role}.pub"
 
 
 def key_id(public: Ed25519PublicKey) -> bytes:

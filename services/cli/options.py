@@ -117,15 +117,16 @@ def config_with_options(config: Path | None, **options: Any):
 
 
 def with_trust(cfg, trust: Path | None):
-    """The configuration with ``--trust`` laid over its ``[trust]``: a folder gives both
-    public keys, a file the pose stage's."""
+    """The configuration with ``--trust`` laid over its ``[trust]``: a folder gives every
+    role's public key (``<role>.pub``), a file the pose stage's."""
     import msgspec
+
+    from ovis.common.trust.keys import ROLES
 
     if trust is None:
         return cfg
     if trust.is_dir():
-        keys = {"calibrator_public": str(trust / "calibrator.pub"),
-                "pose_public": str(trust / "pose.pub")}  # fmt: skip
+        keys = {f"{role}_public": str(trust / f"{role}.pub") for role in ROLES}
     else:
         keys = {"pose_public": str(trust)}
     return msgspec.structs.replace(cfg, trust=msgspec.structs.replace(cfg.trust, **keys))

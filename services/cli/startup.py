@@ -180,7 +180,7 @@ def services_config(cfg: Any, calib: Any) -> Any:
 
 
 def with_keys(cfg: Any) -> Any:
-    """The keys of the calibrator and the pose stage made (or, from an earlier run,
+    """The keys of the calibrator, the pose stage and fusion made (or, from an earlier run,
     loaded) in the state folder's ``keys/`` before anything starts, and the services'
     configuration naming that folder (absolute): every process it starts signs or
     verifies with them, none takes a key from the bus. A folder that cannot be written
@@ -189,7 +189,7 @@ def with_keys(cfg: Any) -> Any:
 
     folder = keys_dir(cfg).resolve()
     trust = msgspec.structs.replace(
-        cfg.trust, keys_dir=str(folder), calibrator_public="", pose_public=""
+        cfg.trust, keys_dir=str(folder), calibrator_public="", pose_public="", fusion_public=""
     )
     try:
         for role in ROLES:
