@@ -1,6 +1,7 @@
 """`ovis up --cameras 2x2` end to end (issue 19): a real process starting a router, four
 real capture → preprocess → label → pose chains rendering the simulated grid, and the
-fusion service; its JSON summary scores the fused world against the ground truth."""
+fusion service; its JSON summary scores the fused world against the ground truth, and
+counts the world frames it refused for want of the fusion key's proof of origin."""
 
 from __future__ import annotations
 
@@ -12,34 +13,82 @@ import tempfile
 import time
 from pathlib import Path
 
-from zenoh_helpers import free_port, ovis_cmd
+import msgspec
+from zenoh_helpers import client, free_port, ovis_cmd, wait_for
+
+from ovis.common.messages import ENCODING, Topics, WorldFrame, decode, encode
+from ovis.common.trust.keys import PublicKeyFile, load_or_create_private
+from ovis.common.trust.proof import Signer, Verifier
+from ovis.services.trust import attachment_of
 
 CAMERAS = ("cam00", "cam10", "cam01", "cam11")
+WORLD = Topics("default").world
+#: forged world frames published by another client: unsigned, then with the pose key
+FORGED = 5
 
 
 def _up(tmp_path: Path, duration_s: int) -> tuple[list[str], dict[str, str]]:
     """The `ovis up --cameras 2x2` command and its environment: on a loaded, shared 2-core
     host the world waits longer for a late camera and the cameras run at 15 frames/s (the
     30 frames/s budget is the benchmark's); the prerendered periods are kept between
-    runs in the system's temporary folder."""
+    runs in the system's temporary folder; the keys in ``tmp_path/state/keys``."""
     cfg = tmp_path / "wait.toml"
-    cfg.write_text("[fusion]\nwait_ms = 250.0\n")
+    cfg.write_text(f"[fusion]\nwait_ms = 250.0\n[service]\nstate_dir = '{tmp_path / 'state'}'\n")
     env = dict(os.environ, OVIS_CACHE=str(Path(tempfile.gettempdir()) / "ovis-test-cache"))
     args = ["up", "--cameras", "2x2", "--duration", str(duration_s), "--json", "--seed", "7"]
     args += ["--fps", "15", "--listen", f"tcp/127.0.0.1:{free_port()}", "--config", str(cfg)]
     return ovis_cmd(*args), env
 
 
+def _forge_world(endpoint: str, keys: Path, err: Path) -> str:
+    """Once every camera runs: check a genuine world frame's proof with the fusion
+    public key, then publish from another client ``FORGED`` copies of it moved 40 cm,
+    unsigned, and (once `ovis up` said it refused them) ``FORGED`` signed with the pose
+    key (trusted for obstacles, not for the world). The pose key's id."""
+    wait_for(lambda: "scoring the world" in err.read_text(), 200, "every camera running")
+    with client(endpoint) as session:
+        got: list[tuple[bytes, bytes | None]] = []
+        session.declare_subscriber(
+            WORLD, lambda s: got.append((s.payload.to_bytes(), attachment_of(s)))
+        )
+        wait_for(lambda: got, 20, "a genuine world frame")
+        payload, proof = got[0]
+        fusion = Verifier(PublicKeyFile(keys / "fusion.pub"))
+        assert fusion.problem(WORLD, payload, proof) is None
+        genuine = decode(payload, WorldFrame)
+        moved = [msgspec.structs.replace(o, x_cm=o.x_cm + 40.0) for o in genuine.objects]
+        fake = encode(msgspec.structs.replace(genuine, seq=10**6, objects=moved))
+        pub = session.declare_publisher(WORLD, encoding=ENCODING)
+        for _ in range(FORGED):
+            pub.put(fake)
+        said = "without the fusion service's proof of origin (last: no proof of origin)"
+        wait_for(lambda: said in err.read_text(), 20, "ovis up saying it refused them")
+        pose = Signer(load_or_create_private(keys / "pose.key"))
+        for _ in range(FORGED):
+            pub.put(fake, attachment=pose.attachment(WORLD, fake))
+        return pose.kid.hex()
+
+
 def test_up_cameras_2x2_gives_one_clean_world(tmp_path: Path) -> None:
     cmd, env = _up(tmp_path, 20)
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=240, env=env)
-    assert done.returncode == 0, done.stderr[-3000:]
-    summary = json.loads(done.stdout)
+    err = tmp_path / "up.err"
+    with err.open("w") as log:
+        up = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, text=True, env=env)
+    try:
+        endpoint = cmd[cmd.index("--listen") + 1]
+        pose_kid = _forge_world(endpoint, tmp_path / "state" / "keys", err)
+        out, _ = up.communicate(timeout=240)
+    finally:
+        if up.poll() is None:
+            up.kill()
+    stderr = err.read_text()
+    assert up.returncode == 0, stderr[-3000:]
+    summary = json.loads(out)
     # it said where each camera's chain runs and where the logs are
-    assert all(f"{name} on" in done.stderr for name in CAMERAS) and "logs in" in done.stderr
+    assert all(f"{name} on" in stderr for name in CAMERAS) and "logs in" in stderr
     # fusion on the last core, as a single camera's stages (any core on a 1-core host)
     allowed = sorted(os.sched_getaffinity(0))
-    assert f"fusion on {allowed[-1] if len(allowed) >= 2 else 'any'}" in done.stderr
+    assert f"fusion on {allowed[-1] if len(allowed) >= 2 else 'any'}" in stderr
     assert summary["grid"] == "2x2" and summary["seed"] == 7
     cams = summary["cameras"]
     assert sorted(cams) == sorted(CAMERAS)
@@ -57,6 +106,9 @@ def test_up_cameras_2x2_gives_one_clean_world(tmp_path: Path) -> None:
     for c in startup["cameras"].values():
         assert 0 <= c["dropped"] <= c["captured"]
     assert world["scored"] >= 0.8 * world["frames"] > 0
+    # the forged world frames were refused, counted, and the summary says the last why
+    assert world["unproven"] == 2 * FORGED, world
+    assert world["unproven_why"].startswith(f"signed by key {pose_kid}, not the trusted"), world
     assert world["duplicates"] == 0
     assert world["identity_swaps"] == 0
     assert world["phantoms"] == 0

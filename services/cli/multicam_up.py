@@ -2,7 +2,8 @@
 docs/cameras.md). A router, one capture → preprocess → label → pose chain per camera
 (separate processes, each on its camera's topics ``ovis/<arena>/cam/<name>/…`` and with
 its own camera model), and the fusion service; the supervisor restarts what dies. The
-summary scores the world against the simulated truth."""
+summary scores the world against the simulated truth: only world frames with the fusion
+key's proof of origin; the others are counted and said (docs/trust.md)."""
 
 from __future__ import annotations
 
@@ -173,6 +174,8 @@ def up_cameras(
             while not stop.is_set():
                 for news in fleet.supervise():
                     print(f"ovis up: {news}", file=sys.stderr)
+                if line := run.unproven.line():
+                    print(f"ovis up: {line}", file=sys.stderr, flush=True)
                 if duration is not None and time.monotonic() - began >= duration:
                     break
                 stop.wait(0.5)
@@ -211,6 +214,8 @@ class _Run:
     def __init__(self, names: list[str], grid: tuple[int, int], base: Any, topics: Any) -> None:
         from ovis.common.analysis.multicam import WorldWatch
         from ovis.common.sim.gridview import grid_specs
+        from ovis.services.cli.watching import UnprovenCount
+        from ovis.services.trust import verifier_for
 
         self.names, self.topics, self.base = names, topics, base
         nx, ny = grid
@@ -226,6 +231,9 @@ class _Run:
         # frames stamped before this are the start-up's: not scored, counted apart (set,
         # in the future, once every camera runs)
         self.clock_from = sys.maxsize
+        # world frames without the fusion key's proof: never scored, counted and said
+        self.verifier = verifier_for(base, "fusion")
+        self.unproven = UnprovenCount("the fusion service")
 
     def attach(self, session: Any) -> None:
         from ovis.common.messages import (
@@ -234,11 +242,16 @@ class _Run:
             WorldFrame,
             decode,
         )
+        from ovis.services.trust import unproven
 
         def on_world(sample: Any) -> None:
             now = time.time_ns()
+            payload = sample.payload.to_bytes()
+            if problem := unproven(self.verifier, sample, payload):
+                self.unproven.add(problem)
+                return
             with contextlib.suppress(MessageError):
-                self.watch.add_world(decode(sample.payload.to_bytes(), WorldFrame), now)
+                self.watch.add_world(decode(payload, WorldFrame), now)
 
         # Zenoh calls one subscriber's callback at a time: the counts need no lock. Each
         # camera's truth holds the whole floor: it is read whole once per stamp; of the
@@ -311,6 +324,9 @@ class _Run:
                     "max": score.world_error_cm_max,
                 },
                 "latency_ms": latency,
+                # world frames refused for want of the fusion key's proof, and the last why
+                "unproven": self.unproven.n,
+                "unproven_why": self.unproven.why,
             },
             # where the time goes: capture → each camera's pose published (its chain),
             # → the world published by fusion (chains, the wait for the slowest, merging)
@@ -408,6 +424,7 @@ def _wait_prerendered(
 
 def _print_summary(summary: dict[str, Any]) -> None:
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     con = Console(highlight=False)
@@ -434,3 +451,8 @@ def _print_summary(summary: dict[str, Any]) -> None:
         f" cm; latency capture → world p50 {w['latency_ms']['p50']:.1f} ms, p99 "
         f"{w['latency_ms']['p99']:.1f} ms"
     )
+    if w["unproven"]:
+        con.print(
+            f"[red]refused {w['unproven']} world frame(s) without the fusion service's proof "
+            f"of origin (last: {escape(w['unproven_why'])})[/]"
+        )
