@@ -383,8 +383,10 @@ def test_the_router_itself_drops_denied_puts_and_queries(secure: Secure):
     """The Python client of a viewer does not even send its frames: the router does not
     pass subscriber declarations on to it, so it knows of no subscriber and filters its
     own puts. A hostile client would send anyway. Model one by letting the router tell the
-    viewer about every subscriber and queryable (declare_* egress): the router's ingress
-    rules must still drop its puts on frames and obstacles and its calibrate query."""
+    viewer and the pose stage about every subscriber and queryable (declare_* egress): the
+    router's ingress rules must still drop the viewer's puts on frames, obstacles and the
+    world and its calibrate query, and the pose stage's world; only fusion's world
+    passes."""
     endpoint = f"tls/127.0.0.1:{free_port()}"
     conf = secure.router_conf(endpoint)
     acl = json.loads(conf.get_json("access_control"))
@@ -407,16 +409,22 @@ def test_the_router_itself_drops_denied_puts_and_queries(secure: Secure):
     for policy in acl["policies"]:
         if "viewer" in policy["subjects"]:
             policy["rules"] += ["hostile", "probe"]
+        if "pose" in policy["subjects"]:
+            policy["rules"] += ["hostile"]
     conf.insert_json5("access_control", json.dumps(acl))
     with (
         zenoh.open(conf),
         secure.session("operator", endpoint=endpoint) as op,
         secure.session("calibrator", endpoint=endpoint) as calibrator,
         secure.session("viewer", endpoint=endpoint) as viewer,
+        secure.session("pose", endpoint=endpoint) as pose,
+        secure.session("fusion", endpoint=endpoint) as fusion,
     ):
         got: list[str] = []
+        world: list[bytes] = []
         for key in ("ovis/default/frames", "ovis/default/obstacles", "ovis/default/probe"):
             op.declare_subscriber(key, lambda s: got.append(str(s.key_expr)), allowed_origin=REMOTE)
+        op.declare_subscriber("ovis/default/world", lambda s: world.append(s.payload.to_bytes()))
         calls: list[int] = []
         calibrator.declare_queryable(
             "ovis/default/calibrate", lambda q: (calls.append(1), q.reply(q.key_expr, b"done"))
@@ -426,10 +434,15 @@ def test_the_router_itself_drops_denied_puts_and_queries(secure: Secure):
             viewer.put("ovis/default/frames", b"\xc1garbage", congestion_control=BLOCK)
             viewer.put("ovis/default/obstacles", b"spoofed", congestion_control=BLOCK)
             viewer.put("ovis/default/probe", b"probe", congestion_control=BLOCK)
+            viewer.put("ovis/default/world", b"viewer", congestion_control=BLOCK)
+            pose.put("ovis/default/world", b"pose", congestion_control=BLOCK)
+        fusion.put("ovis/default/world", b"fusion", congestion_control=BLOCK)
         replies = list(viewer.get("ovis/default/calibrate", timeout=2.0))
         wait_for(lambda: "ovis/default/probe" in got, 5, "the viewer's allowed put")
+        wait_for(lambda: world, 5, "fusion's world")
         time.sleep(0.5)
         assert set(got) == {"ovis/default/probe"}
+        assert world == [b"fusion"]
         assert replies == [] and calls == []
         # the operator's own query does reach the queryable
         assert [r.ok.payload.to_bytes() for r in op.get("ovis/default/calibrate") if r.ok]

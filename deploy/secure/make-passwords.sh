@@ -2,8 +2,8 @@
 # Passwords for ovis's secure Zenoh profile, and each user's client configuration.
 #
 #   deploy/secure/make-passwords.sh OUT_DIR [USER]...
-#   (default users: the five services capture preprocess label pose calibrator, each
-#   its own identity, and the people: operator viewer)
+#   (default users: the six services capture preprocess label pose calibrator fusion,
+#   each its own identity, and the people: operator viewer)
 #
 # For each USER (letters, digits, '_', '.', '-'):
 #   - OUT_DIR/passwords.txt (the router's dictionary_file, "user:password" lines, mode
@@ -24,7 +24,7 @@ usage() {
 case "$1" in -h | --help | -*) usage ;; esac
 out=$1
 shift
-[ $# -gt 0 ] || set -- capture preprocess label pose calibrator operator viewer
+[ $# -gt 0 ] || set -- capture preprocess label pose calibrator fusion operator viewer
 here=$(cd "$(dirname "$0")" && pwd)
 template="$here/client.json5"
 [ -f "$template" ] || {
