@@ -120,7 +120,8 @@ class Service:
         def check(sample: zenoh.Sample, payload: bytes) -> bool:
             if (problem := unproven(verifier, sample, payload)) is None:
                 return True
-            self.error(f"unproven_{what}", f"dropped {what} without the {role}'s proof: {problem}")
+            said = f"dropped {what} without a current proof from the {role}: {problem}"
+            self.error(f"unproven_{what}", said)
             return False
 
         return check

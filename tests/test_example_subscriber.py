@@ -192,6 +192,8 @@ def _publish_until(
                 put(b"\x93\x01\x02\x03")  # an array, not a map
                 # and a frame without the proof (seq beyond any sent): dropped, counted
                 publisher.put(encode(_frame(10**6 + seq, robot=robot, marked=marked)))
+                if seq:  # and the previous genuine frame again, with its proof: a replay
+                    put(encode(sent[seq - 1]))
             sent[seq] = _frame(seq, robot=robot, marked=marked)
             put(encode(sent[seq]))
             seq += 1
@@ -238,6 +240,8 @@ def test_json_lines_carry_the_published_frames() -> None:
     assert all(g["seq"] < 10**6 for g in got)  # the unproven frames were never printed
     assert any(line.startswith("dropped 1 unproven message(s) (no proof of origin)")
                for line in err.lines), err.lines  # fmt: skip
+    assert any("unproven message(s) (replayed: seq" in line for line in err.lines), err.lines
+    assert len(seqs) == len(set(seqs))  # the replayed frames were never printed again
 
 
 def test_text_output_names_robot_and_each_obstacle() -> None:

@@ -10,11 +10,19 @@ import threading
 from pathlib import Path
 
 import msgspec
+import numpy as np
 import pytest
 
 from ovis.common.calibration.file import calibration_from_config
 from ovis.common.config import load_config
-from ovis.common.messages import ObstacleFrame, Topics, encode
+from ovis.common.messages import (
+    CalibrationUpdate,
+    ObstacleFrame,
+    StreamHealth,
+    Topics,
+    decode,
+    encode,
+)
 from ovis.common.pipeline.following import CONFLICT_HOLD_S, Answer, CalibrationFollower, pick
 from ovis.common.trust.keys import (
     PublicKeyFile,
@@ -23,6 +31,7 @@ from ovis.common.trust.keys import (
     load_public,
     public_key_path,
 )
+from ovis.common.trust.order import ReplayGuard
 from ovis.common.trust.proof import Signer, Verifier
 
 CFG = load_config()
@@ -201,3 +210,78 @@ def test_a_conflict_is_said_until_it_has_not_been_seen_for_a_while() -> None:
     said = follower.problem(now=100.0 + CONFLICT_HOLD_S - 0.1)
     assert said == "calibration_conflict: replier f: refused, no proof of origin"
     assert follower.problem(now=100.0 + CONFLICT_HOLD_S) is None
+
+
+# --- replays of genuine messages (common/trust/order.py) ---------------------------
+
+NOW = 1_800_000_000 * 10**9
+
+
+def _obstacles(seq: int, stamp_ns: int, stream: str = "s1") -> bytes:
+    return encode(msgspec.structs.replace(decode(PAYLOAD, ObstacleFrame), seq=seq,
+                                          stamp_ns=stamp_ns, stream=stream))  # fmt: skip
+
+
+def test_a_replayed_genuine_message_is_refused_by_the_verifier(keys) -> None:
+    """The proof verifies on a replay (same bytes): the verifier refuses it all the same,
+    and any other consumer (its own verifier) still takes the message once."""
+    signer, verifier, path = keys
+    first, second = _obstacles(1, NOW), _obstacles(2, NOW + 10**8)
+    for payload in (first, second):
+        assert verifier.problem(KEY, payload, signer.attachment(KEY, payload)) is None
+    why = verifier.problem(KEY, first, signer.attachment(KEY, first))
+    assert why is not None and why.startswith("replayed or out of order: seq 1 of stream s1")
+    other = Verifier(PublicKeyFile(path.with_suffix(".pub")))
+    assert other.problem(KEY, first, signer.attachment(KEY, first)) is None
+
+
+def test_order_rules_per_key() -> None:
+    guard = ReplayGuard()
+    take = lambda seq, stamp, stream="s1", key=KEY: guard.problem(  # noqa: E731
+        key, _obstacles(seq, stamp, stream), NOW
+    )
+    assert take(5, NOW - 10**9) is None  # the first on its key
+    assert take(6, NOW - 2 * 10**9) is None  # same stream, next seq: its clock stepped back
+    assert take(6, NOW - 2 * 10**9).startswith("replayed or out of order: seq 6 of stream s1")
+    assert take(5, NOW - 10**9) is not None  # an earlier one of the stream, stamped later
+    assert take(0, NOW + 2 * 10**9, "s2") is None  # the capture restarted: a new stream
+    assert take(9, NOW + 3 * 10**9, "s1").startswith("replayed: stream s1 (seq 9) was replaced")
+    assert take(1, NOW - 3600 * 10**9, "old").startswith("replayed: stamped 3602.000 s before")
+    assert take(1, NOW - 10**9, "s3") is None  # new, fresh: a restart after a clock step
+    assert take(5, NOW - 10**9, key=Topics("default").of_camera("cam01").obstacles) is None
+
+
+def test_health_is_ordered_by_its_publication_and_a_calibration_not_at_all() -> None:
+    guard = ReplayGuard()
+    key = Topics("default").health
+
+    def health(published_ns: int) -> bytes:
+        return encode(StreamHealth(state="ok", published_ns=published_ns))
+
+    assert guard.problem(key, health(NOW - 10 * 10**9), NOW) is None
+    assert guard.problem(key, health(NOW - 9 * 10**9), NOW) is None
+    assert guard.problem(key, health(NOW - 10 * 10**9), NOW) is not None  # an older one
+    assert guard.problem(key, health(NOW - 10**9), NOW) is None
+    update = encode(CalibrationUpdate(calibration=calibration_from_config(CFG)))
+    for _ in range(3):  # the same calibration, asked again and again: never a replay here
+        assert guard.problem(Topics("default").calibration, update, NOW) is None
+    assert guard.problem(KEY, b"\xc1 not msgpack", NOW) is None  # its decoding says why
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_no_earlier_message_is_ever_taken_again(seed: int) -> None:
+    """Property: genuine runs (streams one after another, seqs rising, stamps rising,
+    recorded long ago) interleaved with replays of any earlier message of any run: every
+    genuine message is taken, no replay is."""
+    rng = np.random.default_rng(seed)
+    guard = ReplayGuard()
+    sent: list[bytes] = []
+    stamp = NOW - 7200 * 10**9
+    for run in range(4):
+        for seq in range(int(rng.integers(1, 30))):
+            stamp += int(rng.integers(1, 10**8))
+            message = _obstacles(seq, stamp, f"run{run}")
+            assert guard.problem(KEY, message, NOW) is None, (run, seq)
+            sent.append(message)
+            for old in rng.choice(len(sent), size=int(rng.integers(0, 3))):
+                assert guard.problem(KEY, sent[old], NOW) is not None

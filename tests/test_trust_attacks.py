@@ -283,18 +283,30 @@ def test_a_replayed_older_genuine_calibration_is_refused(up: Up, client: Observe
 
 
 @pytest.mark.processes_kept_by_the_module
+@contextlib.contextmanager
+def _watch(up: Up, seconds: int) -> Iterator[subprocess.Popen[str]]:
+    """`ovis watch --json` for ``seconds``, trusting the pose stage's key (killed if the
+    test ends before it)."""
+    watch = subprocess.Popen(
+        [sys.executable, "-m", "ovis.services.cli", "watch", "--connect", up.endpoint,
+         "--json", "--duration", str(seconds), "--trust", str(up.state / "keys" / "pose.pub")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        yield watch
+    finally:
+        if watch.poll() is None:
+            watch.kill()
+            watch.communicate()
+
+
 def test_forged_obstacle_messages_are_neither_shown_nor_believed(up: Up, client: Observer) -> None:
     wait_for(lambda: client.raw, 10, "a genuine obstacle message")
     payload, proof = client.raw[-1]
     template = _unpack(payload)
-    watch = subprocess.Popen(
-        [sys.executable, "-m", "ovis.services.cli", "watch", "--connect", up.endpoint,
-         "--json", "--duration", "8", "--trust", str(up.state / "keys" / "pose.pub")],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
     before = up.api_state()["health"].get("unproven", {}).get("obstacles", 0)
     forged_seqs, shown = set(), []
-    try:
+    with _watch(up, 8) as watch:
         time.sleep(2.0)  # watch is listening
         for i in range(40):
             forged = dict(template, seq=10**9 + i, obstacles=[
@@ -307,16 +319,12 @@ def test_forged_obstacle_messages_are_neither_shown_nor_believed(up: Up, client:
             shown.append(up.api_state()["obstacles"]["seq"])
             time.sleep(0.05)
         out, err = watch.communicate(timeout=30)
-    finally:
-        if watch.poll() is None:
-            watch.kill()
-            watch.communicate()
     lines = [json.loads(line) for line in out.splitlines()]
     frames = [m for m in lines if m["type"] == "obstacles"]
     assert frames, err  # the genuine ones are shown
     assert not forged_seqs & {m["seq"] for m in frames}
     assert not forged_seqs & set(shown)
-    dropped = [line for line in err.splitlines() if "without the pose stage's proof" in line]
+    dropped = [line for line in err.splitlines() if "proof of origin from the pose stage" in line]
     assert dropped, err
     n = int(dropped[-1].split("dropped ")[1].split(" ")[0])
     assert n >= 80, dropped[-1]  # every forged one (and the watch says why)
@@ -328,3 +336,41 @@ def test_forged_obstacle_messages_are_neither_shown_nor_believed(up: Up, client:
         "the view to count the 80 forged messages",
     )
     print(f"\nforged obstacles: watch {dropped[-1]!r}; view unproven {state['health']['unproven']}")
+
+
+def test_replayed_genuine_obstacle_messages_are_neither_shown_nor_believed(
+    up: Up, client: Observer
+) -> None:
+    """Genuine obstacle messages recorded off the bus, sent again later with their
+    genuine proofs (they verify): `ovis watch` and the view never show them again, and
+    both count them with the reason."""
+    wait_for(lambda: len(client.raw) >= 20, 20, "20 genuine obstacle messages")
+    with client.lock:
+        recorded = list(client.raw[:20])
+    old_seqs = {_unpack(payload)["seq"] for payload, _ in recorded}
+    before = up.api_state()["health"].get("unproven", {}).get("obstacles", 0)
+    shown = []
+    with _watch(up, 6) as watch:
+        time.sleep(2.0)  # watch is listening and has taken genuine messages
+        for payload, proof in recorded:
+            client.session.put(f"{ROOT}/obstacles", payload, attachment=proof)
+            shown.append(up.api_state()["obstacles"]["seq"])
+            time.sleep(0.05)
+        out, err = watch.communicate(timeout=30)
+    frames = [m for m in map(json.loads, out.splitlines()) if m["type"] == "obstacles"]
+    assert frames, err  # the genuine ones are shown
+    assert not old_seqs & {m["seq"] for m in frames}
+    assert not old_seqs & set(shown)
+    dropped = [line for line in err.splitlines() if "proof of origin from the pose stage" in line]
+    assert dropped and "replayed" in dropped[-1], err
+    assert int(dropped[-1].split("dropped ")[1].split(" ")[0]) >= len(recorded), dropped[-1]
+    state = wait_for(
+        lambda: (
+            (s := up.api_state())["health"]["unproven"].get("obstacles", 0) - before
+            >= len(recorded)
+            and s
+        ),
+        5,
+        "the view to count the replayed messages",
+    )
+    print(f"\nreplayed obstacles: watch {dropped[-1]!r}; view {state['health']['unproven']}")

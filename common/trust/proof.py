@@ -8,12 +8,14 @@ The payload stays as it is (MessagePack). The attachment is a MessagePack map wi
 so a proof cannot be moved to another key expression (another arena or topic) nor to
 other bytes. Other keys of the map are ignored (``ovis replay`` puts its replay mark in
 the attachment too). What it does not prove: that a message is new (a recorded genuine
-message replays with its proof): calibrations carry their store's identity and version
-for that (:mod:`ovis.common.pipeline.following`).
+message replays with its proof): a :class:`Verifier` also refuses a proven message that
+does not come after the last one on its key (:mod:`.order`); calibrations carry their
+store's identity and version for that (:mod:`ovis.common.pipeline.following`).
 """
 
 from __future__ import annotations
 
+import time
 from typing import Annotated
 
 import msgspec
@@ -21,6 +23,7 @@ from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from ovis.common.trust.keys import PublicKeyFile, key_id
+from ovis.common.trust.order import ReplayGuard
 
 __all__ = ["DOMAIN", "Proof", "Signer", "Verifier", "signed_bytes"]
 
@@ -57,13 +60,23 @@ class Signer:
 
 
 class Verifier:
-    """Checks the proof of a received message against one trusted public key file."""
+    """Checks the proof of a received message against one trusted public key file, and
+    that a proven message is not a replay (:class:`~.order.ReplayGuard`: each consumer
+    has its own, as it has its own last message per key)."""
 
     def __init__(self, trusted: PublicKeyFile) -> None:
         self.trusted = trusted
+        self.order = ReplayGuard()
 
     def problem(self, key_expr: str, payload: bytes, attachment: bytes | None) -> str | None:
-        """Why the message is not proven to come from the key's holder, or None."""
+        """Why the message is not proven to come from the key's holder now (no proof, a
+        bad one, or a replay of a genuine one), or None: it is taken."""
+        if why := self._unsigned(key_expr, payload, attachment):
+            return why
+        return self.order.problem(key_expr, payload, time.time_ns())
+
+    def _unsigned(self, key_expr: str, payload: bytes, attachment: bytes | None) -> str | None:
+        """Why the message is not signed by the key's holder, or None."""
         key = self.trusted.key()
         if key is None:
             return f"cannot verify: {self.trusted.problem}"

@@ -24,6 +24,12 @@ the first 8 bytes of SHA-256 of the raw 32-byte public key) and ``sig`` (64 byte
 Ed25519 signature of ``b"ovis-proof-v1\0" + key_expr + b"\0" + payload``, the key
 expression as UTF-8 and the payload's exact bytes). Any Ed25519 library checks it.
 
+A proof says who published a message, not that it is new: a recorded genuine message
+sent again verifies. So a message is also dropped unless it comes after the last one
+taken (:class:`ReplayCheck`): the same capture ``stream`` with a higher ``seq``, or a
+stream never seen before (the capture restarted) with a later ``stamp_ns`` or one
+within ``FRESH_S`` of this machine's clock (a restart after its clock stepped back).
+
 The message
 -----------
 Each payload (Zenoh encoding ``application/msgpack``) is one MessagePack **map** whose
@@ -66,6 +72,7 @@ import queue
 import re
 import signal
 import sys
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TextIO
@@ -75,6 +82,7 @@ import zenoh
 
 __all__ = [
     "BadMessageError",
+    "ReplayCheck",
     "client_config",
     "format_json",
     "format_text",
@@ -86,6 +94,9 @@ __all__ = [
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 DEFAULT_TRUST = "ovis-state/keys/pose.pub"
 DOMAIN = b"ovis-proof-v1\x00"
+#: How close to this machine's clock a new capture stream's first message must be
+#: stamped when it is not later than the last message taken, s.
+FRESH_S = 5.0
 #: Messages waiting to be printed, at most (more are skipped).
 INBOX = 1000
 MESSAGE_TYPE = "obstacles"
@@ -142,6 +153,31 @@ def proof_checker(pem_file: str) -> Callable[[str, bytes, bytes | None], str | N
         return None
 
     return problem
+
+
+class ReplayCheck:
+    """Whether a proven message comes after the last one taken (a replay does not)."""
+
+    def __init__(self) -> None:
+        self.stream, self.seq, self.stamp = "", -1, -1
+        self.streams: set[str] = set()
+
+    def problem(self, msg: dict[str, Any], now_ns: int) -> str | None:
+        """Why ``msg`` is a replay or out of order, or None: it is taken."""
+        stream, seq, stamp = str(msg.get("stream", "")), msg["seq"], msg.get("stamp_ns", 0)
+        if not (isinstance(seq, int) and isinstance(stamp, int)):
+            return "seq and stamp_ns must be integers"
+        if stream and stream == self.stream:  # the same run: its seq must rise
+            taken = seq > self.seq
+        elif stream and stream in self.streams:  # a run that was replaced: never again
+            taken = False
+        else:  # a new run (or none named): later than the last, or stamped now
+            taken = stamp > self.stamp or abs(now_ns - stamp) <= FRESH_S * 1e9
+        if self.stamp >= 0 and not taken:
+            return f"replayed: seq {seq} of stream {stream or '-'} after seq {self.seq}"
+        self.stream, self.seq, self.stamp = stream, seq, stamp
+        self.streams.add(stream)
+        return None
 
 
 def parse(payload: bytes) -> dict[str, Any]:
@@ -252,21 +288,25 @@ def main(
         session.declare_subscriber(key, on_sample)
         print(f"subscribed to {key}", file=sys.stderr, flush=True)
         seen = dropped = 0
+        replays = ReplayCheck()
         while count is None or seen < count:
             try:
                 where, payload, attachment = inbox.get(timeout=0.2)
             except queue.Empty:
                 continue
             problem = check(where, payload, attachment)
-            if problem is not None:
+            msg: dict[str, Any] | None = None
+            if problem is None:
+                try:
+                    msg = parse(payload)
+                except BadMessageError as exc:
+                    print(f"skipped a message on {where}: {exc}", file=sys.stderr)
+                    continue
+                problem = replays.problem(msg, time.time_ns())
+            if problem is not None or msg is None:
                 dropped += 1
                 if dropped <= 5 or dropped % 100 == 0:
                     print(f"dropped {dropped} unproven message(s) ({problem})", file=sys.stderr)
-                continue
-            try:
-                msg = parse(payload)
-            except BadMessageError as exc:
-                print(f"skipped a message on {where}: {exc}", file=sys.stderr)
                 continue
             seen += 1
             out.write((format_json(msg) if as_json else format_text(msg)) + "\n")

@@ -77,7 +77,8 @@ def format_health(msg: StreamHealth) -> str:
 
 
 class UnprovenCount:
-    """Messages dropped for lack of a signer's proof, and the line that says so: at the
+    """Messages dropped for lack of a signer's proof (none, a bad one, or the proof of a
+    replayed message), and the line that says so: at the
     first one, then every ``every_s`` while more come, and at the end (thread-safe:
     Zenoh's threads count, the main thread says)."""
 
@@ -101,8 +102,8 @@ class UnprovenCount:
                 return None
             self._said, self._said_at = self.n, now
             return (
-                f"dropped {self.n} message(s) without {self.signer}'s proof of origin "
-                f"(last: {self.why})"
+                f"dropped {self.n} message(s) without a current proof of origin from "
+                f"{self.signer} (last: {self.why})"
             )
 
 
