@@ -385,6 +385,10 @@ class StreamHealth(_Msg, tag="health", kw_only=True):
     frames_dropped: int = 0
     calibration_version: int = 0
     reason: str = ""  # why "degraded", "failing" or "source lost"
+    #: the pose stage's run (random, new at each start) and this message's number in it,
+    #: so that a reader tells a replayed health message (:mod:`ovis.common.trust.order`)
+    stream: str = ""
+    seq: Annotated[int, msgspec.Meta(ge=0)] = 0
 
 
 class SourceGap(msgspec.Struct, kw_only=True):
@@ -445,6 +449,9 @@ class WorldFrame(_Msg, tag="world", kw_only=True):
     cameras: list[str]
     missing: list[str] = []
     late_frames: dict[str, Annotated[int, msgspec.Meta(ge=0)]] = {}
+    #: the fusion service's run (random, new at each start): ``seq`` counts within it,
+    #: so that a reader tells a replayed world frame (:mod:`ovis.common.trust.order`)
+    stream: str = ""
 
 
 class TruthFrame(_Msg, tag="truth", kw_only=True):

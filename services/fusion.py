@@ -7,6 +7,7 @@ for, and each world frame names the cameras missing from it."""
 
 from __future__ import annotations
 
+import secrets
 import threading
 import time
 
@@ -56,8 +57,10 @@ def frame_columns(name: str, msg: ObstacleFrame) -> Sightings:
     return Sightings((name,), data, np.arange(len(data)) < robots, resolved=False)
 
 
-def world_message(r: WorldFrameResult, seq: int, arena: str, late: dict[str, int]) -> WorldFrame:
-    """The world topic's message of one fused world frame."""
+def world_message(
+    r: WorldFrameResult, seq: int, arena: str, late: dict[str, int], stream: str = ""
+) -> WorldFrame:
+    """The world topic's message of one fused world frame (``seq`` of the run ``stream``)."""
     return WorldFrame(
         seq=seq,
         stamp_ns=r.stamp_ns,
@@ -81,6 +84,7 @@ def world_message(r: WorldFrameResult, seq: int, arena: str, late: dict[str, int
         cameras=r.cameras,
         missing=r.missing,
         late_frames=dict(late),
+        stream=stream,
     )
 
 
@@ -156,11 +160,12 @@ def main(service: Service) -> None:
     # readers believe only world frames this key signed (docs/trust.md)
     publish = service.publisher(service.topics.world, signer=signer_for(cfg, "fusion"))
     seq = received = 0
+    stream = secrets.token_hex(8)  # this run's: its seq starts again at 0
 
     def emit(results: list[WorldFrameResult]) -> None:
         nonlocal seq
         for r in results:
-            out = world_message(r, seq, service.topics.arena, fuser.matcher.late)
+            out = world_message(r, seq, service.topics.arena, fuser.matcher.late, stream)
             seq += 1
             publish(out)
             service.sent()

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import stat
 import threading
+import time
 from pathlib import Path
 
 import msgspec
@@ -24,6 +25,7 @@ from ovis.common.messages import (
     encode,
 )
 from ovis.common.pipeline.following import CONFLICT_HOLD_S, Answer, CalibrationFollower, pick
+from ovis.common.pipeline.health import StreamWatch
 from ovis.common.trust.keys import (
     PublicKeyFile,
     key_id,
@@ -266,6 +268,24 @@ def test_health_is_ordered_by_its_publication_and_a_calibration_not_at_all() -> 
     for _ in range(3):  # the same calibration, asked again and again: never a replay here
         assert guard.problem(Topics("default").calibration, update, NOW) is None
     assert guard.problem(KEY, b"\xc1 not msgpack", NOW) is None  # its decoding says why
+
+
+def test_the_pose_stage_numbers_its_health_messages_in_its_run() -> None:
+    """A health message says its run and number: a replay of an earlier one of the run
+    is refused, however fresh; a restarted pose stage's first one is taken."""
+    guard, key = ReplayGuard(), Topics("default").health
+
+    def health(watch: StreamWatch) -> bytes:
+        return encode(watch.message(last_seq=3, seconds_since_frame=0.1, last_frame_age_ms=2.0,
+                                    frames_dropped=0, calibration_version=1))  # fmt: skip
+
+    run = StreamWatch(timeout_s=1.0)
+    first, second = health(run), health(run)
+    assert (decode(first, StreamHealth).seq, decode(second, StreamHealth).seq) == (0, 1)
+    now = time.time_ns()
+    assert guard.problem(key, first, now) is None and guard.problem(key, second, now) is None
+    assert guard.problem(key, first, now).startswith("replayed or out of order: seq 0")
+    assert guard.problem(key, health(StreamWatch(timeout_s=1.0)), now) is None  # restarted
 
 
 @pytest.mark.parametrize("seed", range(20))

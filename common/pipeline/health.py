@@ -8,6 +8,7 @@ data" and from "wrong data"."""
 
 from __future__ import annotations
 
+import secrets
 import time
 from collections.abc import Iterable
 
@@ -108,6 +109,8 @@ class StreamWatch:
         self.timeout_s = timeout_s
         self.state = "waiting"
         self.reason = ""  # why the source is lost
+        self.stream = secrets.token_hex(8)  # this run's health messages, numbered
+        self.sent = 0
 
     def classify(self, seconds_since_frame: float | None) -> str:
         """The stream's state ``seconds_since_frame`` after the last frame (None: none yet)."""
@@ -148,4 +151,10 @@ class StreamWatch:
             last_frame_age_ms=last_frame_age_ms,
             frames_dropped=frames_dropped,
             calibration_version=calibration_version,
+            stream=self.stream,
+            seq=self._next(),
         )
+
+    def _next(self) -> int:
+        self.sent += 1
+        return self.sent - 1

@@ -4,15 +4,15 @@ A consumer therefore also checks, per key expression, that a proven message come
 the last one it took.
 
 What orders a message is what it says of itself, read by field name as any reader
-would: its capture ``stream`` (new at each start of the capture) and ``seq`` within it,
-and its ``stamp_ns`` (the obstacles' capture time; the health's ``published_ns``). A
-message is taken when
+would: its run, ``stream`` (random, new at each start: the capture's for obstacles, the
+pose stage's for the health, fusion's for the world), its ``seq`` within it, and its
+stamp (``stamp_ns``, else ``published_ns``). A message is taken when
 
 1. it is the first on its key, or
 2. it continues the stream last taken with a higher ``seq`` (a clock that steps back
    inside a stream changes nothing), or
-3. its stream was never taken (a new one: the capture restarted; or it names none, as
-   the health) and it is stamped after the last message taken, or within
+3. its stream was never taken (a new one: a restart; or it names none, an older
+   sender) and it is stamped after the last message taken, or within
    :data:`FRESH_S` of the receiver's clock (a capture restarted after its clock
    stepped back is not refused until the clock catches up).
 
