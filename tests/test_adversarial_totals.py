@@ -1,7 +1,8 @@
 """Issue 28's forged status replies against `ovis up`: a client that knows only Zenoh and
 MessagePack answers the status queries in the name of `ovis up`'s own processes (right
 pid, host and start time, or another start time, or a new pid each time) with a billion
-frames and drops; the summary's totals do not move."""
+frames and drops; the summary's totals do not move, and its health says that two
+different answers came in their name."""
 
 from __future__ import annotations
 
@@ -59,3 +60,6 @@ def test_forged_statuses_do_not_move_ovis_ups_totals(tmp_path: Path) -> None:
     # 15 s at 10 fps: about 150 frames, never a billion
     assert 0 < summary["frames_captured"] < 1000, summary
     assert all(n < 1000 for n in summary["dropped"].values()), summary["dropped"]
+    # and the summary says someone answered in their name: never "ok" over a conflict
+    for service in ("capture", "pose"):
+        assert "two different status answers in its name" in summary["health"][service], summary

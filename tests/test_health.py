@@ -11,7 +11,7 @@ from ovis.common.analysis.live import LiveScore, position_error_flag
 from ovis.common.messages import ObstacleFrame, ServiceStatus
 from ovis.common.pipeline.counters import MAX_PLAUSIBLE_GAP, StageCounters
 from ovis.common.pipeline.health import HEALTH_WINDOW_S, StreamWatch, stage_verdict
-from ovis.common.pipeline.totals import CounterTotals, least
+from ovis.common.pipeline.totals import CounterTotals, claimed_once, least
 
 
 def _outcomes(pattern: str, now: float = 100.0) -> list[tuple[float, bool]]:
@@ -135,6 +135,26 @@ def test_forged_statuses_in_a_process_name_cannot_raise_its_totals() -> None:
     totals.record(genuine)
     t = totals.totals()["pose"]
     assert (t.frames_in, t.frames_out, t.dropped, t.processes) == (50, 40, 1, 1)
+
+
+def test_a_forged_ok_in_a_process_name_never_hides_its_trouble() -> None:
+    """Two different replies for one process: which is genuine cannot be told, so the
+    state is the worse and at least "degraded", said; one reply twice is just that."""
+    genuine = _status(10, 1, frames_in=50, frames_out=40)
+    assert claimed_once(genuine, genuine) is genuine
+    failing = msgspec.structs.replace(genuine, state="failing", reason="pose: 9 errors")
+    forged_ok = msgspec.structs.replace(genuine, frames_in=10**9)
+    for first, second in ((failing, forged_ok), (forged_ok, failing)):
+        got = claimed_once(first, second)
+        assert (got.state, got.frames_in) == ("failing", 50)
+        assert got.reason.startswith("two different status answers in its name")
+        assert "failing (pose: 9 errors)" in got.reason
+    lost = msgspec.structs.replace(genuine, service="capture", state="source lost")
+    assert claimed_once(forged_ok, lost).state == "source lost"  # ovis up still exits 3
+    both_ok = claimed_once(genuine, forged_ok)  # both "ok", counts differ: a forger
+    assert (both_ok.state, both_ok.frames_in) == ("degraded", 50)
+    waiting = msgspec.structs.replace(genuine, state="waiting for input")
+    assert claimed_once(waiting, forged_ok).state == "degraded"
 
 
 def test_the_summary_flags_an_error_over_matched_objects_only() -> None:

@@ -8,7 +8,9 @@ only what its own reply also says: when several replies claim one process, each 
 is their smallest (:func:`least`; the genuine reply is among them, so a forged one can
 lower a count for one poll but never raise it), and a process is its pid and host alone
 (a reply with another start time cannot make the process's counts "finished" and
-counted twice)."""
+counted twice). Replies that claim one process and differ are themselves the sign of a
+forger (a process answers a query once): :func:`claimed_once` then says so in the
+state, never better than the worse of them."""
 
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ import msgspec
 
 from ovis.common.messages import ServiceStatus
 
-__all__ = ["COUNTERS", "CounterTotals", "ServiceTotals", "least"]
+__all__ = ["COUNTERS", "CounterTotals", "ServiceTotals", "claimed_once", "least"]
 
 #: The counters a status carries that the totals add up.
 COUNTERS = ("frames_in", "frames_out", "dropped", "seq_jumps", "stream_restarts")
@@ -50,6 +52,35 @@ def least(a: ServiceStatus, b: ServiceStatus) -> ServiceStatus:
     errors = {k: min(n, b.errors.get(k, 0)) for k, n in a.errors.items() if k in b.errors}
     smaller = {name: min(getattr(a, name), getattr(b, name)) for name in COUNTERS}
     return msgspec.structs.replace(a, errors=errors, **smaller)
+
+
+#: States by how bad they are, for two replies that disagree (any other state: 2).
+_RANK = {"ok": 0, "starting": 1, "waiting for input": 1, "degraded": 2, "failing": 3}
+#: The capture's state when its source is gone: as bad as failing (``ovis up`` exits 3).
+_SOURCE_LOST = "source lost"
+
+
+def _rank(state: str) -> int:
+    if state == _SOURCE_LOST:
+        return 3
+    return _RANK.get(state, 1 if state.startswith("waiting") else 2)
+
+
+def claimed_once(a: ServiceStatus, b: ServiceStatus) -> ServiceStatus:
+    """Two status replies that claim one process (pid and host). The same: that status.
+    Different: another client answers in its name, and which reply is genuine cannot be
+    told: counts the smaller (:func:`least`), the state the worse of the two and at
+    least "degraded", and the reason says both (a forged "ok" never hides a failing
+    stage, nor a lost source)."""
+    if a == b:
+        return a
+    merged = least(a, b)
+    worse = max((a, b), key=lambda s: _rank(s.state))
+    state = worse.state if _rank(worse.state) >= 2 else "degraded"
+    said = f"{a.state}" + (f" ({a.reason})" if a.reason else "")
+    said += f" / {b.state}" + (f" ({b.reason})" if b.reason else "")
+    reason = f"two different status answers in its name (another client answers for it): {said}"
+    return msgspec.structs.replace(merged, state=state, reason=reason)
 
 
 class CounterTotals:

@@ -22,7 +22,7 @@ from ovis.common.messages import (
     TruthFrame,
     decode,
 )
-from ovis.common.pipeline.totals import least
+from ovis.common.pipeline.totals import claimed_once
 from ovis.common.view.health import listed
 from ovis.services.cli.ui import table, velocity_text
 from ovis.services.trust import unproven, verifier_for
@@ -132,9 +132,9 @@ def query_statuses(
 ) -> dict[str, ServiceStatus]:
     """The status replies of the arena's services, by name (a bad reply is skipped, and
     one that ``accept`` refuses: another system's process). With ``accept``, every reply
-    is asked for and several accepted for one service give the smallest counters
-    (:func:`~ovis.common.pipeline.totals.least`: a forger answering in a process's name
-    cannot raise them)."""
+    is asked for and several accepted for one service give the smallest counters and
+    the worse state, said (:func:`~ovis.common.pipeline.totals.claimed_once`: a forger
+    answering in a process's name cannot raise them, nor hide a failing stage)."""
     statuses: dict[str, ServiceStatus] = {}
     every = zenoh.ConsolidationMode.NONE if accept is not None else zenoh.ConsolidationMode.AUTO
     for reply in session.get(topics.status_all, timeout=timeout, consolidation=every):
@@ -146,7 +146,7 @@ def query_statuses(
             continue
         if accept is None or accept(st):
             seen = statuses.get(st.service)
-            statuses[st.service] = st if seen is None or accept is None else least(seen, st)
+            statuses[st.service] = st if seen is None or accept is None else claimed_once(seen, st)
     return statuses
 
 
