@@ -8,15 +8,31 @@ from __future__ import annotations
 
 import itertools
 import json
+import subprocess
 from pathlib import Path
 from typing import Any
 
 import zenoh
 from pipeline_helpers import start_up
 from test_adversarial import ROOT, Attacker, _pack
-from zenoh_helpers import wait_for
+from zenoh_helpers import ovis_cmd, wait_for
 
 BILLION = 10**9
+
+
+def _conflicted(endpoint: str) -> set[str]:
+    """The services `ovis status --json` says are answered for by someone else (two
+    different answers in their name: "degraded", with that reason)."""
+    out = subprocess.run(
+        ovis_cmd("status", "--connect", endpoint, "--json"),
+        capture_output=True, text=True, timeout=60, check=True,
+    ).stdout  # fmt: skip
+    rows = [
+        r for r in json.loads(out)
+        if r["status"] and "two different status answers" in r["status"]["reason"]
+    ]  # fmt: skip
+    assert all(r["status"]["state"] == "degraded" for r in rows), rows
+    return {r["service"] for r in rows}
 
 
 def test_forged_statuses_do_not_move_ovis_ups_totals(tmp_path: Path) -> None:
@@ -48,6 +64,8 @@ def test_forged_statuses_do_not_move_ovis_ups_totals(tmp_path: Path) -> None:
                     attacker.session.declare_queryable(
                         f"{ROOT}/status/{key}", lambda q, s=service, k=key: forge(s, k, q)
                     )
+            # `ovis status` meanwhile: never the forger's "ok" alone, the conflict said
+            wait_for(lambda: _conflicted(endpoint) >= set(genuine), 30, "ovis status saying it")
             out, _ = proc.communicate(timeout=120)
         finally:
             attacker.session.close()

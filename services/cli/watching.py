@@ -25,7 +25,7 @@ from ovis.common.messages import (
 from ovis.common.pipeline.totals import claimed_once
 from ovis.common.view.health import listed
 from ovis.services.cli.ui import table, velocity_text
-from ovis.services.trust import unproven, verifier_for
+from ovis.services.trust import every_reply, unproven, verifier_for
 
 __all__ = [
     "LiveView",
@@ -131,13 +131,12 @@ def query_statuses(
     accept: Callable[[ServiceStatus], bool] | None = None,
 ) -> dict[str, ServiceStatus]:
     """The status replies of the arena's services, by name (a bad reply is skipped, and
-    one that ``accept`` refuses: another system's process). With ``accept``, every reply
-    is asked for and several accepted for one service give the smallest counters and
-    the worse state, said (:func:`~ovis.common.pipeline.totals.claimed_once`: a forger
-    answering in a process's name cannot raise them, nor hide a failing stage)."""
+    one that ``accept`` refuses: another system's process). Every reply is asked for;
+    several for one service give the smallest counters and the worse state, said
+    (:func:`~ovis.common.pipeline.totals.claimed_once`: a client answering in a
+    service's name cannot raise them, nor hide a failing stage behind an "ok")."""
     statuses: dict[str, ServiceStatus] = {}
-    every = zenoh.ConsolidationMode.NONE if accept is not None else zenoh.ConsolidationMode.AUTO
-    for reply in session.get(topics.status_all, timeout=timeout, consolidation=every):
+    for reply in every_reply(session, topics.status_all, timeout=timeout):
         if reply.ok is None:
             continue
         try:
@@ -146,7 +145,7 @@ def query_statuses(
             continue
         if accept is None or accept(st):
             seen = statuses.get(st.service)
-            statuses[st.service] = st if seen is None or accept is None else claimed_once(seen, st)
+            statuses[st.service] = st if seen is None else claimed_once(seen, st)
     return statuses
 
 

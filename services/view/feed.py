@@ -41,6 +41,7 @@ from ovis.common.messages import (
 )
 from ovis.common.pipeline.following import newer
 from ovis.common.pipeline.limits import Input, oversized
+from ovis.common.pipeline.totals import claimed_once
 from ovis.common.view.freshness import (
     Freshness,
     Seen,
@@ -312,10 +313,11 @@ class ArenaFeed:
 
     # --- polling (the bus thread) -----------------------------------------------------
     def poll(self, timeout: float) -> None:
-        """Ask every service of the arena for its status, and the calibrator for the
-        calibration while none is known."""
+        """Ask every service of the arena for its status (every answer: a second one in
+        a service's name makes it "degraded" at least, :func:`claimed_once`), and the
+        calibrator for the calibration while none is known."""
         statuses: dict[str, ServiceStatus] = {}
-        for reply in self.session.get(self.topics.status_all, timeout=timeout):
+        for reply in every_reply(self.session, self.topics.status_all, timeout=timeout):
             if reply.ok is None:
                 continue
             payload = self.take(reply.ok.payload, "small", "status")
@@ -326,7 +328,8 @@ class ArenaFeed:
             except MessageError as exc:
                 self.refuse("status", exc)
                 continue
-            statuses[st.service] = st
+            seen = statuses.get(st.service)  # two answers in one name: the worse, said
+            statuses[st.service] = st if seen is None else claimed_once(seen, st)
         with self.lock:
             self.statuses = {n: s for n, s in statuses.items() if n in self.alive}
             need_calibration = self.calibration is None
