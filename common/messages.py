@@ -27,7 +27,9 @@ from ovis.common.world.robots import RobotState, UnknownMarker
 
 __all__ = [
     "ENCODING",
+    "IDLE_STATES",
     "MAX_IMAGE_SIDE",
+    "SOURCE_LOST",
     "BinaryFrame",
     "BinaryFrameView",
     "BlobList",
@@ -496,6 +498,13 @@ class CalibrationUpdate(_Msg, tag="calibration", kw_only=True):
     """A calibration, published on ``ovis/<arena>/calibration`` whenever it changes."""
 
     calibration: Calibration
+
+
+#: The capture's state that says its source is gone (its last: it did not come back).
+SOURCE_LOST = "source lost"
+#: States (their beginnings) of a service not at work, not yet or no more: wrong at the
+#: end of a run only for a service that handled no frame.
+IDLE_STATES = ("starting", "waiting", "recording ended")
 
 
 class ServiceStatus(_Msg, tag="status", kw_only=True):

@@ -58,7 +58,7 @@ def frame_columns(name: str, msg: ObstacleFrame) -> Sightings:
 
 
 def world_message(
-    r: WorldFrameResult, seq: int, arena: str, late: dict[str, int], stream: str = ""
+    r: WorldFrameResult, seq: int, arena: str, late: dict[str, int], stream: str
 ) -> WorldFrame:
     """The world topic's message of one fused world frame (``seq`` of the run ``stream``)."""
     return WorldFrame(

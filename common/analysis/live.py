@@ -13,7 +13,14 @@ import msgspec
 import numpy as np
 
 from ovis.common.analysis.evaluation import TrackingScore
-from ovis.common.messages import ObstacleFrame, ServiceStatus, SourceGap, TruthFrame
+from ovis.common.messages import (
+    IDLE_STATES,
+    SOURCE_LOST,
+    ObstacleFrame,
+    ServiceStatus,
+    SourceGap,
+    TruthFrame,
+)
 
 __all__ = [
     "IDLE_STATES",
@@ -190,13 +197,6 @@ class LiveScore:
             source_gap_s=source.source_gap_s if source else 0.0,
             gaps=source.gaps if source else [],
         )
-
-
-#: The capture's state that says its source is gone (its last: it did not come back).
-SOURCE_LOST = "source lost"
-#: States (their beginnings) of a service not at work, not yet or no more: wrong at the
-#: end of a run only for a service that handled no frame.
-IDLE_STATES = ("starting", "waiting", "recording ended")
 
 
 def _unwell(status: ServiceStatus) -> bool:

@@ -8,6 +8,7 @@ data" and from "wrong data"."""
 
 from __future__ import annotations
 
+import itertools
 import secrets
 import time
 from collections.abc import Iterable
@@ -110,7 +111,7 @@ class StreamWatch:
         self.state = "waiting"
         self.reason = ""  # why the source is lost
         self.stream = secrets.token_hex(8)  # this run's health messages, numbered
-        self.sent = 0
+        self._numbers = itertools.count()
 
     def classify(self, seconds_since_frame: float | None) -> str:
         """The stream's state ``seconds_since_frame`` after the last frame (None: none yet)."""
@@ -152,9 +153,5 @@ class StreamWatch:
             frames_dropped=frames_dropped,
             calibration_version=calibration_version,
             stream=self.stream,
-            seq=self._next(),
+            seq=next(self._numbers),
         )
-
-    def _next(self) -> int:
-        self.sent += 1
-        return self.sent - 1

@@ -19,7 +19,7 @@ import threading
 
 import msgspec
 
-from ovis.common.messages import ServiceStatus
+from ovis.common.messages import IDLE_STATES, SOURCE_LOST, ServiceStatus
 
 __all__ = ["COUNTERS", "CounterTotals", "ServiceTotals", "claimed_once", "least"]
 
@@ -54,16 +54,14 @@ def least(a: ServiceStatus, b: ServiceStatus) -> ServiceStatus:
     return msgspec.structs.replace(a, errors=errors, **smaller)
 
 
-#: States by how bad they are, for two replies that disagree (any other state: 2).
-_RANK = {"ok": 0, "starting": 1, "waiting for input": 1, "degraded": 2, "failing": 3}
-#: The capture's state when its source is gone: as bad as failing (``ovis up`` exits 3).
-_SOURCE_LOST = "source lost"
-
-
-def _rank(state: str) -> int:
-    if state == _SOURCE_LOST:
+def _badness(state: str) -> int:
+    """How bad a state is, for two replies that disagree: "ok" 0, idle 1, any other 2,
+    failing or the source lost 3 (``ovis up`` then exits non-zero)."""
+    if state == "ok":
+        return 0
+    if state in ("failing", SOURCE_LOST):
         return 3
-    return _RANK.get(state, 1 if state.startswith("waiting") else 2)
+    return 1 if state.startswith(IDLE_STATES) else 2
 
 
 def claimed_once(a: ServiceStatus, b: ServiceStatus) -> ServiceStatus:
@@ -75,8 +73,8 @@ def claimed_once(a: ServiceStatus, b: ServiceStatus) -> ServiceStatus:
     if a == b:
         return a
     merged = least(a, b)
-    worse = max((a, b), key=lambda s: _rank(s.state))
-    state = worse.state if _rank(worse.state) >= 2 else "degraded"
+    worse = max((a, b), key=lambda s: _badness(s.state))
+    state = worse.state if _badness(worse.state) >= 2 else "degraded"
     said = f"{a.state}" + (f" ({a.reason})" if a.reason else "")
     said += f" / {b.state}" + (f" ({b.reason})" if b.reason else "")
     reason = f"two different status answers in its name (another client answers for it): {said}"
