@@ -34,6 +34,7 @@ __all__ = [
     "GAConfig",
     "ImageParams",
     "OvisConfig",
+    "PhysicalConfig",
     "PinholeParams",
     "PinholeRanges",
     "PointsFile",
@@ -469,6 +470,9 @@ class SimulatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     marker_level: _rng(0.0, 255.0) = 25.0
     #: simulated frames per second: the ground truth's velocities are in cm/s at this rate
     fps: Annotated[float, msgspec.Meta(gt=0.0, le=10000.0)] = 30.0
+    #: "light": the built-in flat-top painter (the paper's figures, speed); "physical":
+    #: solid objects in MuJoCo (``[physical]``, :mod:`ovis.common.physical`)
+    world: Literal["light", "physical"] = "light"
 
     def __post_init__(self) -> None:
         _check_pair("simulator", "arena_x_cm", self.arena_x_cm, -1e5, 1e5)
@@ -477,6 +481,53 @@ class SimulatorConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
         _check_pair("simulator", "clutter_area_cm2", self.clutter_area_cm2, 0.0, 1e6)
         if min(self.robot_size_cm) <= 0:
             raise ValueError("simulator.robot_size_cm must be positive (length, width)")
+
+
+Shape = Literal["cylinder", "box", "prism"]
+
+
+class PhysicalConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """The physical world (``[physical]``, ``--world physical``; :mod:`ovis.common.physical`):
+    solid obstacles of mixed shapes and heights on a dark floor under ceiling lights,
+    simulated and rendered by MuJoCo through the configured camera (the arena is
+    ``[simulator] arena_x_cm × arena_y_cm``; the robots are ``simulator.robot_size_cm``
+    boxes ``pose.robot_height_cm`` tall, marked ones carrying their marker on top).
+
+    Obstacles: ``n_obstacles`` solids, each a cylinder, a box at any yaw or an upright
+    prism with 3, 5 or 6 sides (``shapes``), as wide as a disk of radius in
+    ``radius_cm`` and ``height_cm`` tall, moving at up to ``speed_cm_s`` on closed paths
+    that keep ``gap_cm`` between any two footprints (0: still). Light: ``lights``
+    ceiling lamps ``light_height_cm`` up casting shadows (``shadows``) and an ambient
+    share ``ambient``; grey albedos of the floor and the objects; Gaussian sensor noise
+    ``noise_sigma`` (grey levels); ``samples`` anti-aliasing samples per pixel.
+    """
+
+    n_obstacles: Annotated[int, msgspec.Meta(ge=0, le=64)] = 6
+    shapes: Annotated[list[Shape], msgspec.Meta(min_length=1, max_length=3)] = msgspec.field(
+        default_factory=lambda: ["cylinder", "box", "prism"]
+    )
+    radius_cm: PairF = (3.0, 7.0)
+    height_cm: PairF = (1.0, 25.0)
+    gap_cm: _rng(0.0, 100.0) = 3.0
+    speed_cm_s: _rng(0.0, 500.0) = 6.0
+    robots_move: bool = True
+    floor_albedo: Fraction = 0.12
+    object_albedo: PairF = (0.55, 0.9)
+    lights: Annotated[int, msgspec.Meta(ge=1, le=8)] = 4
+    light_height_cm: _rng(50.0, 2000.0) = 260.0
+    ambient: Fraction = 0.25
+    shadows: bool = True
+    noise_sigma: _rng(0.0, 50.0) = 1.5
+    samples: Annotated[int, msgspec.Meta(ge=0, le=16)] = 4
+    #: flat discs on the floor at known places, for calibrating the camera on them
+    #: (``ovis simulate --world physical`` writes them as control points)
+    floor_marks: Annotated[int, msgspec.Meta(ge=0, le=64)] = 8
+    mark_radius_cm: _rng(0.2, 20.0) = 1.0
+
+    def __post_init__(self) -> None:
+        _check_pair("physical", "radius_cm", self.radius_cm, 0.5, 100.0)
+        _check_pair("physical", "height_cm", self.height_cm, 0.5, 100.0)
+        _check_pair("physical", "object_albedo", self.object_albedo, 0.0, 1.0)
 
 
 class ZenohConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -658,6 +709,7 @@ class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     ga: GAConfig = msgspec.field(default_factory=GAConfig)
     pose: PoseConfig = msgspec.field(default_factory=PoseConfig)
     simulator: SimulatorConfig = msgspec.field(default_factory=SimulatorConfig)
+    physical: PhysicalConfig = msgspec.field(default_factory=PhysicalConfig)
     service: ServiceConfig = msgspec.field(default_factory=ServiceConfig)
     zenoh: ZenohConfig = msgspec.field(default_factory=ZenohConfig)
     #: several cameras over one arena, fused into one world (empty: the one ``camera``)

@@ -20,9 +20,15 @@
 from __future__ import annotations
 
 import gc
+import os
 import signal
 
 import pytest
+
+# MuJoCo picks its OpenGL back-end when it is first imported, which a test module may do
+# before anything of ovis.common.physical (which selects EGL) is imported.
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 pytest_plugins = ["leak_guard", "pytester"]
 

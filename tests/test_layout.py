@@ -23,6 +23,7 @@ FOUNDATION = {
     "world",
     "calibration",
     "sim",
+    "physical",
     "capture",
     "messages",
 }
@@ -37,7 +38,8 @@ LAYERS: dict[str, set[str]] = {
     "world": {"config", "camera", "vision"},
     "calibration": {"config", "atomic", "camera", "vision"},
     "sim": {"config", "atomic", "camera", "vision"},
-    "capture": {"config", "atomic", "camera", "sim", "vision"},
+    "physical": {"config", "atomic", "camera", "vision", "sim"},
+    "capture": {"config", "atomic", "camera", "sim", "vision", "physical"},
     "messages": {"config", "camera", "vision", "world", "calibration", "sim"},
     "pipeline": FOUNDATION | {"trust"},
     "analysis": FOUNDATION | {"fusion"},

@@ -132,10 +132,11 @@ FloatArray = NDArray[np.float64]
 class SimObject(msgspec.Struct, kw_only=True, frozen=True, omit_defaults=True):
     """Ground truth of one object in one frame (world cm, degrees).
 
-    ``x_cm, y_cm`` is the centre of the top face, ``z_cm`` its height; ``radius_cm`` is
-    the radius of the disk of equal top-face area; ``heading_deg`` is the robot's long
-    axis, counter-clockwise from +X (0 for disks); ``length_cm × width_cm`` is the
-    rectangle (2r × 2r for disks).
+    ``x_cm, y_cm`` is the centre of the top face (the footprint's: every object is an
+    upright prism), ``z_cm`` its height; ``radius_cm`` is the radius of the disk of
+    equal top-face area; ``heading_deg`` is the robot's long axis, counter-clockwise
+    from +X (0 for disks; a box's or prism's yaw in the physical world);
+    ``length_cm × width_cm`` is the rectangle (2r × 2r for disks).
     """
 
     id: int
@@ -145,7 +146,7 @@ class SimObject(msgspec.Struct, kw_only=True, frozen=True, omit_defaults=True):
     z_cm: float
     radius_cm: float
     heading_deg: float
-    shape: Literal["rect", "disk"]
+    shape: Literal["rect", "disk", "prism"]
     length_cm: float
     width_cm: float
     #: marked robots only (``pose.robots``): its marker, and its velocity at
@@ -153,6 +154,9 @@ class SimObject(msgspec.Struct, kw_only=True, frozen=True, omit_defaults=True):
     marker_id: int | None = None
     vx_cm_s: float = 0.0
     vy_cm_s: float = 0.0
+    #: a regular prism's number of sides (the physical world, :mod:`ovis.common.physical`;
+    #: its ``length_cm``/``width_cm`` are then the circumscribed disk's diameter)
+    sides: int = 0
 
 
 class FrameTruth(msgspec.Struct, kw_only=True, frozen=True):

@@ -1,0 +1,204 @@
+"""The physical world running: a scene in MuJoCo, moved through time, rendered by each
+camera, and its ground truth read from the physics state.
+
+:class:`PhysicalWorld` sets every solid's joints to where its path is at time ``t`` (and
+their velocities to the path's), runs MuJoCo's forward dynamics, and reads the truth back
+from the physics state: each solid's footprint centre and yaw from its body's pose, its
+velocity from its joints, its height from its geom. A frame is the camera's render of
+that state in grey (anti-aliased, with the lamps' shadows when ``[physical] shadows``),
+resampled through the lens (:mod:`ovis.common.physical.camera`), with Gaussian sensor
+noise drawn from ``(seed, frame index, camera)``: a frame depends only on the seed, the
+frame's time and index, and the camera.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import cv2
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from ovis.common.config import CameraModel, OvisConfig
+from ovis.common.physical.camera import CM_PER_M, RenderCamera, render_camera
+from ovis.common.physical.model import (
+    FLOOR_GROUP,
+    SOLID_GROUP,
+    build_spec,
+    camera_name,
+    joint_names,
+)
+from ovis.common.physical.scene import Scene, Solid
+from ovis.common.sim.arena import FrameTruth, SimObject
+
+__all__ = ["PhysicalWorld"]
+
+_STREAM_NOISE = 5
+_SHAPES = {"cylinder": "disk", "box": "rect", "prism": "prism"}
+
+
+def _wrap_deg(a: float) -> float:
+    a = (a + 180.0) % 360.0 - 180.0
+    return 180.0 if a == -180.0 else a
+
+
+class PhysicalWorld:
+    """A scene in MuJoCo seen by ``cameras`` (see the module's docstring).
+
+    Raises ValueError for a camera that cannot be rendered (a distortion that is not
+    one-to-one over its frame); ``mujoco.FatalError`` or a RuntimeError when no
+    off-screen OpenGL context can be made (``MUJOCO_GL=egl``, see
+    :func:`ovis.common.physical.availability.why_unavailable`).
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        config: OvisConfig,
+        cameras: Sequence[CameraModel],
+        *,
+        noise_sigma: float | None = None,
+    ) -> None:
+        self.scene = scene
+        self.cameras = list(cameras)
+        self.rendered: list[RenderCamera] = [render_camera(c) for c in self.cameras]
+        phys = config.physical
+        self.noise_sigma = phys.noise_sigma if noise_sigma is None else float(noise_sigma)
+        self.spec = build_spec(scene, config, self.cameras, self.rendered, phys.samples)
+        self.model = self.spec.compile()
+        self.data = mujoco.MjData(self.model)
+        self._qpos = [
+            [self.model.joint(n).qposadr[0] for n in joint_names(s)] for s in scene.solids
+        ]
+        self._qvel = [[self.model.joint(n).dofadr[0] for n in joint_names(s)] for s in scene.solids]
+        self._body = [self.model.body(f"solid{s.id}").id for s in scene.solids]
+        self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
+        self._options: dict[bool, mujoco.MjvOption] = {}
+        self.t_s = 0.0
+        self.set_time(0.0)
+
+    # ------------------------------------------------------------------ motion
+    def _yaw(self, solid: Solid, t_s: float) -> tuple[float, float]:
+        """Yaw (rad) and yaw rate (rad/s) of a solid at ``t_s``: an obstacle keeps its
+        own, a moving robot faces along its path."""
+        if solid.kind != "robot" or not solid.path.moving:
+            return math.radians(solid.yaw_deg), 0.0
+        period = self.scene.period_s
+        dt = 1e-3 * period
+        yaws = []
+        for tau in (t_s - dt, t_s, t_s + dt):
+            vx, vy = solid.path.velocity(tau, period)
+            yaws.append(math.atan2(float(vy), float(vx)))
+        rate = math.remainder(yaws[2] - yaws[0], 2.0 * math.pi) / (2.0 * dt)
+        return yaws[1], rate
+
+    def set_time(self, t_s: float) -> None:
+        """Move every solid to where its path is at ``t_s`` (s) and update the physics
+        state (joint positions and velocities, then MuJoCo's forward dynamics)."""
+        period = self.scene.period_s
+        qpos, qvel = self.data.qpos, self.data.qvel
+        for solid, pa, va in zip(self.scene.solids, self._qpos, self._qvel, strict=True):
+            x, y = solid.path.at(t_s, period)
+            vx, vy = solid.path.velocity(t_s, period)
+            yaw, rate = self._yaw(solid, t_s)
+            qpos[pa] = [float(x) / CM_PER_M, float(y) / CM_PER_M, yaw]
+            qvel[va] = [float(vx) / CM_PER_M, float(vy) / CM_PER_M, rate]
+        mujoco.mj_forward(self.model, self.data)
+        self.t_s = float(t_s)
+
+    # ------------------------------------------------------------------ truth
+    def truth(self, index: int, stamp_ns: int | None = None) -> FrameTruth:
+        """Ground truth of the current state, read from the physics: every solid's
+        footprint centre (cm), top height, yaw, equal-area radius and velocity (cm/s)."""
+        objects = []
+        for solid, body, va in zip(self.scene.solids, self._body, self._qvel, strict=True):
+            x_m, y_m = self.data.xpos[body][:2]
+            xmat = self.data.xmat[body].reshape(3, 3)
+            yaw = math.degrees(math.atan2(xmat[1, 0], xmat[0, 0]))
+            vx, vy = self.data.qvel[va[0]] * CM_PER_M, self.data.qvel[va[1]] * CM_PER_M
+            length, width = solid.length_cm, solid.width_cm
+            if solid.shape != "box":
+                length = width = 2.0 * solid.bound_cm
+            objects.append(
+                SimObject(
+                    id=solid.id,
+                    kind=solid.kind,
+                    x_cm=float(x_m) * CM_PER_M,
+                    y_cm=float(y_m) * CM_PER_M,
+                    z_cm=solid.height_cm,
+                    radius_cm=solid.radius_cm,
+                    heading_deg=_wrap_deg(yaw) if solid.shape != "cylinder" else 0.0,
+                    shape=_SHAPES[solid.shape],  # type: ignore[arg-type]
+                    length_cm=length,
+                    width_cm=width,
+                    marker_id=solid.marker_id,
+                    vx_cm_s=float(vx),
+                    vy_cm_s=float(vy),
+                    sides=solid.sides,
+                )
+            )
+        objects.sort(key=lambda o: (o.kind != "robot", o.id))
+        return FrameTruth(index=int(index), objects=objects, stamp_ns=stamp_ns)
+
+    # ------------------------------------------------------------------ rendering
+    def _renderer(self, k: int) -> mujoco.Renderer:
+        w, h = self.rendered[k].canvas
+        key = (w, h)
+        if key not in self._renderers:
+            self._renderers[key] = mujoco.Renderer(self.model, h, w)
+        return self._renderers[key]
+
+    def _option(self, solids: bool) -> mujoco.MjvOption:
+        if solids not in self._options:
+            opt = mujoco.MjvOption()
+            opt.geomgroup[:] = 0
+            opt.geomgroup[FLOOR_GROUP] = 1
+            opt.geomgroup[SOLID_GROUP] = int(solids)
+            self._options[solids] = opt
+        return self._options[solids]
+
+    def clean(self, k: int = 0, *, solids: bool = True) -> NDArray[np.uint8]:
+        """Camera ``k``'s grey frame of the current state without sensor noise
+        (``solids=False``: the empty floor with its marks, for background subtraction)."""
+        renderer = self._renderer(k)
+        renderer.update_scene(self.data, camera=camera_name(k), scene_option=self._option(solids))
+        rgb = renderer.render()
+        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        return self.rendered[k].finish(grey)
+
+    def render(self, index: int, k: int = 0) -> NDArray[np.uint8]:
+        """Camera ``k``'s grey frame of the current state, frame ``index``'s sensor noise
+        added (deterministic per seed, index and camera)."""
+        grey = self.clean(k)
+        if self.noise_sigma <= 0.0:
+            return grey
+        rng = np.random.default_rng([self.scene.seed, int(index), k, _STREAM_NOISE])
+        noisy = grey + rng.standard_normal(grey.shape, dtype=np.float32) * np.float32(
+            self.noise_sigma
+        )
+        return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+
+    def visible_px(self, k: int = 0) -> dict[int, int]:
+        """Pixels of camera ``k``'s (canvas) image where each solid (by id) is seen in
+        front of everything else: 0 for a solid hidden behind others."""
+        renderer = self._renderer(k)
+        renderer.enable_segmentation_rendering()
+        try:
+            renderer.update_scene(self.data, camera=camera_name(k), scene_option=self._option(True))
+            seg = renderer.render()
+        finally:
+            renderer.disable_segmentation_rendering()
+        geom = seg[..., 0][seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)]
+        counts = np.bincount(geom[geom >= 0], minlength=self.model.ngeom)
+        out: dict[int, int] = {}
+        for solid, body in zip(self.scene.solids, self._body, strict=True):
+            mine = np.flatnonzero(self.model.geom_bodyid == body)
+            out[solid.id] = int(counts[mine].sum())
+        return out
+
+    def close(self) -> None:
+        for r in self._renderers.values():
+            r.close()
+        self._renderers.clear()
