@@ -513,7 +513,7 @@ class PhysicalConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     robots_move: bool = True
     floor_albedo: Fraction = 0.12
     object_albedo: PairF = (0.55, 0.9)
-    lights: Annotated[int, msgspec.Meta(ge=1, le=8)] = 4
+    lights: Annotated[int, msgspec.Meta(ge=1, le=8)] = 2
     light_height_cm: _rng(50.0, 2000.0) = 260.0
     ambient: Fraction = 0.25
     shadows: bool = True

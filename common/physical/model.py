@@ -32,9 +32,11 @@ __all__ = ["FLOOR_GROUP", "SOLID_GROUP", "build_spec", "camera_name", "joint_nam
 
 FLOOR_GROUP = 0
 SOLID_GROUP = 1
-#: Segments MuJoCo draws a cylinder's round side with (its outline is a polygon of them).
-CYLINDER_SLICES = 128
-SHADOW_MAP_PX = 4096
+#: Sides of the polygon a cylinder is drawn as (its outline departs from the circle by
+#: less than 1 − cos(π/n) of its radius).
+CYLINDER_SIDES = 180
+SHADOW_MAP_PX = 2048
+MARK_SIDES = 48
 #: Thickness of a floor mark and of a robot's marker plate and cells (cm).
 PRINT_CM = 0.05
 #: Spot cone half-angle (deg) and fall-off exponent of a ceiling lamp.
@@ -101,6 +103,30 @@ def _add_marker(
             )
 
 
+def _ring_prism(radius_cm: float, n: int, height_cm: float) -> list[float]:
+    """Corners (m) of an upright prism on the floor whose ``n`` corners lie on a circle of
+    ``radius_cm``, ``height_cm`` tall (MuJoCo draws its convex hull)."""
+    a = 2.0 * math.pi * np.arange(n) / n
+    r = _m(radius_cm)
+    ring = np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+    h = _m(height_cm)
+    vert = np.concatenate(
+        [np.column_stack([ring, np.zeros(n)]), np.column_stack([ring, np.full(n, h)])]
+    )
+    return vert.ravel().tolist()
+
+
+def _prism_vertices(solid: Solid, n: int) -> list[float]:
+    """A prism solid's corners (a cylinder's: on its circle, as a lathe would cut it)."""
+    r = circumradius(solid.radius_cm, n) if solid.shape == "prism" else solid.radius_cm
+    return _ring_prism(r, n, solid.height_cm)
+
+
+def _disc_vertices(radius_cm: float) -> list[float]:
+    """A floor mark: a disc of paper on the floor."""
+    return _ring_prism(radius_cm, MARK_SIDES, PRINT_CM)
+
+
 def _add_solid(spec: mujoco.MjSpec, solid: Solid, config: OvisConfig, hand: float) -> None:
     body = spec.worldbody.add_body(name=f"solid{solid.id}", pos=[0.0, 0.0, 0.0])
     jx, jy, jyaw = joint_names(solid)
@@ -114,30 +140,17 @@ def _add_solid(spec: mujoco.MjSpec, solid: Solid, config: OvisConfig, hand: floa
         "mass": SOLID_MASS_KG,
         "name": f"solid{solid.id}_geom",
     }
-    if solid.shape == "cylinder":
-        body.add_geom(
-            type=mujoco.mjtGeom.mjGEOM_CYLINDER,
-            size=[_m(solid.radius_cm), h / 2.0, 0.0],
-            pos=[0.0, 0.0, h / 2.0],
-            **common,
-        )
-    elif solid.shape == "box":
+    if solid.shape == "box":
         body.add_geom(
             type=mujoco.mjtGeom.mjGEOM_BOX,
             size=[_m(solid.length_cm / 2.0), _m(solid.width_cm / 2.0), h / 2.0],
             pos=[0.0, 0.0, h / 2.0],
             **common,
         )
-    else:
-        n = solid.sides
-        a = 2.0 * math.pi * np.arange(n) / n
-        r = _m(circumradius(solid.radius_cm, n))
-        ring = np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
-        vert = np.concatenate(
-            [np.column_stack([ring, np.zeros(n)]), np.column_stack([ring, np.full(n, h)])]
-        )
-        spec.add_mesh(name=f"prism{solid.id}", uservert=vert.ravel().tolist())
-        body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"prism{solid.id}", **common)
+    else:  # a cylinder as a many-sided prism: flat top, sharp rim, smoothly shaded side
+        n = solid.sides if solid.shape == "prism" else CYLINDER_SIDES
+        spec.add_mesh(name=f"solid{solid.id}_mesh", uservert=_prism_vertices(solid, n))
+        body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"solid{solid.id}_mesh", **common)
     if solid.marker_id is not None:
         _add_marker(body, solid, config, hand, solid.height_cm)
 
@@ -158,7 +171,7 @@ def build_spec(
     vis.global_.offheight = max(r.canvas[1] for r in rendered)
     vis.quality.offsamples = int(samples)
     vis.quality.shadowsize = SHADOW_MAP_PX
-    vis.quality.numslices = CYLINDER_SLICES
+    vis.quality.numquads = 1
     vis.headlight.active = 1
     vis.headlight.ambient = [scene.ambient] * 3
     vis.headlight.diffuse = [0.0, 0.0, 0.0]
@@ -175,11 +188,12 @@ def build_spec(
         conaffinity=0,
     )
     for mark in scene.marks:
+        spec.add_mesh(name=f"mark_{mark.name}", uservert=_disc_vertices(mark.radius_cm))
         spec.worldbody.add_geom(
             name=f"mark_{mark.name}",
-            type=mujoco.mjtGeom.mjGEOM_CYLINDER,
-            size=[_m(mark.radius_cm), _m(PRINT_CM / 2.0), 0.0],
-            pos=[_m(mark.x_cm), _m(mark.y_cm), _m(PRINT_CM / 2.0)],
+            type=mujoco.mjtGeom.mjGEOM_MESH,
+            meshname=f"mark_{mark.name}",
+            pos=[_m(mark.x_cm), _m(mark.y_cm), 0.0],
             rgba=_grey(0.9),
             group=FLOOR_GROUP,
             contype=0,

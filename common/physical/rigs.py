@@ -18,8 +18,8 @@ from ovis.common.config import OvisConfig, PinholeParams
 
 __all__ = ["RIGS", "aimed_camera", "rig"]
 
-#: (height above the floor, distance back from the arena's near edge) (cm), or None for
-#: straight down over the arena's centre.
+#: (height above the floor, horizontal distance back from the arena's centre towards −Y)
+#: (cm), or None for straight down over the arena's centre.
 RIGS: dict[str, tuple[float, float] | None] = {
     "oblique": (140.0, 120.0),
     "overhead": None,
@@ -76,9 +76,9 @@ def aimed_camera(
 
 def rig(name: str, config: OvisConfig) -> PinholeParams:
     """The named rig (:data:`RIGS`) over ``config``'s arena, at ``config.camera``'s frame
-    size: "oblique" stands ``back`` cm before the arena's near (low Y) edge, ``height``
-    cm up, aimed at the arena's centre; "overhead" hangs over the centre looking down,
-    its image's up along +Y."""
+    size: "oblique" stands on a tripod ``height`` cm up and ``back`` cm from the arena's
+    centre towards −Y, aimed at the centre; "overhead" hangs over the centre looking
+    down, its image's up along +Y."""
     if name not in RIGS:
         raise ValueError(f"unknown camera rig {name!r}; choose one of {', '.join(RIGS)}")
     (x0, x1), (y0, y1) = config.simulator.arena_x_cm, config.simulator.arena_y_cm
@@ -89,4 +89,6 @@ def rig(name: str, config: OvisConfig) -> PinholeParams:
         above = (centre[0], centre[1], OVERHEAD_HEIGHT_CM)
         return aimed_camera(above, centre, up=(0.0, 1.0, 0.0), distortion=RIG_DISTORTION, **size)
     height, back = place
-    return aimed_camera((centre[0], y0 - back, height), centre, distortion=RIG_DISTORTION, **size)
+    return aimed_camera(
+        (centre[0], centre[1] - back, height), centre, distortion=RIG_DISTORTION, **size
+    )
