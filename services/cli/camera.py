@@ -139,8 +139,9 @@ def intrinsics(
 ) -> None:
     """Calibrate a lens (K and distortion) from photos of a printed board.
 
-    Uses OpenCV's detectors (findChessboardCorners + cornerSubPix, or CharucoDetector) and
-    calibrateCamera (five distortion coefficients). Reports the overall and per-view RMS
+    Uses OpenCV's detectors (findChessboardCorners + cornerSubPix in a window half the
+    view's smallest square wide, or CharucoDetector) and calibrateCamera (five distortion
+    coefficients). Reports the overall and per-view RMS
     reprojection error (px), names the views where the board was not found, flags outlier
     views (RMS above 3x the median view's) and shows how much of the image the corners
     covered: uncovered image corners mean the distortion there is a guess. Writes CAM.yaml
@@ -217,10 +218,12 @@ def _print_intrinsics(report, out: Path | None, plot: Path | None) -> None:
     con = Console(highlight=False)
     (fx, _, cx), (_, fy, cy), _ = report.camera_matrix
     t = Table(title=f"views ({report.board})", title_justify="left")
-    for col in ("view", "corners", "RMS px", "flag"):
+    for col in ("view", "corners", "window px", "RMS px", "flag"):
         t.add_column(col, justify="right")
     for v in report.per_view:
-        t.add_row(v.view, str(v.corners), f"{v.rms_px:.3f}", "OUTLIER" if v.outlier else "")
+        window = "-" if v.window_px is None else str(v.window_px)
+        flag = "OUTLIER" if v.outlier else ""
+        t.add_row(v.view, str(v.corners), window, f"{v.rms_px:.3f}", flag)
     con.print(t)
     for r in report.views_rejected:
         con.print(f"rejected {r.view}: {r.reason}")
