@@ -517,7 +517,8 @@ def test_a_board_placed_in_the_arena_gives_arena_positions(lens13: Path, tmp_pat
 
     c_board, c_arena = centre(plain), centre(placed)
     assert np.allclose(c_arena, (40.0 - c_board[1], 30.0 + c_board[0], c_board[2]), atol=1e-3)
-    assert placed["dipe_px"] == pytest.approx(plain["dipe_px"], rel=1e-6)
+    # (the solver's tolerance: OpenCV's threads make runs differ by a few millionths)
+    assert placed["dipe_px"] == pytest.approx(plain["dipe_px"], rel=1e-4)
     pixels = [(p["detected_row"], p["detected_col"]) for p in placed["points"]]
     args = [a for r, c in pixels for a in ("--pixel", f"{r},{c}")]
     located = json.loads(ovis("locate", str(arena), *args, "--json").stdout)
