@@ -191,7 +191,8 @@ def board_order(gray: NDArray[np.uint8], grid: NDArray[np.float32]) -> NDArray[n
     """A chessboard's (rows, cols, 2) corner grid in the printed board's own order (module
     docstring): the rows reversed when the board's z (along a row × along the columns)
     would point towards the camera, then the whole grid turned half-way round when the
-    squares diagonal to the first corner's are the light ones (COLS + ROWS odd only)."""
+    squares coloured as the one diagonally beyond the first corner are the light ones
+    (COLS + ROWS odd only: otherwise a half turn shows the same colours)."""
     rows, cols = grid.shape[:2]
     along = (grid[:, -1] - grid[:, 0]).mean(axis=0)
     across = (grid[-1] - grid[0]).mean(axis=0)

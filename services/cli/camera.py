@@ -47,7 +47,7 @@ BoardRowEndOpt = Annotated[
         "--board-row-end",
         help="With --board-origin: X,Y (cm), where the last inner corner of the board's "
         "first row lies on the arena floor (its distance from the origin corner must be "
-        "the board's, within 2 %).",
+        "the board's, within 2 % or 0.5 cm).",
     ),
 ]
 
@@ -64,7 +64,7 @@ def _floor_xy(text: str, option: str) -> tuple[float, float]:
     return x, y
 
 
-def board_placement(board: str | None, origin: str | None, row_end: str | None):
+def _board_placement(board: str | None, origin: str | None, row_end: str | None):
     """The board's placement in the arena from --board-origin and --board-row-end (both or
     neither, only with --board), or None."""
     from ovis.common.calibration.floor import BoardPlacement
@@ -191,9 +191,9 @@ def intrinsics(
 ) -> None:
     """Calibrate a lens (K and distortion) from photos of a printed board.
 
-    Uses OpenCV's detectors (findChessboardCorners + cornerSubPix in a window half the
-    view's smallest square wide, or CharucoDetector) and calibrateCamera (five distortion
-    coefficients). Reports the overall and per-view RMS
+    Uses OpenCV's detectors (findChessboardCorners + cornerSubPix in a window reaching
+    half the view's smallest square around each corner, or CharucoDetector) and
+    calibrateCamera (five distortion coefficients). Reports the overall and per-view RMS
     reprojection error (px), names the views where the board was not found, flags outlier
     views (RMS above 3x the median view's) and shows how much of the image the corners
     covered: uncovered image corners mean the distortion there is a guess. Writes CAM.yaml
@@ -391,7 +391,7 @@ def calibrate_known_lens(
     from ovis.common.vision.preprocess import as_gray
     from ovis.services.cli.ui import emit_json
 
-    placement = board_placement(board, board_origin, board_row_end)
+    placement = _board_placement(board, board_origin, board_row_end)
     if intrinsics is None:
         raise UserError("--board and --markers need --intrinsics CAM.yaml (from `ovis intrinsics`)")
     if board is not None and square_cm is None:
