@@ -5,7 +5,7 @@ Two boards, named as on the command line:
 * ``chessboard:COLSxROWS`` — a chessboard with COLS × ROWS *inner* corners, found by
   ``cv2.findChessboardCorners`` and refined by ``cv2.cornerSubPix`` (30 iterations or
   1e-3 px, OpenCV's calibration tutorial) in a window that fits the squares of the view
-  (:func:`subpix_window`);
+  (:func:`subpix_window`), on the image slightly smoothed (:data:`SUBPIX_BLUR_PX`);
 * ``charuco:COLSxROWS:DICT`` — a ChArUco board of COLS × ROWS *squares* whose markers come
   from the ArUco dictionary DICT (e.g. ``DICT_5X5_100``), found by
   ``cv2.aruco.CharucoDetector`` (its corners are sub-pixel already).
@@ -57,6 +57,11 @@ SUBPIX_HALF_WINDOW = (2, 11)
 #: board turned 45° in the image) pulls the corner towards them; OpenCV advises about
 #: half a square or less.
 SUBPIX_WINDOW_SHARE = 0.5
+#: Gaussian smoothing (σ, px) of the image cornerSubPix refines in: on a sharp image the
+#: refined corner is drawn towards the middle of its pixel (pixel locking: each edge falls
+#: on too few pixels for its gradient); a symmetric blur spreads the edges without moving
+#: the corner. Chosen on the shared real photos, each held out (see tests/test_intrinsics.py).
+SUBPIX_BLUR_PX = 0.5
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 1e-3)
 #: A ChArUco view needs this many corners to take part in a calibration or a pose.
 MIN_CHARUCO_CORNERS = 6
@@ -223,8 +228,9 @@ def find_board(gray: NDArray[np.uint8], spec: BoardSpec) -> BoardView | None:
             return None
         grid = board_order(gray, corners.reshape(spec.rows, spec.cols, 2))
         half = subpix_window(corner_spacing(grid))
+        smooth = cv2.GaussianBlur(gray, (0, 0), SUBPIX_BLUR_PX)
         corners = cv2.cornerSubPix(
-            gray, grid.reshape(-1, 1, 2), (half, half), (-1, -1), SUBPIX_CRITERIA
+            smooth, grid.reshape(-1, 1, 2), (half, half), (-1, -1), SUBPIX_CRITERIA
         )
         ids = np.arange(spec.corner_count, dtype=np.int32)
         return BoardView(corners.reshape(-1, 2), board_points(spec), ids, half)
