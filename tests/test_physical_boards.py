@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 import cv2
+import msgspec
 import numpy as np
 import pytest
 from cli_helpers import ovis
@@ -34,8 +35,17 @@ VIEWS = 15
 FOCAL_SHARE, LOCATE_CM = 0.003, 0.2
 
 
+def _config():
+    """The issue's arena: 150 × 120 cm."""
+    config = load_config()
+    arena = {"arena_x_cm": (0.0, 150.0), "arena_y_cm": (0.0, 120.0)}
+    simulator = msgspec.structs.replace(config.simulator, **arena)
+    return msgspec.structs.replace(config, simulator=simulator)
+
+
 def _camera():
-    return rig("oblique", load_config())
+    """The oblique rig over that arena: 140 cm up, 120 cm back from its middle."""
+    return rig("oblique", _config())
 
 
 def _truth_px(camera, xyz: np.ndarray) -> np.ndarray:
@@ -123,7 +133,7 @@ def test_intrinsics_on_another_seed(tmp_path: Path) -> None:
 
 def _arena_points(camera) -> tuple[np.ndarray, np.ndarray]:
     """Floor points of the arena the camera sees (cm, z = 0) and their true pixels."""
-    config = load_config()
+    config = _config()
     (x0, x1), (y0, y1) = config.simulator.arena_x_cm, config.simulator.arena_y_cm
     gx, gy = np.meshgrid(np.linspace(x0, x1, 7), np.linspace(y0, y1, 6))
     xyz = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
@@ -135,13 +145,19 @@ def _arena_points(camera) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize(
     ("square_cm", "x_cm", "y_cm", "angle_deg"),
-    [(2.5, 70.0, 55.0, 15.0), (5.0, 80.0, 62.0, -35.0), (10.0, 72.0, 66.0, 190.0)],
+    [
+        (2.5, 70.0, 55.0, 15.0),
+        (5.0, 80.0, 62.0, -35.0),
+        (5.0, 68.0, 64.0, 180.0),  # along the arena's axes, as a lab lays it
+        (10.0, 72.0, 66.0, 190.0),
+    ],
 )
 def test_a_board_on_the_floor_placed_in_the_arena(
     lens, tmp_path: Path, square_cm: float, x_cm: float, y_cm: float, angle_deg: float
 ) -> None:
     """The board lying on the floor before the oblique camera (turned any way, even
-    upside down as the camera sees it), its origin corner and its first row's end given
+    upside down as the camera sees it; its edges along the pixel rows too, where
+    cornerSubPix is most drawn to pixel centres), its origin corner and its first row's end given
     in the arena's frame: the calibration is accepted (its residuals explained by the
     lens) and `ovis locate` puts the arena's floor points where they are."""
     cam, _ = lens
