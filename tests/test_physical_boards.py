@@ -4,8 +4,8 @@ oblique rig's camera (640 × 480, 50° across, with lens distortion), held befor
 45–85 cm for `ovis intrinsics`, then laid on the floor for `ovis calibrate --board`,
 placed in the arena's frame, and checked with `ovis locate` on known floor points.
 
-The seeds and placements here were not used to choose the corner window or anything
-else (tuning used seeds 100–102, 200–203 and 300–326)."""
+The seeds and placements here were not used to choose the corner window, the smoothing
+or anything else (those used seeds 100–102, 200–203 and 300–326, and other placements)."""
 
 from __future__ import annotations
 
@@ -157,9 +157,9 @@ def test_a_board_on_the_floor_placed_in_the_arena(
 ) -> None:
     """The board lying on the floor before the oblique camera (turned any way, even
     upside down as the camera sees it; its edges along the pixel rows too, where
-    cornerSubPix is most drawn to pixel centres), its origin corner and its first row's end given
-    in the arena's frame: the calibration is accepted (its residuals explained by the
-    lens) and `ovis locate` puts the arena's floor points where they are."""
+    cornerSubPix is most drawn to pixel centres), its origin corner and its first row's
+    end given in the arena's frame: the calibration is accepted (its residuals explained
+    by the lens) and `ovis locate` puts a grid over the whole arena floor where it is."""
     cam, _ = lens
     camera = _camera()
     spec = parse_board("chessboard:9x6", square_cm)
