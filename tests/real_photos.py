@@ -42,17 +42,27 @@ def board_xyz() -> np.ndarray:
     return obj
 
 
-def opencv_corners(path: Path) -> np.ndarray:
-    """The README's recipe: findChessboardCorners + cornerSubPix, (54, 2) x = column."""
+def opencv_corners(path: Path, half_window: int = SUBPIX[0][0], blur_px: float = 0.0) -> np.ndarray:
+    """The README's recipe: findChessboardCorners + cornerSubPix (its 11-pixel half window,
+    or ``half_window``; on the photo smoothed by a Gaussian of ``blur_px`` when > 0),
+    (54, 2) x = column."""
     gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     found, c = cv2.findChessboardCorners(gray, BOARD)
     assert found, path
-    return cv2.cornerSubPix(gray, c, *SUBPIX).reshape(-1, 2)
+    if blur_px > 0:
+        gray = cv2.GaussianBlur(gray, (0, 0), blur_px)
+    return cv2.cornerSubPix(gray, c, (half_window, half_window), *SUBPIX[1:]).reshape(-1, 2)
 
 
-def opencv_calibration(paths: list[Path]):
-    """cv2.calibrateCamera over the views (rms, K, dist)."""
-    corners = [opencv_corners(p).reshape(-1, 1, 2) for p in paths]
+def opencv_calibration(
+    paths: list[Path], half_windows: list[int] | None = None, blur_px: float = 0.0
+):
+    """cv2.calibrateCamera over the views (rms, K, dist), their corners refined as the
+    README says (or each in its own half window, on the photo smoothed by ``blur_px``)."""
+    windows = half_windows or [SUBPIX[0][0]] * len(paths)
+    corners = [
+        opencv_corners(p, w, blur_px).reshape(-1, 1, 2) for p, w in zip(paths, windows, strict=True)
+    ]
     rms, K, d, _, _ = cv2.calibrateCamera(
         [board_xyz()] * len(paths), corners, (640, 512), None, None
     )

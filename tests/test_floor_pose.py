@@ -485,3 +485,78 @@ def test_a_board_needs_its_square_size(lens13: Path, tmp_path: Path) -> None:
     )  # fmt: skip
     assert_one_line_error(proc, "--board needs --square-cm")
     assert proc.returncode == 2 and not out.exists()
+
+
+# A board placed in the arena's frame (issue 36): --board-origin and --board-row-end.
+
+
+def test_a_board_placed_in_the_arena_gives_arena_positions(lens13: Path, tmp_path: Path) -> None:
+    """left14's board as the floor, its origin corner said to lie at (40, 30) cm of the
+    arena and its first row's last inner corner at (40, 50) (the row along the arena's
+    +y): the calibration is the board-frame one moved there, and `ovis locate` gives the
+    corners' arena positions."""
+    photo = photo_paths()[13]
+    board = tmp_path / "board.json"
+    arena = tmp_path / "arena.json"
+    plain = floor_calibration(photo, lens13, board, *BOARD)
+    placed = floor_calibration(
+        photo, lens13, arena, *BOARD, "--board-origin", "40,30", "--board-row-end", "40,50"
+    )
+    note = placed["accuracy"]["notes"][0]
+    assert note.startswith("floor frame: the arena's") and "20.00 cm apart" in note
+    # board frame (x along the row, y away from the other rows) → arena: a quarter turn
+    xy = floor_xy() * 2.5
+    want = np.column_stack([40.0 - xy[:, 1], 30.0 + xy[:, 0]])
+    got = np.array([[p["x_cm"], p["y_cm"]] for p in placed["points"]])
+    assert np.allclose(got, want, atol=1e-9)
+
+    # the same camera: its centre moved by the same motion, the same residuals
+    def centre(calib: dict) -> np.ndarray:
+        R = cv2.Rodrigues(np.array(calib["camera"]["rvec"]))[0]
+        return -R.T @ np.array(calib["camera"]["tvec_cm"])
+
+    c_board, c_arena = centre(plain), centre(placed)
+    assert np.allclose(c_arena, (40.0 - c_board[1], 30.0 + c_board[0], c_board[2]), atol=1e-3)
+    # (the solver's tolerance: OpenCV's threads make runs differ by a few millionths)
+    assert placed["dipe_px"] == pytest.approx(plain["dipe_px"], rel=1e-4)
+    pixels = [(p["detected_row"], p["detected_col"]) for p in placed["points"]]
+    args = [a for r, c in pixels for a in ("--pixel", f"{r},{c}")]
+    located = json.loads(ovis("locate", str(arena), *args, "--json").stdout)
+    err = np.hypot(*(np.array([[p["x_cm"], p["y_cm"]] for p in located]) - want).T)
+    assert err.max() < 0.05, err.max()
+
+
+@pytest.mark.parametrize(
+    ("how", "needle"),
+    [
+        (("--board-origin", "40,30", "--board-row-end", "40,51"), "21.00 cm apart as placed"),
+        (("--board-origin", "40,30"), "give both --board-origin X,Y and --board-row-end X,Y"),
+        (("--board-origin", "40", "--board-row-end", "40,50"), "--board-origin must be X,Y"),
+        (("--board-origin", "40,30", "--board-row-end", "nan,50"), "must be finite"),
+        (("--board", "chessboard:8x6"), "looks the same turned half-way round"),
+        (("--points", "pts.toml"), "give --board too"),
+    ],
+)
+def test_a_placement_that_cannot_be_right_is_one_line_exit_2(
+    lens13: Path, tmp_path: Path, how: tuple[str, ...], needle: str
+) -> None:
+    """Corners measured a centimetre too far apart for the board (a wrong corner, or a
+    wrong --square-cm), half a placement, a bad number, a board whose pattern does not
+    fix its origin corner, a placement without a board: refused, nothing written."""
+    out = tmp_path / "calib.json"
+    args = list(how)
+    if "--board-origin" not in args:
+        args += ["--board-origin", "40,30", "--board-row-end", "40,50"]
+    if "--points" in args:
+        args[args.index("pts.toml")] = str(tmp_path / "pts.toml")
+        write_points(tmp_path / "pts.toml", opencv_corners(photo_paths()[13]), OUTER)
+    elif "--board" not in args:
+        args = [*BOARD, *args]
+    else:
+        args += ["--square-cm", "2.5"]
+    proc = ovis(
+        "calibrate", str(photo_paths()[13]), "--intrinsics", str(lens13), *args,
+        "--out", str(out), check=False,
+    )  # fmt: skip
+    assert_one_line_error(proc, needle, code=2)
+    assert not out.exists()

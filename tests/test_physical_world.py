@@ -15,9 +15,10 @@ from physical_helpers import needs_physical
 from ovis.common.camera.projection import project
 from ovis.common.config import load_config
 from ovis.common.physical.camera import CM_PER_M, render_camera
+from ovis.common.physical.model import add_camera
 from ovis.common.physical.rigs import rig
 from ovis.common.physical.scene import Path, random_scene
-from ovis.common.physical.world import PhysicalWorld
+from ovis.common.physical.world import PhysicalWorld, grey_frame
 
 pytestmark = needs_physical
 
@@ -38,19 +39,12 @@ def _dots_render(camera, points_cm: np.ndarray) -> np.ndarray:
             pos=(p / CM_PER_M).tolist(),
             material="glow",
         )
-    cam = spec.worldbody.add_camera(name="c", pos=r.pos_m.tolist())
-    cam.quat = r.quat.tolist()
-    cam.resolution = list(r.canvas)
-    cam.sensor_size = [r.canvas[0] * 1e-5, r.canvas[1] * 1e-5]
-    cam.focal_pixel = list(r.focal_px)
-    cam.principal_pixel = list(r.principal_px)
+    add_camera(spec, "c", r)
     model = spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     with mujoco.Renderer(model, r.canvas[1], r.canvas[0]) as renderer:
-        renderer.update_scene(data, camera="c")
-        grey = cv2.cvtColor(renderer.render(), cv2.COLOR_RGB2GRAY)
-    return r.finish(grey)
+        return grey_frame(renderer, data, "c", r)
 
 
 @pytest.mark.parametrize("which", ["paper", "oblique", "overhead"])

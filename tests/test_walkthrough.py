@@ -51,7 +51,7 @@ MARKED = re.compile(r"^<!-- test: ([\w-]+) -->\n```console\n(.*?)^```", re.M | r
 CONSOLE = re.compile(r"^```console$", re.M)
 #: The blocks this file runs, each in the test named after its step.
 RUN = {
-    *("lens", "floor", "locate", "detect"),
+    *("lens", "floor", "locate", "detect", "floor-arena", "locate-arena"),
     *("up-frames", "watch", "status", "second-up", "up-video", "up-stream", "status-lost"),
     *("no-calibration", "wrong-size", "no-camera"),
 }
@@ -246,6 +246,18 @@ def test_steps_3_and_4_locate_the_board_corners_and_detect_one_frame(calibrated:
     assert np.allclose(xy, [(0.0, 0.0), (20.0, -12.5)], atol=0.03), xy
     (detect,) = block("detect")
     place.ok(detect)
+
+
+def test_step_2_the_board_placed_in_the_arena(calibrated: Path) -> None:
+    """The board said to lie with its origin corner at (40, 30) cm and its first row along
+    the arena's +x: the same corners come back at arena positions."""
+    place = Place(calibrated)
+    (floor,) = block("floor-arena")
+    place.ok(floor)
+    (locate,) = block("locate-arena")
+    out = place.ok(locate).stdout
+    xy = [tuple(map(float, m)) for m in re.findall(r"x (\S+) cm, y (\S+) cm", out)]
+    assert np.allclose(xy, [(40.0, 30.0), (60.0, 17.5)], atol=0.03), xy
 
 
 # --- step 5: live ----------------------------------------------------------------------------

@@ -23,6 +23,7 @@ import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import msgspec
@@ -45,17 +46,22 @@ from ovis.common.config import (
     PoseConfig,
 )
 from ovis.common.vision.boards import BoardSpec, MarkerView, find_board
+from ovis.common.vision.boards import board_points as printed_corners
 
 __all__ = [
     "MIN_POINTS",
+    "BoardPlacement",
     "FloorPoseError",
     "MarkerSpec",
     "MarkersFile",
+    "PlacedBoard",
+    "board_floor_xy",
     "board_points",
     "check_image_size",
     "known_lens_config",
     "load_markers",
     "marker_points",
+    "place_board",
     "solve_floor_pose",
 ]
 
@@ -66,6 +72,11 @@ COLLINEAR_TOLERANCE = 1e-3
 #: The residual (px) counted for a point a trial lens does not project (keeps the focal
 #: length search finite).
 _NO_FIT_PX = 1e6
+#: How far the measured distance between a placed board's two corners may be from the
+#: board's own: this share of it, and at least PLACEMENT_TOLERANCE_CM (a tape's reading
+#: of two points; a wrong corner or a wrong --square-cm is far beyond).
+PLACEMENT_TOLERANCE = 0.02
+PLACEMENT_TOLERANCE_CM = 0.5
 
 
 class FloorPoseError(ValueError):
@@ -279,11 +290,13 @@ def solve_floor_pose(
     source: str = "",
     point_px: float = CLICK_PX,
     lens_name: str = "the intrinsics file",
+    frame: str | None = None,
 ) -> Calibration:
     """The calibration of a camera with lens ``intr`` from pixel-known ``points`` seen in an
     image of ``image_size`` (width, height), judged against what the lens and the points'
     pixel precision ``point_px`` (RMS, px) explain (``accuracy.lens``, see
-    :mod:`ovis.common.calibration.lens_check`). See the module docstring."""
+    :mod:`ovis.common.calibration.lens_check`); ``frame`` says what the points' floor
+    frame rests on (the first of the report's notes). See the module docstring."""
     t0 = time.perf_counter()
     check_image_size(intr, *image_size, "the image")
     _validate(points, *image_size)
@@ -304,7 +317,7 @@ def solve_floor_pose(
         for i, p in enumerate(points)
     ]
     loo = _leave_one_out(points, xyz, pix, intr, px)
-    notes = []
+    notes = [] if frame is None else [frame]
     if loo is None:
         notes.append(f"leave-one-out needs more than {MIN_POINTS} points (got {len(points)})")
     lens = pose_check(
@@ -347,12 +360,95 @@ def _floor_errors(
     return [float(e) if ok else None for e, ok in zip(err, b.valid, strict=True)]
 
 
-def board_points(gray: NDArray[np.uint8], spec: BoardSpec) -> list[ControlPoint]:
-    """Every corner of a board lying on the floor as a pixel-known control point.
+def board_floor_xy(spec: BoardSpec) -> NDArray[np.float64]:
+    """(N, 2) floor positions of a board's inner corners (OpenCV's corner order) in the
+    board's own floor frame: its first inner corner at the origin, x along its first row,
+    z up to the camera, so y points away from its other rows (corner i of row j of a
+    chessboard at ``(i·S, −j·S)``); in the board's unit (cm)."""
+    return printed_corners(spec)[:, :2].astype(np.float64) * (1.0, -1.0)
 
-    The floor frame: the board's first inner corner is the origin, x runs along its first
-    row, z points up to the camera, so y points away from the other rows (corner (i, j),
-    i along the row, j the row, is at ``(i·S, −j·S)``); cm = the board's unit."""
+
+class BoardPlacement(msgspec.Struct, frozen=True, kw_only=True):
+    """Where a board lying face up on the floor lies in the arena, as a tape measures it:
+    the arena floor positions (cm) of its origin corner (its first inner corner) and of
+    the last inner corner of its first row."""
+
+    origin_cm: tuple[float, float]
+    row_end_cm: tuple[float, float]
+
+    def __post_init__(self) -> None:
+        if not all(math.isfinite(v) for v in (*self.origin_cm, *self.row_end_cm)):
+            raise ValueError("a board's placement must be finite positions in cm")
+
+
+def _row_end_index(spec: BoardSpec) -> int:
+    """The index of the last inner corner of a board's first row."""
+    return spec.cols - 1 if spec.kind == "chessboard" else spec.cols - 2
+
+
+class PlacedBoard(NamedTuple):
+    """The rigid motion of the floor taking a board's floor frame to the arena's,
+    ``arena = rotation · board + shift`` (cm), and one line saying what it rests on."""
+
+    rotation: NDArray[np.float64]
+    shift: NDArray[np.float64]
+    note: str
+
+    def arena(self, board_xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(N, 2) arena positions of points given in the board's floor frame."""
+        return board_xy @ self.rotation.T + self.shift
+
+
+def place_board(spec: BoardSpec, placement: BoardPlacement) -> PlacedBoard:
+    """Where the board's floor frame (:func:`board_floor_xy`) lies in the arena's: its two
+    measured corners fitted in the least-squares sense (their midpoint on the measured
+    one, the first row along the measured direction).
+
+    Raises FloorPoseError for a board whose pattern does not fix its origin corner (a
+    chessboard looking the same turned half-way round) and for measured corners whose
+    distance is not the board's (:data:`PLACEMENT_TOLERANCE`)."""
+    if not spec.oriented:
+        raise FloorPoseError(
+            f"{spec.describe()} looks the same turned half-way round, so which corner is its "
+            "origin depends on the camera's view: place a board with one odd and one even "
+            "count of inner corners (e.g. chessboard:9x6) or a ChArUco board"
+        )
+    xy = board_floor_xy(spec)
+    board = np.array([xy[0], xy[_row_end_index(spec)]])
+    measured = np.array([placement.origin_cm, placement.row_end_cm], dtype=np.float64)
+    d_board, d_measured = board[1] - board[0], measured[1] - measured[0]
+    length, apart = float(np.hypot(*d_board)), float(np.hypot(*d_measured))
+    allowed = max(PLACEMENT_TOLERANCE * length, PLACEMENT_TOLERANCE_CM)
+    if abs(apart - length) > allowed:
+        raise FloorPoseError(
+            f"the board's origin corner and the end of its first row are {apart:.2f} cm apart "
+            f"as placed, but {length:.2f} cm on the board ({spec.describe()}, "
+            f"{spec.square:g} cm squares; at most {allowed:.2f} cm off): check the two "
+            "measured corners (the origin is the first inner corner, docs/real-camera.md) "
+            "and --square-cm"
+        )
+    turn = math.atan2(d_measured[1], d_measured[0]) - math.atan2(d_board[1], d_board[0])
+    c, s = math.cos(turn), math.sin(turn)
+    R = np.array([[c, -s], [s, c]])
+    t = measured.mean(axis=0) - R @ board.mean(axis=0)
+    o, e = placement.origin_cm, placement.row_end_cm
+    note = (
+        f"floor frame: the arena's; {spec.describe()}'s origin corner placed at "
+        f"({o[0]:g}, {o[1]:g}) cm and its first row's last inner corner at ({e[0]:g}, "
+        f"{e[1]:g}) cm, {apart:.2f} cm apart as measured ({length:.2f} cm on the board)"
+    )
+    return PlacedBoard(R, t, note)
+
+
+def board_points(
+    gray: NDArray[np.uint8], spec: BoardSpec, placed: PlacedBoard | None = None
+) -> list[ControlPoint]:
+    """Every corner of a board lying on the floor as a pixel-known control point: in the
+    board's own floor frame (:func:`board_floor_xy`), or in the arena's where the board
+    is ``placed`` (:func:`place_board`)."""
+    xy = board_floor_xy(spec)
+    if placed is not None:
+        xy = placed.arena(xy)
     view = find_board(gray, spec)
     if view is None:
         raise FloorPoseError(
@@ -362,13 +458,13 @@ def board_points(gray: NDArray[np.uint8], spec: BoardSpec) -> list[ControlPoint]
     return [
         ControlPoint(
             name=f"corner{int(i)}",
-            x_cm=float(xyz[0]),
-            y_cm=-float(xyz[1]) + 0.0,
+            x_cm=float(xy[i, 0]) + 0.0,
+            y_cm=float(xy[i, 1]) + 0.0,
             z_cm=0.0,
-            row=float(xy[1]),
-            col=float(xy[0]),
+            row=float(p[1]),
+            col=float(p[0]),
         )
-        for i, xyz, xy in zip(view.ids, view.board_xyz, view.image_xy, strict=True)
+        for i, p in zip(view.ids, view.image_xy, strict=True)
     ]
 
 

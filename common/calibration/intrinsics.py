@@ -2,7 +2,8 @@
 
 The images must share one size: the size most of them have is kept and the others are
 rejected unread, by name (one odd file never decides the size for the rest). Each
-view's board corners come from :func:`ovis.common.vision.boards.find_board`; views
+view's board corners come from :func:`ovis.common.vision.boards.find_board` (a
+chessboard's refined in a window half its smallest square wide); views
 where the board is not found are rejected, by name and reason. ``cv2.calibrateCameraExtended``
 (five distortion coefficients, no flags: OpenCV's defaults) gives K, the distortion, the
 overall RMS reprojection error and each view's. A view whose RMS is above
@@ -72,6 +73,10 @@ class ViewResult(msgspec.Struct, kw_only=True):
     corners: int
     rms_px: float
     outlier: bool = False
+    #: side (px) of the square window cornerSubPix refined this view's corners in: twice
+    #: the half window :func:`ovis.common.vision.boards.subpix_window` fits to the view's
+    #: smallest square, plus one; None for ChArUco (its detector refines its own corners)
+    window_px: int | None = None
 
 
 class Coverage(msgspec.Struct, kw_only=True):
@@ -235,7 +240,13 @@ def calibrate_intrinsics(
     outlier = (per_view > OUTLIER_FACTOR * median) & (per_view > OUTLIER_FLOOR_PX)
     dropped = bool(drop_outliers and outlier.any() and (~outlier).sum() >= MIN_VIEWS)
     results = [
-        ViewResult(view=f.name, corners=len(f.view.ids), rms_px=float(e), outlier=bool(o))
+        ViewResult(
+            view=f.name,
+            corners=len(f.view.ids),
+            rms_px=float(e),
+            outlier=bool(o),
+            window_px=None if f.view.window_px is None else 2 * f.view.window_px + 1,
+        )
         for f, e, o in zip(found, per_view, outlier, strict=True)
     ]
     used = found

@@ -3,7 +3,7 @@ ceiling lights, simulated and rendered by MuJoCo (``mujoco``, off-screen through
 through a calibrated camera, with ground truth read from the physics state. What
 stands where (``scene``), the MuJoCo model (``model``), the camera as MuJoCo renders it
 (``camera``), the world in time (``world``), whether this machine can render
-(``availability``).
+(``availability``); a printed calibration board held up or on the floor (``boards``).
 May import: ``config``, ``atomic``, ``camera``, ``vision``, ``sim``.
 """
 

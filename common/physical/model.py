@@ -28,7 +28,7 @@ from ovis.common.physical.scene import Scene, Solid, circumradius
 from ovis.common.sim.painting import marker_hand
 from ovis.common.vision.markers import marker_cells
 
-__all__ = ["FLOOR_GROUP", "SOLID_GROUP", "build_spec", "camera_name", "joint_names"]
+__all__ = ["FLOOR_GROUP", "SOLID_GROUP", "add_camera", "build_spec", "camera_name", "joint_names"]
 
 FLOOR_GROUP = 0
 SOLID_GROUP = 1
@@ -48,6 +48,17 @@ SOLID_MASS_KG = 1.0
 
 def camera_name(k: int) -> str:
     return f"cam{k}"
+
+
+def add_camera(spec: mujoco.MjSpec, name: str, rendered: RenderCamera) -> None:
+    """A MuJoCo camera called ``name`` placed and focused as ``rendered`` says
+    (:func:`~ovis.common.physical.camera.render_camera`)."""
+    cam = spec.worldbody.add_camera(name=name, pos=rendered.pos_m.tolist())
+    cam.quat = rendered.quat.tolist()
+    cam.resolution = list(rendered.canvas)
+    cam.sensor_size = [rendered.canvas[0] * 1e-5, rendered.canvas[1] * 1e-5]
+    cam.focal_pixel = list(rendered.focal_px)
+    cam.principal_pixel = list(rendered.principal_px)
 
 
 def joint_names(solid: Solid) -> tuple[str, str, str]:
@@ -221,10 +232,5 @@ def build_spec(
             hand = marker_hand(cameras[0], mid[0], mid[1], solid.height_cm)
         _add_solid(spec, solid, config, hand)
     for k, r in enumerate(rendered):
-        cam = spec.worldbody.add_camera(name=camera_name(k), pos=r.pos_m.tolist())
-        cam.quat = r.quat.tolist()
-        cam.resolution = list(r.canvas)
-        cam.sensor_size = [r.canvas[0] * 1e-5, r.canvas[1] * 1e-5]
-        cam.focal_pixel = list(r.focal_px)
-        cam.principal_pixel = list(r.principal_px)
+        add_camera(spec, camera_name(k), r)
     return spec

@@ -33,10 +33,37 @@ from ovis.common.physical.model import (
 from ovis.common.physical.scene import Scene, Solid
 from ovis.common.sim.arena import FrameTruth, SimObject
 
-__all__ = ["PhysicalWorld"]
+__all__ = ["PhysicalWorld", "grey_frame", "sensor_noise"]
 
 _STREAM_NOISE = 5
 _SHAPES = {"cylinder": "disk", "box": "rect", "prism": "prism"}
+
+
+def grey_frame(
+    renderer: mujoco.Renderer,
+    data: mujoco.MjData,
+    camera: str,
+    rendered: RenderCamera,
+    option: mujoco.MjvOption | None = None,
+) -> NDArray[np.uint8]:
+    """The grey frame MuJoCo's ``camera`` renders of ``data``, resampled through the lens
+    (``rendered``: that camera's :func:`~ovis.common.physical.camera.render_camera`)."""
+    if option is None:
+        renderer.update_scene(data, camera=camera)
+    else:
+        renderer.update_scene(data, camera=camera, scene_option=option)
+    grey = cv2.cvtColor(renderer.render(), cv2.COLOR_RGB2GRAY)
+    return rendered.finish(grey)
+
+
+def sensor_noise(grey: NDArray[np.uint8], sigma: float, key: Sequence[int]) -> NDArray[np.uint8]:
+    """``grey`` with Gaussian sensor noise of ``sigma`` grey levels drawn from ``key`` (a
+    seed sequence: the same key, the same noise), rounded and clipped to 0..255."""
+    if sigma <= 0.0:
+        return grey
+    rng = np.random.default_rng(list(key))
+    noisy = grey + rng.standard_normal(grey.shape, dtype=np.float32) * np.float32(sigma)
+    return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
 
 
 def _wrap_deg(a: float) -> float:
@@ -162,23 +189,15 @@ class PhysicalWorld:
     def clean(self, k: int = 0, *, solids: bool = True) -> NDArray[np.uint8]:
         """Camera ``k``'s grey frame of the current state without sensor noise
         (``solids=False``: the empty floor with its marks, for background subtraction)."""
-        renderer = self._renderer(k)
-        renderer.update_scene(self.data, camera=camera_name(k), scene_option=self._option(solids))
-        rgb = renderer.render()
-        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-        return self.rendered[k].finish(grey)
+        return grey_frame(
+            self._renderer(k), self.data, camera_name(k), self.rendered[k], self._option(solids)
+        )
 
     def render(self, index: int, k: int = 0) -> NDArray[np.uint8]:
         """Camera ``k``'s grey frame of the current state, frame ``index``'s sensor noise
         added (deterministic per seed, index and camera)."""
-        grey = self.clean(k)
-        if self.noise_sigma <= 0.0:
-            return grey
-        rng = np.random.default_rng([self.scene.seed, int(index), k, _STREAM_NOISE])
-        noisy = grey + rng.standard_normal(grey.shape, dtype=np.float32) * np.float32(
-            self.noise_sigma
-        )
-        return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+        key = (self.scene.seed, int(index), k, _STREAM_NOISE)
+        return sensor_noise(self.clean(k), self.noise_sigma, key)
 
     def visible_px(self, k: int = 0) -> dict[int, int]:
         """Pixels of camera ``k``'s (canvas) image where each solid (by id) is seen in

@@ -3,19 +3,29 @@
 Two boards, named as on the command line:
 
 * ``chessboard:COLSxROWS`` — a chessboard with COLS × ROWS *inner* corners, found by
-  ``cv2.findChessboardCorners`` and refined by ``cv2.cornerSubPix`` (window 11×11,
-  30 iterations or 1e-3 px, OpenCV's calibration tutorial);
+  ``cv2.findChessboardCorners`` and refined by ``cv2.cornerSubPix`` (30 iterations or
+  1e-3 px, OpenCV's calibration tutorial) in a window that fits the squares of the view
+  (:func:`subpix_window`), on the image slightly smoothed (:data:`SUBPIX_BLUR_PX`);
 * ``charuco:COLSxROWS:DICT`` — a ChArUco board of COLS × ROWS *squares* whose markers come
   from the ArUco dictionary DICT (e.g. ``DICT_5X5_100``), found by
   ``cv2.aruco.CharucoDetector`` (its corners are sub-pixel already).
 
 Board coordinates: the first inner corner is the origin, x runs along the first row
 (OpenCV's corner order), y along the columns, z = 0, in the board's length unit (one
-square = ``square``). Pixel positions are OpenCV's (x = column, y = row).
+square = ``square``); z = x × y points into the board, away from the camera. Pixel
+positions are OpenCV's (x = column, y = row).
+
+A chessboard's corner order is made the printed board's own (:func:`board_order`):
+seen from its printed face, its rows of COLS corners run left to right, the first row on
+top, and — when COLS + ROWS is odd, so that a half turn swaps the colours — the square
+diagonally beyond the first corner (the board's top-left corner square) is black. A board
+with COLS + ROWS even looks the same turned half-way round: its first corner is one of
+two, whichever the view makes it (:attr:`BoardSpec.oriented`).
 """
 
 from __future__ import annotations
 
+import math
 import re
 from typing import Literal, NamedTuple
 
@@ -30,13 +40,28 @@ __all__ = [
     "BoardView",
     "MarkerView",
     "aruco_dictionary",
+    "board_order",
+    "board_points",
+    "corner_spacing",
     "find_board",
     "find_markers",
     "parse_board",
+    "subpix_window",
 ]
 
-#: cornerSubPix settings of OpenCV's calibration tutorial (and of the shared photos' README).
-SUBPIX_WINDOW = (11, 11)
+#: Bounds of cornerSubPix's half window (px; the window is 2·half + 1 wide). The upper one
+#: is OpenCV's calibration tutorial's (and the shared photos' README's) fixed window.
+SUBPIX_HALF_WINDOW = (2, 11)
+#: cornerSubPix's half window as a share of the view's shortest corner spacing: a window
+#: that reaches the edges of the neighbouring corners (from about 0.7 of a square on a
+#: board turned 45° in the image) pulls the corner towards them; OpenCV advises about
+#: half a square or less.
+SUBPIX_WINDOW_SHARE = 0.5
+#: Gaussian smoothing (σ, px) of the image cornerSubPix refines in: on a sharp image the
+#: refined corner is drawn towards the middle of its pixel (pixel locking: each edge falls
+#: on too few pixels for its gradient); a symmetric blur spreads the edges without moving
+#: the corner. Chosen on the shared real photos, each held out (see tests/test_intrinsics.py).
+SUBPIX_BLUR_PX = 0.5
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 1e-3)
 #: A ChArUco view needs this many corners to take part in a calibration or a pose.
 MIN_CHARUCO_CORNERS = 6
@@ -65,6 +90,12 @@ class BoardSpec(msgspec.Struct, frozen=True, kw_only=True):
             return self.cols * self.rows
         return (self.cols - 1) * (self.rows - 1)
 
+    @property
+    def oriented(self) -> bool:
+        """Whether the printed board fixes its own origin corner: a ChArUco board always
+        (its markers), a chessboard when COLS + ROWS is odd (a half turn swaps its colours)."""
+        return self.kind == "charuco" or (self.cols + self.rows) % 2 == 1
+
     def describe(self) -> str:
         if self.kind == "chessboard":
             return f"chessboard:{self.cols}x{self.rows}"
@@ -77,6 +108,9 @@ class BoardView(NamedTuple):
     image_xy: NDArray[np.float32]  # (N, 2) OpenCV x = column, y = row
     board_xyz: NDArray[np.float32]  # (N, 3) board coordinates, z = 0
     ids: NDArray[np.int32]  # (N,) corner index on the board (row-major)
+    #: cornerSubPix's half window (px) for a chessboard; None for ChArUco (its detector
+    #: refines its own corners)
+    window_px: int | None = None
 
 
 class MarkerView(NamedTuple):
@@ -143,6 +177,47 @@ def board_points(spec: BoardSpec) -> NDArray[np.float32]:
     return out
 
 
+def corner_spacing(grid: NDArray[np.floating]) -> float:
+    """The shortest distance (px) between neighbouring corners of a (rows, cols, 2) grid,
+    along its rows and its columns: the smallest square of the view."""
+    along = np.linalg.norm(np.diff(grid, axis=1), axis=2)
+    across = np.linalg.norm(np.diff(grid, axis=0), axis=2)
+    return float(min(along.min(), across.min()))
+
+
+def subpix_window(spacing_px: float) -> int:
+    """cornerSubPix's half window (px) for a view whose smallest square is ``spacing_px``
+    wide: :data:`SUBPIX_WINDOW_SHARE` of it, within :data:`SUBPIX_HALF_WINDOW`."""
+    low, high = SUBPIX_HALF_WINDOW
+    return int(np.clip(math.floor(SUBPIX_WINDOW_SHARE * spacing_px), low, high))
+
+
+def board_order(gray: NDArray[np.uint8], grid: NDArray[np.float32]) -> NDArray[np.float32]:
+    """A chessboard's (rows, cols, 2) corner grid in the printed board's own order (module
+    docstring): the rows reversed when the board's z (along a row × along the columns)
+    would point towards the camera, then the whole grid turned half-way round when the
+    squares coloured as the one diagonally beyond the first corner are the light ones
+    (COLS + ROWS odd only: otherwise a half turn shows the same colours)."""
+    rows, cols = grid.shape[:2]
+    along = (grid[:, -1] - grid[:, 0]).mean(axis=0)
+    across = (grid[-1] - grid[0]).mean(axis=0)
+    if along[0] * across[1] - along[1] * across[0] < 0:  # image x right, y down
+        grid = grid[::-1]
+    if (rows + cols) % 2 == 1:
+        centres = (grid[:-1, :-1] + grid[1:, :-1] + grid[:-1, 1:] + grid[1:, 1:]) / 4.0
+        level = cv2.remap(
+            gray.astype(np.float32),
+            np.ascontiguousarray(centres[..., 0], np.float32),
+            np.ascontiguousarray(centres[..., 1], np.float32),
+            cv2.INTER_LINEAR,
+        )
+        i, j = np.meshgrid(np.arange(cols - 1), np.arange(rows - 1))
+        like_first = (i + j) % 2 == 0  # coloured as the square beyond the first corner
+        if level[like_first].mean() > level[~like_first].mean():
+            grid = grid[::-1, ::-1]
+    return np.ascontiguousarray(grid)
+
+
 def find_board(gray: NDArray[np.uint8], spec: BoardSpec) -> BoardView | None:
     """The board's corners in ``gray``, or None when the board is not found."""
     if spec.kind == "chessboard":
@@ -151,9 +226,14 @@ def find_board(gray: NDArray[np.uint8], spec: BoardSpec) -> BoardView | None:
         found, corners = cv2.findChessboardCorners(gray, size, flags=flags)
         if not found:
             return None
-        corners = cv2.cornerSubPix(gray, corners, SUBPIX_WINDOW, (-1, -1), SUBPIX_CRITERIA)
+        grid = board_order(gray, corners.reshape(spec.rows, spec.cols, 2))
+        half = subpix_window(corner_spacing(grid))
+        smooth = cv2.GaussianBlur(gray, (0, 0), SUBPIX_BLUR_PX)
+        corners = cv2.cornerSubPix(
+            smooth, grid.reshape(-1, 1, 2), (half, half), (-1, -1), SUBPIX_CRITERIA
+        )
         ids = np.arange(spec.corner_count, dtype=np.int32)
-        return BoardView(corners.reshape(-1, 2), board_points(spec), ids)
+        return BoardView(corners.reshape(-1, 2), board_points(spec), ids, half)
     board = _charuco_board(spec)
     corners, ids, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(gray)
     if ids is None or len(ids) < MIN_CHARUCO_CORNERS:

@@ -14,7 +14,7 @@ import typer
 from ovis.services.cli.errors import UserError
 from ovis.services.cli.options import JsonOpt
 
-__all__ = ["register"]
+__all__ = ["BoardOriginOpt", "BoardRowEndOpt", "register"]
 
 BoardOpt = Annotated[
     str | None,
@@ -30,6 +30,58 @@ MarkerOpt = Annotated[
     float | None,
     typer.Option("--marker-cm", help="ChArUco only: side of a marker (cm).", min=1e-6),
 ]
+
+BoardOriginOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--board-origin",
+        help="With --board: X,Y (cm), where the board's origin corner (its first inner "
+        "corner: the top-left one seen from above with its rows of COLS corners left to "
+        "right and a black corner square at its top left) lies on the arena floor. With "
+        "--board-row-end the calibration is in the arena's frame, not the board's.",
+    ),
+]
+BoardRowEndOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--board-row-end",
+        help="With --board-origin: X,Y (cm), where the last inner corner of the board's "
+        "first row lies on the arena floor (its distance from the origin corner must be "
+        "the board's, within 2 % or 0.5 cm).",
+    ),
+]
+
+
+def _floor_xy(text: str, option: str) -> tuple[float, float]:
+    """'X,Y' as two finite floats (cm), or a one-line error naming ``option``."""
+    parts = text.split(",")
+    try:
+        x, y = (float(p) for p in parts)
+    except ValueError:
+        raise UserError(f"{option} must be X,Y in cm, got {text!r}") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise UserError(f"{option} must be finite, got {text!r}")
+    return x, y
+
+
+def _board_placement(board: str | None, origin: str | None, row_end: str | None):
+    """The board's placement in the arena from --board-origin and --board-row-end (both or
+    neither, only with --board), or None."""
+    from ovis.common.calibration.floor import BoardPlacement
+
+    if origin is None and row_end is None:
+        return None
+    if board is None:
+        raise UserError("--board-origin and --board-row-end place a --board: give --board too")
+    if origin is None or row_end is None:
+        raise UserError(
+            "give both --board-origin X,Y and --board-row-end X,Y (the board's origin corner "
+            "and the last inner corner of its first row, measured on the arena floor in cm)"
+        )
+    return BoardPlacement(
+        origin_cm=_floor_xy(origin, "--board-origin"),
+        row_end_cm=_floor_xy(row_end, "--board-row-end"),
+    )
 
 
 def board_spec(board: str | None, square_cm: float, marker_cm: float | None):
@@ -139,7 +191,8 @@ def intrinsics(
 ) -> None:
     """Calibrate a lens (K and distortion) from photos of a printed board.
 
-    Uses OpenCV's detectors (findChessboardCorners + cornerSubPix, or CharucoDetector) and
+    Uses OpenCV's detectors (findChessboardCorners + cornerSubPix in a window reaching
+    half the view's smallest square around each corner, or CharucoDetector) and
     calibrateCamera (five distortion coefficients). Reports the overall and per-view RMS
     reprojection error (px), names the views where the board was not found, flags outlier
     views (RMS above 3x the median view's) and shows how much of the image the corners
@@ -217,10 +270,12 @@ def _print_intrinsics(report, out: Path | None, plot: Path | None) -> None:
     con = Console(highlight=False)
     (fx, _, cx), (_, fy, cy), _ = report.camera_matrix
     t = Table(title=f"views ({report.board})", title_justify="left")
-    for col in ("view", "corners", "RMS px", "flag"):
+    for col in ("view", "corners", "window px", "RMS px", "flag"):
         t.add_column(col, justify="right")
     for v in report.per_view:
-        t.add_row(v.view, str(v.corners), f"{v.rms_px:.3f}", "OUTLIER" if v.outlier else "")
+        window = "-" if v.window_px is None else str(v.window_px)
+        flag = "OUTLIER" if v.outlier else ""
+        t.add_row(v.view, str(v.corners), window, f"{v.rms_px:.3f}", flag)
     con.print(t)
     for r in report.views_rejected:
         con.print(f"rejected {r.view}: {r.reason}")
@@ -271,8 +326,9 @@ def refuse_implausible(calib, force: bool, extra: list[str] | None = None) -> li
     return reasons
 
 
-def _known_lens_points(gray, intr, points, board, square_cm, marker_cm, markers):
-    """Pixel-known control points from --points, --board or --markers."""
+def _known_lens_points(gray, intr, points, board, square_cm, marker_cm, markers, placed):
+    """Pixel-known control points from --points, --board (in the arena's frame where it
+    is ``placed``) or --markers."""
     from ovis.common.calibration.floor import board_points, load_markers, marker_points
     from ovis.common.config import load_points
     from ovis.common.vision.boards import find_markers
@@ -281,7 +337,7 @@ def _known_lens_points(gray, intr, points, board, square_cm, marker_cm, markers)
     if sum(given) != 1:
         raise UserError("give one of --points, --board or --markers")
     if board is not None:
-        return board_points(gray, board_spec(board, square_cm, marker_cm)), None
+        return board_points(gray, board_spec(board, square_cm, marker_cm), placed), None
     if markers is not None:
         survey = load_markers(markers)
         try:
@@ -309,11 +365,15 @@ def calibrate_known_lens(
     json: bool,
     force: bool,
     quiet: bool,
+    board_origin: str | None = None,
+    board_row_end: str | None = None,
 ) -> None:
     """`ovis calibrate --intrinsics`: the floor pose with the lens fixed (see
     :mod:`ovis.common.calibration.floor`), judged against what the lens and the points'
     precision explain (:mod:`ovis.common.calibration.lens_check`; printed even when
-    refused); blob points go to the GA with the lens fixed."""
+    refused); blob points go to the GA with the lens fixed. A board placed with
+    ``board_origin`` and ``board_row_end`` (X,Y cm) gives a calibration in the arena's
+    frame."""
     import msgspec
 
     from ovis.common.calibration.file import save_calibration
@@ -321,6 +381,7 @@ def calibrate_known_lens(
         FloorPoseError,
         check_image_size,
         known_lens_config,
+        place_board,
         solve_floor_pose,
     )
     from ovis.common.calibration.lens_check import BOARD_PX, CLICK_PX, distortion_problems
@@ -330,6 +391,7 @@ def calibrate_known_lens(
     from ovis.common.vision.preprocess import as_gray
     from ovis.services.cli.ui import emit_json
 
+    placement = _board_placement(board, board_origin, board_row_end)
     if intrinsics is None:
         raise UserError("--board and --markers need --intrinsics CAM.yaml (from `ovis intrinsics`)")
     if board is not None and square_cm is None:
@@ -347,8 +409,11 @@ def calibrate_known_lens(
     extra: list[str] = []
     try:
         check_image_size(intr, gray.shape[1], gray.shape[0], f"image {image}")
+        placed = None
+        if placement is not None:
+            placed = place_board(board_spec(board, square_cm or 1.0, marker_cm), placement)
         pts, pts_file = _known_lens_points(
-            gray, intr, points, board, square_cm or 1.0, marker_cm, markers
+            gray, intr, points, board, square_cm or 1.0, marker_cm, markers, placed
         )
         cfg = resolve_config(config, preset, pts_file.config if pts_file else None)
         pitch = (
@@ -366,6 +431,7 @@ def calibrate_known_lens(
                 source=str(image),
                 point_px=default_px if point_px is None else point_px,
                 lens_name=str(intrinsics),
+                frame=None if placed is None else placed.note,
             )
         else:
             from ovis.services.cli.ui import calibrate_with_progress

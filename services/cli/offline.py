@@ -12,6 +12,7 @@ import typer
 
 from ovis.common.config import resolve_config
 from ovis.common.vision.imageio import read_image
+from ovis.services.cli.camera import BoardOriginOpt, BoardRowEndOpt
 from ovis.services.cli.errors import UserError
 from ovis.services.cli.options import JsonOpt, OfflineConfigOpt, PresetOpt
 from ovis.services.cli.ui import (
@@ -124,7 +125,8 @@ def calibrate(
         str | None,
         typer.Option(
             help="With --intrinsics: a board lying on the floor, chessboard:COLSxROWS or "
-            "charuco:COLSxROWS:DICT; its first inner corner is the origin, x along its first row."
+            "charuco:COLSxROWS:DICT; its first inner corner is the origin, x along its first "
+            "row (--board-origin, --board-row-end: placed in the arena's frame)."
         ),
     ] = None,
     square_cm: Annotated[
@@ -139,6 +141,8 @@ def calibrate(
     marker_cm: Annotated[
         float | None, typer.Option("--marker-cm", min=1e-6, help="--board charuco: marker side.")
     ] = None,
+    board_origin: BoardOriginOpt = None,
+    board_row_end: BoardRowEndOpt = None,
     markers: Annotated[
         Path | None,
         typer.Option(
@@ -228,9 +232,12 @@ def calibrate(
     from ovis.services.cli.camera import calibrate_known_lens, refuse_implausible
     from ovis.services.cli.reports import print_calibration
 
-    if intrinsics is not None or board is not None or markers is not None:
+    placed = board_origin is not None or board_row_end is not None
+    if intrinsics is not None or board is not None or markers is not None or placed:
         calibrate_known_lens(
             image,
+            board_origin=board_origin,
+            board_row_end=board_row_end,
             intrinsics=intrinsics,
             points=points,
             board=board,
