@@ -117,7 +117,8 @@ def main(service: Service) -> None:
             if back is not None:
                 changed.set()
                 service.log.info("source back after %.1f s (lost: %s)", back.seconds, back.reason)
-            service.stop.wait(pacer.delay())
+            # a source on its own clock (the physical world) waits for its frames itself
+            service.stop.wait(0.0 if getattr(source, "self_paced", False) else pacer.delay())
     finally:
         if source is not None:
             source.close()

@@ -1,0 +1,149 @@
+"""One camera of the simulated camera grid (``grid:2x2:cam01``) over the physical world:
+the grid's cameras (:func:`ovis.common.sim.gridview.grid_specs`, their poses and lenses
+from the seed) looking at one physical world on the grid's whole floor.
+
+Every camera's process builds the same world from the seed (:func:`grid_world`: the
+configuration's ``[physical]`` scene on the grid's arena, placed without regard to any
+one view, so that it does not depend on which camera builds it), and renders one period
+of it, frame ``f`` showing ``t = f · period_s / N`` (N frames a period at the capture's
+``[service] fps``), each from the physics state at that instant: a prerendered period
+loops without a jump, and the grid's shared trigger
+(:class:`~ovis.common.capture.sources.GridSource`) plays it on every camera at once.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import msgspec
+import numpy as np
+from numpy.typing import NDArray
+
+from ovis.common.atomic import write_atomic
+from ovis.common.config import OvisConfig, PinholeParams
+from ovis.common.physical import camera, model, scene, world
+from ovis.common.physical.scene import Scene, random_scene
+from ovis.common.physical.world import PhysicalWorld
+from ovis.common.sim.arena import FrameTruth
+from ovis.common.sim.gridview import CELL_CM, grid_specs
+from ovis.common.sim.multiview import grid_arena
+
+__all__ = ["PhysicalGridCamera", "grid_config", "grid_world", "period_frames"]
+
+
+def grid_config(config: OvisConfig, nx: int, ny: int) -> OvisConfig:
+    """``config`` on the floor of an ``nx × ny`` grid (its ``[simulator]`` arena)."""
+    x, y = grid_arena(nx, ny, CELL_CM)
+    sim = msgspec.structs.replace(config.simulator, arena_x_cm=x, arena_y_cm=y)
+    return msgspec.structs.replace(config, simulator=sim)
+
+
+def grid_world(config: OvisConfig, nx: int, ny: int, seed: int) -> Scene:
+    """The physical world every camera of the grid sees (the module docstring)."""
+    return random_scene(grid_config(config, nx, ny), seed, [])
+
+
+def period_frames(config: OvisConfig, period_s: float) -> int:
+    """Frames in one period at the capture's rate (at least one)."""
+    fps = config.service.fps if config.service.fps > 0 else config.simulator.fps
+    return max(1, round(period_s * fps))
+
+
+class PhysicalGridCamera:
+    """Camera ``name`` of an ``nx × ny`` grid over the physical world of ``seed``."""
+
+    def __init__(self, config: OvisConfig, nx: int, ny: int, name: str, seed: int) -> None:
+        specs = grid_specs(nx, ny, config, seed)
+        names = [s.name for s in specs]
+        if name not in names:
+            raise ValueError(f"no camera {name!r} in a {nx}x{ny} grid ({', '.join(names)})")
+        cam = specs[names.index(name)].camera
+        assert isinstance(cam, PinholeParams)
+        self.name, self.seed, self.cam = name, int(seed), cam
+        self.config = grid_config(config, nx, ny)
+        self.scene = grid_world(config, nx, ny, seed)
+        self.period = period_frames(config, self.scene.period_s)
+        self._world: PhysicalWorld | None = None
+
+    @property
+    def world(self) -> PhysicalWorld:
+        """This camera's MuJoCo world (built on first use)."""
+        if self._world is None:
+            self._world = PhysicalWorld(self.scene, self.config, [self.cam])
+        return self._world
+
+    def time_of(self, frame: int) -> float:
+        """The instant (s) frame ``frame`` of the period shows."""
+        return (frame % self.period) * self.scene.period_s / self.period
+
+    def floor(self) -> NDArray[np.uint8]:
+        """This camera's picture of the empty floor with its marks (no sensor noise)."""
+        return self.world.clean(solids=False)
+
+    def render(self, frame: int) -> tuple[NDArray[np.uint8], FrameTruth]:
+        """Frame ``frame`` (modulo the period) and the truth of the whole floor then."""
+        frame %= self.period
+        self.world.set_time(self.time_of(frame))
+        return self.world.render(frame), self.world.truth(frame)
+
+    def render_period(
+        self,
+        progress: Callable[[int, int], None] | None = None,
+        cache_dir: Path | None = None,
+    ) -> list[tuple[NDArray[np.uint8], FrameTruth]]:
+        """Every frame of one period, read-only; ``progress(done, total)`` after each.
+        With ``cache_dir``, the frames are kept there (one ``.npy`` per camera, named by
+        a hash of what they depend on) and read back, memory-mapped, by the next run."""
+        shape = (self.period, int(self.cam.rows), int(self.cam.cols))
+        cached = None if cache_dir is None else cache_dir / f"{self._cache_key()}.npy"
+        images = None
+        if cached is not None and cached.is_file():
+            with contextlib.suppress(OSError, ValueError):  # unreadable: render again
+                images = np.load(cached, mmap_mode="r")
+                images = images if images.shape == shape else None
+        if images is not None:
+            if progress is not None:
+                progress(self.period, self.period)
+        else:
+            images = np.empty(shape, np.uint8)
+            for f in range(self.period):
+                images[f] = self.render(f)[0]
+                if progress is not None:
+                    progress(f + 1, self.period)
+            images.setflags(write=False)
+            if cached is not None:
+                with contextlib.suppress(OSError):  # a cache that cannot be written: none
+                    cached.parent.mkdir(parents=True, exist_ok=True)
+                    buf = io.BytesIO()
+                    np.save(buf, images)
+                    write_atomic(cached, buf.getbuffer())
+        return [(images[f], self._truth(f)) for f in range(self.period)]
+
+    def _truth(self, frame: int) -> FrameTruth:
+        """Frame ``frame``'s truth, read from the physics state at its instant."""
+        self.world.set_time(self.time_of(frame))
+        return self.world.truth(frame)
+
+    def close(self) -> None:
+        if self._world is not None:
+            self._world.close()
+
+    def _cache_key(self) -> str:
+        h = hashlib.sha256()
+        key = [self.config.simulator, self.config.physical, self.config.pose, self.cam]
+        h.update(msgspec.json.encode([key, self.name, self.seed, self.period]))
+        for module in (camera, model, scene, world, sys.modules[__name__]):
+            h.update(Path(module.__file__ or "").read_bytes())
+        h.update(f"mujoco {_mujoco_version()}".encode())
+        return f"physical-{self.name}-{h.hexdigest()[:20]}"
+
+
+def _mujoco_version() -> str:
+    import mujoco
+
+    return str(mujoco.__version__)
