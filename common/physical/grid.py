@@ -25,22 +25,38 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.atomic import write_atomic
+from ovis.common.calibration.file import Calibration
 from ovis.common.config import OvisConfig, PinholeParams
 from ovis.common.physical import camera, model, scene, world
+from ovis.common.physical.marks import calibrate_on_marks, measure_marks
 from ovis.common.physical.scene import Scene, random_scene
 from ovis.common.physical.world import PhysicalWorld
 from ovis.common.sim.arena import FrameTruth
 from ovis.common.sim.gridview import CELL_CM, grid_specs
 from ovis.common.sim.multiview import grid_arena
 
-__all__ = ["PhysicalGridCamera", "grid_config", "grid_world", "period_frames"]
+__all__ = [
+    "MARKS_PER_CAMERA",
+    "PhysicalGridCamera",
+    "calibrate_grid_camera",
+    "grid_config",
+    "grid_world",
+    "period_frames",
+]
+
+#: Floor marks laid per camera of a grid (spread over the whole floor): enough for each
+#: camera to see the four a pose needs, and more, in its cell.
+MARKS_PER_CAMERA = 8
 
 
 def grid_config(config: OvisConfig, nx: int, ny: int) -> OvisConfig:
-    """``config`` on the floor of an ``nx × ny`` grid (its ``[simulator]`` arena)."""
+    """``config`` on the floor of an ``nx × ny`` grid (its ``[simulator]`` arena), with
+    :data:`MARKS_PER_CAMERA` floor marks per camera unless it lays more."""
     x, y = grid_arena(nx, ny, CELL_CM)
     sim = msgspec.structs.replace(config.simulator, arena_x_cm=x, arena_y_cm=y)
-    return msgspec.structs.replace(config, simulator=sim)
+    marks = min(64, max(config.physical.floor_marks, MARKS_PER_CAMERA * nx * ny))
+    phys = msgspec.structs.replace(config.physical, floor_marks=marks)
+    return msgspec.structs.replace(config, simulator=sim, physical=phys)
 
 
 def grid_world(config: OvisConfig, nx: int, ny: int, seed: int) -> Scene:
@@ -141,6 +157,20 @@ class PhysicalGridCamera:
             h.update(Path(module.__file__ or "").read_bytes())
         h.update(f"mujoco {_mujoco_version()}".encode())
         return f"physical-{self.name}-{h.hexdigest()[:20]}"
+
+
+def calibrate_grid_camera(camera: PhysicalGridCamera) -> tuple[Calibration, NDArray[np.uint8]]:
+    """The grid camera calibrated as one camera is (:mod:`ovis.common.physical.marks`):
+    its pose solved on the floor marks it sees in its picture of the empty floor, its
+    lens fixed at its own; and that picture (for ``[image] background``)."""
+    floor = camera.floor()
+    points = measure_marks(floor, camera.scene.marks, camera.cam)
+    source = (
+        f"{len(points)} floor marks of the empty floor seen by {camera.name} (physical "
+        f"world, seed {camera.seed}), its own lens"
+    )
+    calib = calibrate_on_marks(points, camera.cam, camera.config, source=source)
+    return msgspec.structs.replace(calib, simulated=True), floor
 
 
 def _mujoco_version() -> str:

@@ -45,6 +45,8 @@ __all__ = [
 #: A blob is a mark's when its centroid lies within this many pixels of where the camera
 #: projects the mark (beyond the mark's own projected radius).
 MATCH_PX = 6.0
+#: A mark is measured only when its disc lies this far (pixels) inside the image.
+BORDER_PX = 2.0
 
 
 class EmptyFloor(NamedTuple):
@@ -123,10 +125,16 @@ def measure_marks(
     mi, bi = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e9))
     # how far the mark's own rim reaches in the image: its radius at its place
     rim = project(x + np.array([m.radius_cm for m in marks]), y, z, camera)
-    reach = np.hypot(rim.row - p.row, rim.col - p.col) + MATCH_PX
+    radius = np.hypot(rim.row - p.row, rim.col - p.col)
+    reach = radius + MATCH_PX
+    # a mark cut by the image border has its blob's centroid off its centre: left out
+    edge = radius + BORDER_PX
+    rows, cols = floor.shape[:2]
+    whole = (p.row >= edge) & (p.row <= rows - 1 - edge) & (p.col >= edge)
+    whole &= p.col <= cols - 1 - edge
     points = []
     for m, b in sorted(zip(mi, bi, strict=True)):
-        if cost[m, b] <= reach[m]:
+        if cost[m, b] <= reach[m] and whole[m]:
             mark = marks[m]
             points.append(
                 ControlPoint(
