@@ -177,4 +177,7 @@ def test_up_physical_cameras_2x2_fuses_one_physical_world(tmp_path: Path) -> Non
     summary = json.loads(proc.stdout)
     assert "calibrated on the floor marks it sees" in proc.stderr
     assert all(c["captured"] >= 5 and c["processed"] >= 5 for c in summary["cameras"].values())
-    assert summary["world"]["frames"] >= 5 and summary["world"]["scored"] >= 5
+    world = summary["world"]
+    assert world["frames"] >= 5 and world["scored"] >= 5
+    assert world["height_error_cm"]["max"] >= world["height_error_cm"]["mean"] >= 0
+    assert world["heights"]

@@ -307,6 +307,7 @@ class _Run:
     def summary(self, fleet: Any, elapsed_s: float) -> dict[str, Any]:
         import numpy as np
 
+        from ovis.common.analysis.live import heights_basis
         from ovis.common.analysis.multicam import CameraRun, percentiles
 
         score, latency, scored = self.watch.score(self.clock_from)
@@ -346,6 +347,12 @@ class _Run:
                     "mean": score.world_error_cm_mean,
                     "max": score.world_error_cm_max,
                 },
+                # the fused top heights less the true ones, and what they rest on
+                "height_error_cm": {
+                    "mean": score.height_error_cm_mean,
+                    "max": score.height_error_cm_max,
+                },
+                "heights": heights_basis(self.base.pose),
                 "latency_ms": latency,
                 # world frames refused for want of the fusion key's proof, and the last why
                 "unproven": self.unproven.n,
@@ -504,6 +511,12 @@ def _print_summary(summary: dict[str, Any]) -> None:
         f" cm; latency capture → world p50 {w['latency_ms']['p50']:.1f} ms, p99 "
         f"{w['latency_ms']['p99']:.1f} ms"
     )
+    dz = w["height_error_cm"]
+    if dz["mean"] is not None:
+        con.print(
+            f"height error mean {dz['mean']:.3f} cm, max {dz['max']:.3f} cm (heights "
+            f"{escape(w['heights'])})"
+        )
     if w["unproven"]:
         con.print(
             f"[red]refused {w['unproven']} world frame(s) without the fusion service's proof "
