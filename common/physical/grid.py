@@ -13,18 +13,14 @@ loops without a jump, and the grid's shared trigger
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
-import io
 import sys
-from collections.abc import Callable
 from pathlib import Path
 
 import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
-from ovis.common.atomic import write_atomic
 from ovis.common.calibration.file import Calibration
 from ovis.common.config import OvisConfig, PinholeParams
 from ovis.common.physical import camera, model, scene, world
@@ -32,7 +28,7 @@ from ovis.common.physical.marks import calibrate_on_marks, measure_marks
 from ovis.common.physical.scene import Scene, random_scene
 from ovis.common.physical.world import PhysicalWorld
 from ovis.common.sim.arena import FrameTruth
-from ovis.common.sim.gridview import CELL_CM, grid_specs
+from ovis.common.sim.gridview import CELL_CM, PeriodCamera, grid_specs
 from ovis.common.sim.multiview import grid_arena
 
 __all__ = [
@@ -70,7 +66,7 @@ def period_frames(config: OvisConfig, period_s: float) -> int:
     return max(1, round(period_s * fps))
 
 
-class PhysicalGridCamera:
+class PhysicalGridCamera(PeriodCamera):
     """Camera ``name`` of an ``nx × ny`` grid over the physical world of ``seed``."""
 
     def __init__(self, config: OvisConfig, nx: int, ny: int, name: str, seed: int) -> None:
@@ -106,39 +102,6 @@ class PhysicalGridCamera:
         frame %= self.period
         self.world.set_time(self.time_of(frame))
         return self.world.render(frame), self.world.truth(frame)
-
-    def render_period(
-        self,
-        progress: Callable[[int, int], None] | None = None,
-        cache_dir: Path | None = None,
-    ) -> list[tuple[NDArray[np.uint8], FrameTruth]]:
-        """Every frame of one period, read-only; ``progress(done, total)`` after each.
-        With ``cache_dir``, the frames are kept there (one ``.npy`` per camera, named by
-        a hash of what they depend on) and read back, memory-mapped, by the next run."""
-        shape = (self.period, int(self.cam.rows), int(self.cam.cols))
-        cached = None if cache_dir is None else cache_dir / f"{self._cache_key()}.npy"
-        images = None
-        if cached is not None and cached.is_file():
-            with contextlib.suppress(OSError, ValueError):  # unreadable: render again
-                images = np.load(cached, mmap_mode="r")
-                images = images if images.shape == shape else None
-        if images is not None:
-            if progress is not None:
-                progress(self.period, self.period)
-        else:
-            images = np.empty(shape, np.uint8)
-            for f in range(self.period):
-                images[f] = self.render(f)[0]
-                if progress is not None:
-                    progress(f + 1, self.period)
-            images.setflags(write=False)
-            if cached is not None:
-                with contextlib.suppress(OSError):  # a cache that cannot be written: none
-                    cached.parent.mkdir(parents=True, exist_ok=True)
-                    buf = io.BytesIO()
-                    np.save(buf, images)
-                    write_atomic(cached, buf.getbuffer())
-        return [(images[f], self._truth(f)) for f in range(self.period)]
 
     def _truth(self, frame: int) -> FrameTruth:
         """Frame ``frame``'s truth, read from the physics state at its instant."""

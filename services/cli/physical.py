@@ -156,7 +156,7 @@ def simulate_physical(
 ) -> None:
     """``ovis simulate --world physical``: the data set of
     :func:`ovis.common.physical.dataset.write_physical_dataset`, with progress."""
-    from ovis.services.cli.ui import console, emit_json, progress
+    from ovis.services.cli.ui import emit_json, progress
 
     require_physical()
     cfg = physical_scene(physical_camera(camera, cfg), robots, obstacles)
@@ -175,7 +175,14 @@ def simulate_physical(
         raise UserError(str(exc)) from None
     if json:
         emit_json(info)
-        return
+    else:
+        _say_written(out, cfg, frames, seed, info)
+
+
+def _say_written(out: Path, cfg: Any, frames: int, seed: int, info: Any) -> None:
+    """What ``ovis simulate --world physical`` wrote, and what to run next."""
+    from ovis.services.cli.ui import console
+
     con = console()
     cam = cfg.camera
     con.print(
