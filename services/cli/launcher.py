@@ -164,7 +164,7 @@ def up(
         typer.Option(
             min=0.0,
             help="Stop this many seconds after the capture starts (once the other stages "
-            "listen; default: Ctrl-C).",
+            "listen; the physical world: after its first frame; default: Ctrl-C).",
         ),
     ] = None,
     config: ConfigOpt = None,
@@ -369,7 +369,8 @@ def up(
                                  "--out", str(record)])  # fmt: skip
         downstream = (*downstream, "recorder")
     summary = _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir,
-                   duration=duration, live=live, json=json)  # fmt: skip
+                   duration=duration, live=live, json=json,
+                   first_frame_s=PHYSICAL_OPEN_S if physical else 0.0)  # fmt: skip
     if json:
         sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
     else:
@@ -410,10 +411,28 @@ def _wait_router(fleet, listen: str, stop) -> None:
         stop.wait(0.05)
 
 
-def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, duration, live, json):
+#: How long the physical world's capture may take to build its world and deliver its
+#: first frame before `ovis up --duration` counts anyway.
+PHYSICAL_OPEN_S = 60.0
+
+
+def _wait_first_frame(fleet, score, limit_s: float, stop) -> None:
+    """Wait (supervising) until the first frame's truth or obstacles came, at most
+    ``limit_s``."""
+    deadline = time.monotonic() + limit_s
+    while not stop.is_set() and time.monotonic() < deadline:
+        if score.truth_frames or score.frames:
+            return
+        fleet.supervise()
+        stop.wait(0.1)
+
+
+def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, duration, live, json,
+         first_frame_s: float = 0.0):  # fmt: skip
     """Run the started system until ``stop`` or ``duration``: the capture once the other
-    stages listen, the live view, the supervision; then stop it and sum up (only this
-    run's processes and frames)."""
+    stages listen (``duration`` counted from its first frame when ``first_frame_s``
+    says how long that may take), the live view, the supervision; then stop it and sum
+    up (only this run's processes and frames)."""
     from ovis.common.analysis.live import heights_basis, with_verdict
     from ovis.common.config import ZenohConfig
     from ovis.services.bus import open_session
@@ -435,6 +454,8 @@ def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, durati
                 )
             if not stop.is_set():
                 start("capture")
+            if first_frame_s:  # a source that takes a while to open: from its first frame
+                _wait_first_frame(fleet, live_view.score, first_frame_s, stop)
             # --duration counts from here: a slow start (a loaded machine) takes no frames away.
             stop_polling = _poll_counters(fleet, session, topics)
             live_view.run(
