@@ -15,6 +15,7 @@ frame rate ``ovis up --world physical`` sustains.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import subprocess
 import sys
@@ -95,16 +96,17 @@ def _sustained_fps(fps: float, log=print) -> tuple[float, int]:
 
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 120
-        session = None
-        while session is None and time.monotonic() < deadline and proc.poll() is None:
-            try:
-                session = open_session(ZenohConfig(connect=[f"tcp/127.0.0.1:{port}"]))
-            except Exception:
-                time.sleep(0.5)
-        if session is None:
-            raise RuntimeError("ovis up --world physical: no router to subscribe to")
-        with session:
+        with contextlib.ExitStack() as stack:
+            deadline = time.monotonic() + 120
+            while proc.poll() is None and time.monotonic() < deadline:
+                try:  # its router, once it listens
+                    connect = ZenohConfig(connect=[f"tcp/127.0.0.1:{port}"])
+                    session = stack.enter_context(open_session(connect))
+                    break
+                except Exception:
+                    time.sleep(0.5)
+            else:
+                raise RuntimeError("ovis up --world physical: no router to subscribe to")
             session.declare_subscriber(Topics("default").obstacles, on_obstacles)
             out, err = proc.communicate(timeout=RUN_S + 180)
     finally:
