@@ -52,6 +52,7 @@ GROUPS = {
     "recovery": "Recovery",
     "trust": "Proof of origin",
     "ros2": "ROS 2 output",
+    "physical": "Physical world",
 }
 DEFAULT = (
     "pipeline",
@@ -66,6 +67,7 @@ DEFAULT = (
     "trust",
     "ros2",
     "budget",
+    "physical",
 )
 
 
@@ -85,6 +87,7 @@ TIMED = {
     "trust": ("benchmarks.trust", "trust_rows"),
     "ros2": ("benchmarks.ros2", "ros2_rows"),
     "budget": ("benchmarks.budget", "budget_rows"),
+    "physical": ("benchmarks.physical", "physical_rows"),
 }
 
 

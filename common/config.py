@@ -1,8 +1,8 @@
 """Configuration: msgspec Structs validated on load, TOML presets, control-point files.
 
-A configuration file is TOML. It may name a ``preset`` (``default``, ``paper`` or
-``pinhole``) and override any subset of its fields (a ``[camera]`` table of another
-``model`` than the preset's replaces the preset's camera instead); the merged result
+A configuration file is TOML. It may name a ``preset`` (``default``, ``paper``,
+``pinhole`` or ``physical``) and override any subset of its fields (a ``[camera]`` table
+of another ``model`` than the preset's replaces the preset's camera instead); the merged result
 is validated in one pass, and a bad value is reported with its path and the allowed
 range, e.g.
 ``Expected `float` <= 1.0 - at `$.camera.s_x```.
@@ -55,7 +55,7 @@ __all__ = [
     "with_options",
 ]
 
-PRESETS = ("default", "paper", "pinhole")
+PRESETS = ("default", "paper", "pinhole", "physical")
 
 #: Calibration versions the calibrator keeps (``[service] keep_calibrations``'s default).
 KEEP_CALIBRATIONS = 20
@@ -702,7 +702,7 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Everything ovis needs: camera, image pipeline, GA ranges and settings, pose, simulator."""
 
-    preset: Literal["default", "paper", "pinhole"] = "default"
+    preset: Literal["default", "paper", "pinhole", "physical"] = "default"
     camera: CameraModel
     image: ImageParams = msgspec.field(default_factory=ImageParams)
     calibration: CalibrationRanges = msgspec.field(default_factory=CalibrationRanges)
@@ -717,6 +717,16 @@ class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     fusion: FusionConfig = msgspec.field(default_factory=FusionConfig)
     trust: TrustConfig = msgspec.field(default_factory=TrustConfig)
     ros2: Ros2Config = msgspec.field(default_factory=Ros2Config)
+
+    @property
+    def starts_with_configured_camera(self) -> bool:
+        """Whether the stages may work with the configured camera until a calibration
+        comes: the light simulator's frames are painted through it, and the simulated
+        grid's chains are given their cameras; the physical world's single camera, like a
+        real one, waits for the calibrator's (made on its floor marks)."""
+        if not self.service.simulated_source:
+            return False
+        return not (self.service.source == "sim" and self.simulator.world == "physical")
 
     def __post_init__(self) -> None:
         names = [c.name for c in self.cameras]
@@ -867,13 +877,21 @@ def with_options(
     connect: list[str] | None = None,
     listen: list[str] | None = None,
     mode: str | None = None,
+    preset: str | None = None,
+    world: str | None = None,
     **service: Any,
 ) -> OvisConfig:
-    """The configuration (a file, else the default preset) with command-line options
-    laid over it, validated again: Zenoh's connect (when given), listen and mode, and
-    every ``[service]`` field that is not None."""
-    cfg = load_config(config_file) if config_file is not None else load_config()
+    """The configuration (a file, else ``preset``, by default the default preset) with
+    command-line options laid over it, validated again: Zenoh's connect (when given),
+    listen and mode, the simulated ``world`` (``[simulator] world``) and every
+    ``[service]`` field that is not None."""
+    if config_file is not None:
+        cfg = load_config(config_file)
+    else:
+        cfg = load_config(preset=preset or "default")
     data = msgspec.to_builtins(cfg)
+    if world is not None:
+        data["simulator"]["world"] = world
     if connect:
         data["zenoh"]["connect"] = connect
     if listen is not None:

@@ -3,7 +3,9 @@
 A query runs the GA (paper §4) on the latest frame, or on the frame named in the query,
 with the configured control points (a points file, or for the simulated arena the
 frame's ground truth, which the capture sends just after the frame: the latest frame
-that has it, and a named frame's is waited for up to ``TRUTH_WAIT_S``); the result,
+that has it, and a named frame's is waited for up to ``TRUTH_WAIT_S``); in the physical
+world the pose is solved on its floor marks instead (:mod:`ovis.common.pipeline.floor_marks`)
+and judged on that frame; the result,
 checked by :func:`calibration_problem`, is saved atomically as a new version of the
 store (with its epoch), published on ``ovis/<arena>/calibration`` and returned in the
 reply, once it passed the quality gate (:mod:`ovis.common.calibration.gate`: a candidate
@@ -21,11 +23,14 @@ the current generation.
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 
 import msgspec
+import numpy as np
 import zenoh
+from numpy.typing import NDArray
 
 from ovis.common.calibration.file import Calibration, dipe_text
 from ovis.common.calibration.ga import GenerationStats
@@ -46,6 +51,7 @@ from ovis.common.messages import (
     encode,
 )
 from ovis.common.pipeline.candidate import judge_candidate
+from ovis.common.pipeline.floor_marks import FloorMarksCalibration
 from ovis.common.pipeline.following import label
 from ovis.common.pipeline.limits import frame_payload_problem
 from ovis.common.pipeline.recalibration import (
@@ -68,21 +74,22 @@ INITIAL_RETRY_S = 2.0
 
 def initial_calibration(
     service: Service,
-    keeper: FrameKeeper,
+    can_start: threading.Event,
     job: CalibrationJob,
     run_calibration: Callable[[CalibrateRequest], CalibrateReply],
     answer_next: Callable[[float], bool],
 ) -> None:
-    """Calibrate on the newest usable frame once frames flow, retrying every
-    ``INITIAL_RETRY_S`` until it works (a scene may be infeasible, the disk full, for a
-    while); queries meanwhile are answered (``answer_next``: "busy" while it runs, and
-    one that calibrates is the first calibration)."""
+    """Calibrate on the newest usable frame once ``can_start`` is set (frames flow; the
+    floor marks need none), retrying every ``INITIAL_RETRY_S`` until it works (a scene
+    may be infeasible, the disk full, for a while); queries meanwhile are answered
+    (``answer_next``: "busy" while it runs, and one that calibrates is the first
+    calibration)."""
     service.log.info("no saved calibration: calibrating on the first usable frame")
     said, next_try = "", 0.0
     while not service.stop.is_set():
         if answer_next(0.2):
             return
-        if time.monotonic() < next_try or not keeper.first_frame.is_set() or not job.claim():
+        if time.monotonic() < next_try or not can_start.is_set() or not job.claim():
             continue
         try:
             reply = run_calibration(CalibrateRequest())
@@ -139,6 +146,10 @@ def main(service: Service) -> None:
     if cfg.service.points != "simulator":
         file_points = load_points(cfg.service.points).points
     keeper = FrameKeeper(needs_truth=file_points is None)
+    # the physical world: the floor marks, measured in the empty floor (not the objects)
+    on_marks = None
+    if file_points is None and cfg.simulator.world == "physical":
+        on_marks = FloorMarksCalibration(cfg)
 
     def on_frame(sample: zenoh.Sample) -> None:
         # Only the header is decoded here (cheap); the image when a calibration needs it.
@@ -242,6 +253,8 @@ def main(service: Service) -> None:
             return CalibrateReply(ok=False, error=problem)
         if (problem := store.writable()) is not None:  # said at once, not after the GA
             return not_saved(None, problem)
+        if on_marks is not None:
+            return run_on_marks(request)
         picked = keeper.pick(request.frame_seq)
         if picked.seq is None:
             return CalibrateReply(ok=False, error=picked.error)
@@ -280,12 +293,40 @@ def main(service: Service) -> None:
         # on the simulator's truth: the simulated camera's calibration (`ovis up` never
         # takes it for a real camera's)
         calib = msgspec.structs.replace(calib, simulated=file_points is None)
+        return adopt(calib, image, seq, request.force, f"frame {seq}")
+
+    def run_on_marks(request: CalibrateRequest) -> CalibrateReply:
+        """The physical world: the pose solved on its floor marks (needs no frame), judged
+        on the newest frame, or before any came on the empty floor."""
+        assert on_marks is not None
+        service.state = "calibrating on the floor marks"
+        job.start(-1, 1, cfg.service.calibration_budget_s)
+        try:
+            calib = on_marks()
+        except ValueError as exc:
+            service.error("calibration", f"calibration on the floor marks failed: {exc}")
+            return CalibrateReply(ok=False, error=str(exc))
+        finally:
+            service.state = "ok"
+        seq, image = -1, on_marks.floor
+        picked = keeper.pick(request.frame_seq) if keeper.first_frame.is_set() else None
+        if picked is not None and picked.payload is not None and picked.seq is not None:
+            frame = service.decode(picked.payload, Frame, "frame")
+            if frame is not None:
+                seq, image = picked.seq, frame.image()
+        return adopt(calib, image, seq, request.force, "the floor marks")
+
+    def adopt(
+        calib: Calibration, image: NDArray[np.uint8], seq: int, force: bool, made_on: str
+    ) -> CalibrateReply:
+        """Publish ``calib`` (made on ``made_on``) as the new calibration once it passed
+        the checks and the gate (judged on ``image``, frame ``seq``); or the reply why not."""
         problem = calibration_problem(calib, cfg)
         if problem is not None:  # never published: the stages would refuse it anyway
-            service.error("calibration", f"calibration on frame {seq}: {problem}")
+            service.error("calibration", f"calibration on {made_on}: {problem}")
             return CalibrateReply(ok=False, frame_seq=seq, error=problem)
         current = service.calibration if service.calibration.version > 0 else None
-        problem = judge_candidate(calib, current, image, request.force)
+        problem = judge_candidate(calib, current, image, force)
         if problem is not None:
             return refuse(calib, seq, problem)
         try:
@@ -299,9 +340,9 @@ def main(service: Service) -> None:
         publish(CalibrationUpdate(calibration=calib))
         service.sent()
         service.log.info(
-            "calibration %s on frame %d: DIPE %s in %.2f s",
+            "calibration %s on %s: DIPE %s in %.2f s",
             label(calib),
-            seq,
+            made_on,
             dipe_text(calib.dipe_px, calib.dipe_mm),
             calib.elapsed_s,
         )
@@ -329,6 +370,10 @@ def main(service: Service) -> None:
     service.state = "ok" if service.calibration.version > 0 else "no calibration"
     service.ready()
     if saved is None and cfg.service.auto_calibrate:
-        initial_calibration(service, keeper, job, run_calibration, answer_next)
+        # the floor marks need no frame: the stages have a calibration before the first
+        no_frame_needed = threading.Event()
+        no_frame_needed.set()
+        can_start = keeper.first_frame if on_marks is None else no_frame_needed
+        initial_calibration(service, can_start, job, run_calibration, answer_next)
     while not service.stop.is_set():
         answer_next(0.2)

@@ -16,11 +16,12 @@ import secrets
 import threading
 import time
 
+import msgspec
 import zenoh
 
 from ovis.common.capture.backoff import Backoff
 from ovis.common.capture.sources import FrameSource, SourceEndedError, SourceError
-from ovis.common.messages import Frame, TruthFrame
+from ovis.common.messages import Frame, ServiceStatus, TruthFrame
 from ovis.common.pipeline.gaps import SourceGaps
 from ovis.common.pipeline.health import SOURCE_REPEAT_S
 from ovis.common.pipeline.pacing import Pacer
@@ -47,7 +48,16 @@ def announce_source(service: Service, gaps: SourceGaps, changed: threading.Event
 def main(service: Service) -> None:
     cfg = service.config.service
     gaps, backoff, changed = SourceGaps(), Backoff(), threading.Event()
-    service.amend_status = lambda status: gaps.amend(status, time.time_ns())
+    # frames a source on its own clock missed (their instant passed while it was busy
+    # rendering the one before: the physical world) count as dropped here
+    missed = [0, None]  # [missed by sources closed before, the source now]
+
+    def amend_status(status: ServiceStatus) -> ServiceStatus:
+        now = missed[0] + getattr(missed[1], "missed", 0)
+        status = msgspec.structs.replace(status, dropped=status.dropped + now)
+        return gaps.amend(status, time.time_ns())
+
+    service.amend_status = amend_status
     threading.Thread(
         target=announce_source, args=(service, gaps, changed), name="source", daemon=True
     ).start()
@@ -80,6 +90,7 @@ def main(service: Service) -> None:
             try:
                 if source is None:
                     source = open_source(cfg.source, service.config, progress=prerendering)
+                    missed[1] = source
                     service.log.info("capturing from %s", source.description)
                     service.state = "ok"
                 image, truth = source.read()
@@ -91,6 +102,8 @@ def main(service: Service) -> None:
                 wait = backoff.next_wait()
                 lost(exc, f"next attempt in {wait:g} s")
                 if source is not None:
+                    missed[0] += getattr(source, "missed", 0)
+                    missed[1] = None
                     source.close()
                     source = None
                 service.stop.wait(wait)
@@ -117,7 +130,8 @@ def main(service: Service) -> None:
             if back is not None:
                 changed.set()
                 service.log.info("source back after %.1f s (lost: %s)", back.seconds, back.reason)
-            service.stop.wait(pacer.delay())
+            # a source on its own clock (the physical world) waits for its frames itself
+            service.stop.wait(0.0 if getattr(source, "self_paced", False) else pacer.delay())
     finally:
         if source is not None:
             source.close()

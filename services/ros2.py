@@ -76,7 +76,7 @@ def bridge(service: Service, node: RosNode) -> None:
                 service.error("ros2_name", f"not published on ROS 2: {exc}")
 
     def calibrated() -> bool:
-        return service.calibration.version > 0 or service.config.service.simulated_source
+        return service.calibration.version > 0 or service.config.starts_with_configured_camera
 
     def on_calibration(calib: Calibration) -> None:
         send(stream.calibration(calib, time.time_ns()))

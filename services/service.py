@@ -187,7 +187,7 @@ class Service:
 
     def _uncalibrated(self, seq: int, kind: str) -> str | None:
         """Why a real camera's frame cannot be processed yet (no calibration), or None."""
-        if self.calibration.version > 0 or self.config.service.simulated_source:
+        if self.calibration.version > 0 or self.config.starts_with_configured_camera:
             return None
         refused = self.follower.problem() if self.follower is not None else None
         return f"{kind} {seq} not processed: no calibration for this camera" + (
@@ -199,7 +199,7 @@ class Service:
         (or on stop): a stage says it listens only then, so no frame is refused for the
         lack of one at start, and nothing is made for the configured camera (version 0:
         the simulator's)."""
-        if self.follower is None or self.config.service.simulated_source:
+        if self.follower is None or self.config.starts_with_configured_camera:
             return
         self.state = "waiting for the calibration"
         while self.calibration.version == 0 and not self.stop.wait(0.05):

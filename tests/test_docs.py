@@ -153,3 +153,14 @@ def test_benchmark_tables_are_rendered_from_the_results(monkeypatch: pytest.Monk
         between = text.split(run.START, 1)[1].split(run.END, 1)[0].strip()
         expected = run.table(rows, machine, render)
         assert between == expected, f"{page.name}: rerun python -m benchmarks.run --render"
+
+
+def test_ci_installs_what_the_physical_world_names_and_requires_it() -> None:
+    """`.ci/run` installs the Debian packages the physical world's one-line error names
+    (so the two cannot drift apart) and makes its tests fail instead of skipping."""
+    from ovis.common.physical.availability import DEBIAN_PACKAGES
+
+    text = (ROOT / ".ci" / "run").read_text("utf-8")
+    listed = re.search(r'^gl="([^"]*)"$', text, re.M)
+    assert listed and listed.group(1).split() == list(DEBIAN_PACKAGES)
+    assert re.search(r"^export OVIS_REQUIRE_PHYSICAL=1$", text, re.M)

@@ -38,7 +38,7 @@ LAYERS: dict[str, set[str]] = {
     "world": {"config", "camera", "vision"},
     "calibration": {"config", "atomic", "camera", "vision"},
     "sim": {"config", "atomic", "camera", "vision"},
-    "physical": {"config", "atomic", "camera", "vision", "sim"},
+    "physical": {"config", "atomic", "camera", "vision", "sim", "calibration"},
     "capture": {"config", "atomic", "camera", "sim", "vision", "physical"},
     "messages": {"config", "camera", "vision", "world", "calibration", "sim"},
     "pipeline": FOUNDATION | {"trust"},

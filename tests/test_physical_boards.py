@@ -17,15 +17,15 @@ import msgspec
 import numpy as np
 import pytest
 from cli_helpers import ovis
-from physical_helpers import needs_physical
+from physical_helpers import skip_module_without_physical
 
-from ovis.common.camera.projection import project
-from ovis.common.config import load_config
-from ovis.common.physical.boards import BoardScene, held_poses, lying_on_floor
-from ovis.common.physical.rigs import rig
-from ovis.common.vision.boards import SUBPIX_CRITERIA, find_board, parse_board
+skip_module_without_physical()  # before MuJoCo is imported: without OpenGL its import fails
 
-pytestmark = needs_physical
+from ovis.common.camera.projection import project  # noqa: E402
+from ovis.common.config import load_config  # noqa: E402
+from ovis.common.physical.boards import BoardScene, held_poses, lying_on_floor  # noqa: E402
+from ovis.common.physical.rigs import rig  # noqa: E402
+from ovis.common.vision.boards import SUBPIX_CRITERIA, find_board, parse_board  # noqa: E402
 
 #: The board held up: 9 × 6 inner corners of 2 cm (an A4 print).
 HELD = parse_board("chessboard:9x6", 2.0)

@@ -7,20 +7,21 @@ import math
 
 import cv2
 import msgspec
-import mujoco
 import numpy as np
 import pytest
-from physical_helpers import needs_physical
+from physical_helpers import skip_module_without_physical
 
-from ovis.common.camera.projection import project
-from ovis.common.config import load_config
-from ovis.common.physical.camera import CM_PER_M, render_camera
-from ovis.common.physical.model import add_camera
-from ovis.common.physical.rigs import rig
-from ovis.common.physical.scene import Path, random_scene
-from ovis.common.physical.world import PhysicalWorld, grey_frame
+skip_module_without_physical()  # before MuJoCo is imported: without OpenGL its import fails
 
-pytestmark = needs_physical
+import mujoco  # noqa: E402
+
+from ovis.common.camera.projection import project  # noqa: E402
+from ovis.common.config import load_config  # noqa: E402
+from ovis.common.physical.camera import CM_PER_M, render_camera  # noqa: E402
+from ovis.common.physical.model import add_camera  # noqa: E402
+from ovis.common.physical.rigs import rig  # noqa: E402
+from ovis.common.physical.scene import Path, random_scene  # noqa: E402
+from ovis.common.physical.world import PhysicalWorld, grey_frame  # noqa: E402
 
 
 def _dots_render(camera, points_cm: np.ndarray) -> np.ndarray:

@@ -84,19 +84,23 @@ def match_objects(
 
 
 class TrackedObject(FloorObject, Protocol):
-    """A floor object with an identity (a detection's id, the simulator's object id)."""
+    """A floor object with an identity (a detection's id, the simulator's object id) and
+    the height of its top (``z_cm``: a detection's measured or configured one)."""
 
     id: int
+    z_cm: float
 
 
 class TrackingScore:
-    """Detections of many frames against their ground truth, added up: position and
-    radius errors of the matched objects, missed, spurious and mislabelled ones, and
-    identity switches (a true object whose matched detection changes id)."""
+    """Detections of many frames against their ground truth, added up: position, radius
+    and height errors of the matched objects (height: the detection's ``z_cm`` less the
+    true top's), missed, spurious and mislabelled ones, and identity switches (a true
+    object whose matched detection changes id)."""
 
     def __init__(self) -> None:
         self.position_error_cm: list[float] = []
         self.radius_error_cm: list[float] = []
+        self.height_error_cm: list[float] = []
         self.matched = self.missed = self.spurious = self.wrong_kind = self.id_switches = 0
         self._id_of: dict[int, int] = {}  # true id -> the detection id it was matched to
 
@@ -107,6 +111,10 @@ class TrackingScore:
         acc = match_objects(detected, truth)
         self.position_error_cm.extend(acc.position_error_cm.tolist())
         self.radius_error_cm.extend(acc.radius_error_cm.tolist())
+        self.height_error_cm.extend(
+            detected[di].z_cm - truth[ti].z_cm
+            for ti, di in zip(acc.truth_index, acc.detection_index, strict=True)
+        )
         self.matched += int(acc.truth_index.size)
         self.missed += acc.missed
         self.spurious += acc.spurious

@@ -13,6 +13,7 @@ import msgspec
 import numpy as np
 
 from ovis.common.analysis.evaluation import TrackingScore
+from ovis.common.config import PoseConfig
 from ovis.common.messages import (
     IDLE_STATES,
     SOURCE_LOST,
@@ -28,6 +29,7 @@ __all__ = [
     "UNSCORED_SHARE",
     "LiveScore",
     "RunSummary",
+    "heights_basis",
     "position_error_flag",
     "with_verdict",
 ]
@@ -80,11 +82,27 @@ class RunSummary(msgspec.Struct):
     #: came out, 1 a process failed) and why it is not 0
     exit_code: int = 0
     reason: str = ""
+    #: the matched objects' reported top height less the true one (cm): mean of the
+    #: absolute errors and the largest; ``heights`` says what the reported ones rest on
+    height_error_cm_mean: float | None = None
+    height_error_cm_max: float | None = None
+    heights: str = ""
 
 
 #: The position error is flagged when the objects missed plus spurious exceed this share
 #: of the objects matched (it is computed over the matched ones only).
 UNSCORED_SHARE = 0.05
+
+
+def heights_basis(pose: PoseConfig) -> str:
+    """What the reported heights rest on: measured (``[pose] heights = "measured"``,
+    where a height can be measured) or the configured ones."""
+    if getattr(pose, "heights", "configured") == "measured":
+        return 'measured where they can be ([pose] heights = "measured"), else configured'
+    return (
+        f"configured ([pose] obstacle_height_cm {pose.obstacle_height_cm:g}, "
+        f"robot_height_cm {pose.robot_height_cm:g}), not measured"
+    )
 
 
 def position_error_flag(matched: int, missed: int, spurious: int) -> str:
@@ -166,6 +184,7 @@ class LiveScore:
             own = [v for k, v in self._by_stream.items() if streams is None or k in streams]
             lat = np.concatenate([np.asarray(v) for v in own]) if own else np.zeros(0)
             err = np.asarray(self.score.position_error_cm)
+            dz = np.abs(np.asarray(self.score.height_error_cm))
             score = self.score
         versions = [s.calibration_version for s in statuses.values()]
         counts: dict[str, Counts] = {**statuses, **(totals or {})}
@@ -196,6 +215,8 @@ class LiveScore:
             source_gaps=source.source_gaps if source else 0,
             source_gap_s=source.source_gap_s if source else 0.0,
             gaps=source.gaps if source else [],
+            height_error_cm_mean=float(dz.mean()) if dz.size else None,
+            height_error_cm_max=float(dz.max()) if dz.size else None,
         )
 
 

@@ -145,9 +145,13 @@ def _pose(
     K, D = intr.matrix, intr.coefficients
     planar = np.ptp(xyz[:, 2]) == 0
     flag = cv2.SOLVEPNP_IPPE if planar else cv2.SOLVEPNP_SQPNP
-    ok, rvec, tvec = cv2.solvePnP(xyz, pix, K, D, flags=flag)
+    # IPPE solves for points on the plane z = 0: points on another level plane are
+    # lowered onto it, and the pose lifted back (p_cam = R·(p − z0·e_z) + t)
+    z0 = float(xyz[0, 2]) if planar else 0.0
+    ok, rvec, tvec = cv2.solvePnP(xyz - [0.0, 0.0, z0], pix, K, D, flags=flag)
     if not ok:
         raise FloorPoseError("OpenCV found no camera pose for these points")
+    tvec = tvec - z0 * cv2.Rodrigues(rvec)[0][:, 2:3]
     rvec, tvec = cv2.solvePnPRefineLM(xyz, pix, K, D, rvec, tvec)
     return rvec.ravel(), tvec.ravel()
 

@@ -1,6 +1,7 @@
-"""Frame sources for the capture service: the simulated arena, a folder of images, a
-video file, a camera (OpenCV index or device path) or a network stream (RTSP or MJPEG
-over HTTP, through OpenCV's FFmpeg backend).
+"""Frame sources for the capture service: the simulated arena (the light simulator's, or
+the physical world rendered live, :mod:`ovis.common.capture.physical`), a folder of
+images, a video file, a camera (OpenCV index or device path) or a network stream (RTSP
+or MJPEG over HTTP, through OpenCV's FFmpeg backend).
 
 Every source returns uint8 frames (grey or BGR) one at a time; a source that cannot be
 opened raises :class:`SourceError` with what to check, and the capture service retries.
@@ -110,6 +111,36 @@ class SimSource:
         pass
 
 
+def physical_source(config: OvisConfig) -> FrameSource:
+    """The physical world rendered live (:mod:`ovis.common.capture.physical`), or a
+    :class:`SourceError` saying why it cannot be (no off-screen OpenGL, no room)."""
+    from ovis.common.physical.availability import why_unavailable
+
+    why = why_unavailable()
+    if why is not None:
+        raise SourceError(f"the physical world cannot render here: {why}")
+    from ovis.common.capture.physical import PhysicalSource
+
+    try:
+        return PhysicalSource(config, config.service.seed)
+    except ValueError as exc:
+        raise SourceError(f"the physical world: {exc}") from None
+
+
+def physical_grid_camera(config: OvisConfig, nx: int, ny: int, name: str):
+    """Camera ``name`` of the grid over the physical world
+    (:mod:`ovis.common.physical.grid`), or a :class:`SourceError` saying why it cannot
+    render."""
+    from ovis.common.physical.availability import why_unavailable
+
+    why = why_unavailable()
+    if why is not None:
+        raise SourceError(f"the physical world cannot render here: {why}")
+    from ovis.common.physical.grid import PhysicalGridCamera
+
+    return PhysicalGridCamera(config, nx, ny, name, config.service.seed)
+
+
 def grid_cache_dir() -> Path:
     """Where the simulated grid's prerendered frames are kept between runs:
     ``$OVIS_CACHE`` or ``$XDG_CACHE_HOME/ovis`` (default ``~/.cache/ovis``), ``grid/``."""
@@ -138,17 +169,22 @@ class GridSource:
     ) -> None:
         from ovis.common.sim.gridview import GridCamera, parse_grid_source
 
+        physical = config.simulator.world == "physical"
         try:
             nx, ny, name = parse_grid_source(spec)
-            camera = GridCamera(config, nx, ny, name, config.service.seed)
+            if physical:
+                camera = physical_grid_camera(config, nx, ny, name)
+            else:
+                camera = GridCamera(config, nx, ny, name, config.service.seed)
         except ValueError as exc:
             raise SourceError(str(exc)) from None
         self._frames = camera.render_period(progress, grid_cache_dir())
         fps = config.service.fps
         self._period_ns = round(1e9 / fps) if fps > 0 else 0
         self._next = 0  # frame index when running free (fps 0)
+        world = "the physical world, " if physical else ""
         self.description = (
-            f"simulated camera {name} of a {nx}x{ny} grid (seed {config.service.seed}, "
+            f"simulated camera {name} of a {nx}x{ny} grid ({world}seed {config.service.seed}, "
             f"{len(self._frames)} frames looped)"
         )
 
@@ -351,6 +387,8 @@ def open_source(
     ``loop`` (default ``config.service.loop``): replay a folder or video when it ends;
     ``progress(done, total)``: called while a simulated grid camera prerenders."""
     loop = config.service.loop if loop is None else loop
+    if spec == "sim" and config.simulator.world == "physical":
+        return physical_source(config)
     if spec == "sim":
         return SimSource(config, config.service.seed)
     if spec.startswith("grid:"):

@@ -32,6 +32,10 @@ class WorldScore(msgspec.Struct, kw_only=True):
     handover_jump_cm: float  # the largest
     world_error_cm_mean: float
     world_error_cm_max: float
+    #: the matched objects' top height less the true one, absolute (when heights are
+    #: given to :meth:`WorldScorer.add`; None: none were)
+    height_error_cm_mean: float | None = None
+    height_error_cm_max: float | None = None
 
 
 class WorldScorer:
@@ -43,6 +47,7 @@ class WorldScorer:
         self.handovers = 0
         self.jump = 0.0
         self.errors: list[float] = []
+        self.height_errors: list[float] = []
         self._id_of_truth: dict[int, int] = {}
         self._truth_of_id: dict[int, int] = {}
         self._last: dict[int, tuple[float, float, float, float, tuple[str, ...]]] = {}
@@ -52,9 +57,12 @@ class WorldScorer:
         world: list[tuple[int, float, float, tuple[str, ...]]],
         truth: list[tuple[int, float, float]],
         seen: set[int] | None = None,
+        heights: tuple[list[float], list[float]] | None = None,
     ) -> None:
         """One frame: world objects ``(world id, x, y, cameras)`` and true objects
-        ``(truth id, x, y)``; ``seen``, the truth ids some camera saw (default all)."""
+        ``(truth id, x, y)``; ``seen``, the truth ids some camera saw (default all);
+        ``heights``, the world objects' and the true objects' top heights (cm), in
+        their orders, for the height error."""
         self.frames += 1
         w = np.array([[o[1], o[2]] for o in world]).reshape(-1, 2)
         t = np.array([[o[1], o[2]] for o in truth]).reshape(-1, 2)
@@ -80,6 +88,8 @@ class WorldScorer:
             wid, x, y, cams = world[r]
             tid, tx, ty = truth[c]
             self.errors.append(float(d[r, c]))
+            if heights is not None:
+                self.height_errors.append(abs(heights[0][r] - heights[1][c]))
             if self._id_of_truth.setdefault(tid, wid) != wid:
                 self.swaps += 1
                 self._id_of_truth[tid] = wid
@@ -96,6 +106,7 @@ class WorldScorer:
     def score(self) -> WorldScore:
         """The totals so far."""
         e = np.array(self.errors) if self.errors else np.zeros(1)
+        dz = np.array(self.height_errors)
         return WorldScore(
             frames=self.frames,
             duplicates=self.duplicates,
@@ -106,4 +117,6 @@ class WorldScorer:
             handover_jump_cm=self.jump,
             world_error_cm_mean=float(e.mean()),
             world_error_cm_max=float(e.max()),
+            height_error_cm_mean=float(dz.mean()) if dz.size else None,
+            height_error_cm_max=float(dz.max()) if dz.size else None,
         )

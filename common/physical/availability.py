@@ -10,7 +10,7 @@ from __future__ import annotations
 import functools
 import os
 
-__all__ = ["use_egl", "why_unavailable"]
+__all__ = ["DEBIAN_PACKAGES", "use_egl", "why_unavailable"]
 
 
 def use_egl() -> None:
@@ -28,8 +28,10 @@ def why_unavailable() -> str | None:
     use_egl()
     try:
         import mujoco
-    except ImportError as exc:
+    except ModuleNotFoundError as exc:
         return f"MuJoCo is not installed ({exc}): pip install mujoco"
+    except Exception as exc:  # its OpenGL back-end failed to load (no EGL library)
+        return _cannot_render(exc)
     try:
         model = mujoco.MjModel.from_xml_string(
             "<mujoco><worldbody><geom type='box' size='.1 .1 .1'/></worldbody></mujoco>"
@@ -38,10 +40,20 @@ def why_unavailable() -> str | None:
             renderer.update_scene(mujoco.MjData(model))
             renderer.render()
     except Exception as exc:
-        gl = os.environ.get("MUJOCO_GL", "")
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        return (
-            f"MuJoCo cannot render off-screen with MUJOCO_GL={gl} ({first}); install EGL "
-            "and Mesa (Debian: apt-get install libegl1 libgl1-mesa-dri libegl-mesa0)"
-        )
+        return _cannot_render(exc)
     return None
+
+
+#: Debian's packages of off-screen OpenGL: the EGL loader and Mesa's EGL, its software
+#: renderer, and the OpenGL library PyOpenGL loads beside EGL.
+DEBIAN_PACKAGES = ("libegl1", "libegl-mesa0", "libgl1-mesa-dri", "libopengl0")
+
+
+def _cannot_render(exc: Exception) -> str:
+    gl = os.environ.get("MUJOCO_GL", "")
+    text = str(exc).strip()
+    first = f"{type(exc).__name__}: {text.splitlines()[0]}" if text else type(exc).__name__
+    return (
+        f"MuJoCo cannot render off-screen with MUJOCO_GL={gl} ({first}); install EGL and "
+        f"Mesa (Debian: apt-get install {' '.join(DEBIAN_PACKAGES)})"
+    )

@@ -59,12 +59,13 @@ class RenderCamera(NamedTuple):
     out_size: tuple[int, int]
     model_residual_px: float
 
-    def finish(self, canvas: NDArray[np.uint8]) -> NDArray[np.uint8]:
-        """The camera's frame from a rendered canvas (resampled through the lens)."""
+    def finish(self, canvas: NDArray, interpolation: int = cv2.INTER_LINEAR) -> NDArray:
+        """The camera's frame from a rendered canvas (resampled through the lens; labels,
+        such as a segmentation's, with ``cv2.INTER_NEAREST``)."""
         if self.lens_map is None:
             return canvas
         return cv2.remap(
-            canvas, self.lens_map[0], self.lens_map[1], cv2.INTER_LINEAR, cv2.BORDER_REPLICATE
+            canvas, self.lens_map[0], self.lens_map[1], interpolation, cv2.BORDER_REPLICATE
         )
 
 

@@ -17,10 +17,12 @@ import math
 from collections.abc import Sequence
 
 import cv2
+import msgspec
 import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
+from ovis.common.camera.projection import project
 from ovis.common.config import CameraModel, OvisConfig
 from ovis.common.physical.camera import CM_PER_M, RenderCamera, render_camera
 from ovis.common.physical.model import (
@@ -30,12 +32,14 @@ from ovis.common.physical.model import (
     camera_name,
     joint_names,
 )
-from ovis.common.physical.scene import Scene, Solid
+from ovis.common.physical.scene import Scene, Solid, footprint
 from ovis.common.sim.arena import FrameTruth, SimObject
 
-__all__ = ["PhysicalWorld", "grey_frame", "sensor_noise"]
+__all__ = ["PhysicalWorld", "SolidView", "grey_frame", "sensor_noise", "silhouette_px"]
 
 _STREAM_NOISE = 5
+#: Points per footprint edge projected for a solid's silhouette (edges bend in a lens).
+EDGE_SAMPLES = 8
 _SHAPES = {"cylinder": "disk", "box": "rect", "prism": "prism"}
 
 
@@ -64,6 +68,40 @@ def sensor_noise(grey: NDArray[np.uint8], sigma: float, key: Sequence[int]) -> N
     rng = np.random.default_rng(list(key))
     noisy = grey + rng.standard_normal(grey.shape, dtype=np.float32) * np.float32(sigma)
     return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+
+
+class SolidView(msgspec.Struct, frozen=True, kw_only=True):
+    """How much of one solid a camera sees: ``visible_px``, its pixels in front of
+    everything else (0: hidden), and ``visible_share``, their share of the pixels it would
+    cover alone in the frame."""
+
+    id: int
+    visible_px: int
+    visible_share: float
+
+
+def silhouette_px(
+    solid: Solid, x_cm: float, y_cm: float, yaw_rad: float, camera: CameraModel
+) -> float:
+    """Pixels (area, px²) of ``camera``'s frame that ``solid`` at ``(x_cm, y_cm)`` turned
+    by ``yaw_rad`` covers when alone: the convex hull of its footprint's outline projected
+    at its foot and at its top (each edge sampled, as the lens bends it), clipped to the
+    frame."""
+    foot = footprint(solid, x_cm, y_cm, yaw_rad)
+    t = np.linspace(0.0, 1.0, EDGE_SAMPLES, endpoint=False)
+    ring = foot[:, None, :] + (np.roll(foot, -1, axis=0) - foot)[:, None, :] * t[None, :, None]
+    ring = ring.reshape(-1, 2)
+    xs = np.concatenate([ring[:, 0], ring[:, 0]])
+    ys = np.concatenate([ring[:, 1], ring[:, 1]])
+    zs = np.concatenate([np.zeros(len(ring)), np.full(len(ring), solid.height_cm)])
+    p = project(xs, ys, zs, camera)
+    if not np.all(p.valid):
+        return 0.0
+    hull = cv2.convexHull(np.stack([p.col, p.row], axis=1).astype(np.float32))
+    w, h = float(camera.cols), float(camera.rows)
+    frame = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
+    area, _ = cv2.intersectConvexConvex(hull, frame.astype(np.float32))
+    return float(area)
 
 
 def _wrap_deg(a: float) -> float:
@@ -200,8 +238,8 @@ class PhysicalWorld:
         return sensor_noise(self.clean(k), self.noise_sigma, key)
 
     def visible_px(self, k: int = 0) -> dict[int, int]:
-        """Pixels of camera ``k``'s (canvas) image where each solid (by id) is seen in
-        front of everything else: 0 for a solid hidden behind others."""
+        """Pixels of camera ``k``'s frame where each solid (by id) is seen in front of
+        everything else: 0 for a solid hidden behind others."""
         renderer = self._renderer(k)
         renderer.enable_segmentation_rendering()
         try:
@@ -209,12 +247,33 @@ class PhysicalWorld:
             seg = renderer.render()
         finally:
             renderer.disable_segmentation_rendering()
-        geom = seg[..., 0][seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)]
-        counts = np.bincount(geom[geom >= 0], minlength=self.model.ngeom)
+        geom = np.where(seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), seg[..., 0], -1)
+        # ids are exact in float32; resampled through the lens, nearest, as the frame is
+        geom = self.rendered[k].finish(geom.astype(np.float32), cv2.INTER_NEAREST)
+        ids = geom.astype(np.int64).ravel()
+        counts = np.bincount(ids[ids >= 0], minlength=self.model.ngeom)
         out: dict[int, int] = {}
         for solid, body in zip(self.scene.solids, self._body, strict=True):
             mine = np.flatnonzero(self.model.geom_bodyid == body)
             out[solid.id] = int(counts[mine].sum())
+        return out
+
+    def views(self, k: int = 0) -> list[SolidView]:
+        """How much of each solid camera ``k`` sees now: its pixels in front of everything
+        else (:meth:`visible_px`) and their share of its silhouette, the pixels it would
+        cover alone in the frame (the convex hull of its outline's projection, top and
+        foot)."""
+        visible = self.visible_px(k)
+        out = []
+        for solid, body in zip(self.scene.solids, self._body, strict=True):
+            x_m, y_m = self.data.xpos[body][:2]
+            xmat = self.data.xmat[body].reshape(3, 3)
+            yaw = math.atan2(xmat[1, 0], xmat[0, 0])
+            where = (float(x_m) * CM_PER_M, float(y_m) * CM_PER_M, yaw)
+            area = silhouette_px(solid, *where, self.cameras[k])
+            seen = visible[solid.id]
+            share = min(1.0, seen / area) if area > 0 else 0.0
+            out.append(SolidView(id=solid.id, visible_px=seen, visible_share=round(share, 4)))
         return out
 
     def close(self) -> None:

@@ -44,6 +44,8 @@ __all__ = [
     "CELL_CM",
     "PERIOD_FRAMES",
     "GridCamera",
+    "PeriodCamera",
+    "cached_period",
     "grid_scene",
     "grid_specs",
     "parse_grid_source",
@@ -103,7 +105,73 @@ def grid_scene(nx: int, ny: int, config: OvisConfig, seed: int) -> GridScene:
     )
 
 
-class GridCamera:
+def cached_period(
+    render: Callable[[int], NDArray[np.uint8]],
+    shape: tuple[int, int, int],
+    cached: Path | None,
+    progress: Callable[[int, int], None] | None = None,
+) -> NDArray[np.uint8]:
+    """The ``shape[0]`` frames of a period, read-only: read back (memory-mapped) from
+    ``cached`` when it holds them, else rendered (``render(f)``; ``progress(done,
+    total)`` after each) and kept there (a cache that cannot be written: none)."""
+    if cached is not None and cached.is_file():
+        try:
+            frames = np.load(cached, mmap_mode="r")
+            if frames.shape == shape:
+                if progress is not None:
+                    progress(shape[0], shape[0])
+                return frames
+        except (OSError, ValueError):
+            pass  # unreadable: render again and replace it
+    images = np.empty(shape, np.uint8)
+    for f in range(shape[0]):
+        images[f] = render(f)
+        if progress is not None:
+            progress(f + 1, shape[0])
+    images.setflags(write=False)
+    if cached is not None:
+        with contextlib.suppress(OSError):
+            cached.parent.mkdir(parents=True, exist_ok=True)
+            buf = io.BytesIO()
+            np.save(buf, images)
+            write_atomic(cached, buf.getbuffer())
+    return images
+
+
+class PeriodCamera:
+    """A camera of the grid that renders one period of its scene once (:meth:`render`,
+    ``period`` frames of ``cam``'s size) and keeps it in a cache named by
+    :meth:`_cache_key`; :meth:`_truth` gives each frame's truth."""
+
+    period: int
+    cam: PinholeParams
+
+    def render(self, frame: int) -> tuple[NDArray[np.uint8], FrameTruth]:
+        raise NotImplementedError
+
+    def _truth(self, frame: int) -> FrameTruth:
+        raise NotImplementedError
+
+    def _cache_key(self) -> str:
+        raise NotImplementedError
+
+    def render_period(
+        self,
+        progress: Callable[[int, int], None] | None = None,
+        cache_dir: Path | None = None,
+    ) -> list[tuple[NDArray[np.uint8], FrameTruth]]:
+        """Every frame of one period, read-only; ``progress(done, total)`` after each.
+
+        With ``cache_dir``, the frames are kept there (one ``.npy`` per camera, named by
+        a hash of everything they depend on: the configuration, seed, camera and the
+        scene and rendering code) and read back, memory-mapped, by the next run."""
+        cached = None if cache_dir is None else cache_dir / f"{self._cache_key()}.npy"
+        shape = (self.period, int(self.cam.rows), int(self.cam.cols))
+        images = cached_period(lambda f: self.render(f)[0], shape, cached, progress)
+        return [(images[f], self._truth(f)) for f in range(self.period)]
+
+
+class GridCamera(PeriodCamera):
     """Camera ``name`` of an ``nx × ny`` grid rendering the shared scene (the module
     docstring). ``config.pose.robots`` must list robots ids 1…N with markers 0…N−1
     (as :func:`ovis.common.sim.scenes.marked_scene` makes them)."""
@@ -180,40 +248,6 @@ class GridCamera:
                 self._paint(level, o, self._robot_plane)
         rng = np.random.default_rng([self.seed, 19, self.index, frame])
         return finish_frame(level, self._light, self._sim, rng), self._truth(frame)
-
-    def render_period(
-        self,
-        progress: Callable[[int, int], None] | None = None,
-        cache_dir: Path | None = None,
-    ) -> list[tuple[NDArray[np.uint8], FrameTruth]]:
-        """Every frame of one period, read-only; ``progress(done, total)`` after each.
-
-        With ``cache_dir``, the frames are kept there (one ``.npy`` per camera, named by
-        a hash of everything they depend on: the configuration, seed, camera and the
-        scene and rendering code) and read back, memory-mapped, by the next run."""
-        cached = None if cache_dir is None else cache_dir / f"{self._cache_key()}.npy"
-        if cached is not None and cached.is_file():
-            try:
-                frames = np.load(cached, mmap_mode="r")
-                if frames.shape == (self.period, int(self.cam.rows), int(self.cam.cols)):
-                    if progress is not None:
-                        progress(self.period, self.period)
-                    return [(frames[f], self._truth(f)) for f in range(self.period)]
-            except (OSError, ValueError):
-                pass  # unreadable: render again and replace it
-        images = np.empty((self.period, int(self.cam.rows), int(self.cam.cols)), np.uint8)
-        for f in range(self.period):
-            images[f] = self.render(f)[0]
-            if progress is not None:
-                progress(f + 1, self.period)
-        images.setflags(write=False)
-        if cached is not None:
-            with contextlib.suppress(OSError):  # a cache that cannot be written: no cache
-                cached.parent.mkdir(parents=True, exist_ok=True)
-                buf = io.BytesIO()
-                np.save(buf, images)
-                write_atomic(cached, buf.getbuffer())
-        return [(images[f], self._truth(f)) for f in range(self.period)]
 
     def _truth(self, frame: int) -> FrameTruth:
         return FrameTruth(index=frame, objects=self.scene.objects(frame))

@@ -26,6 +26,7 @@ from ovis.services.cli.options import (
     JsonOpt,
     SummaryJsonOpt,
     TrustOpt,
+    WorldOpt,
     arena_topics,
     config_with_options,
     stop_on_signals,
@@ -163,7 +164,7 @@ def up(
         typer.Option(
             min=0.0,
             help="Stop this many seconds after the capture starts (once the other stages "
-            "listen; default: Ctrl-C).",
+            "listen; the physical world: after its first frame; default: Ctrl-C).",
         ),
     ] = None,
     config: ConfigOpt = None,
@@ -236,6 +237,7 @@ def up(
             "markers, odometry, camera info and image, /tf_static (docs/ros2.md).",
         ),
     ] = False,
+    world: WorldOpt = None,
 ) -> None:
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
@@ -265,7 +267,10 @@ def up(
 
         check_endpoint(listen)  # one system per run
         return up_cameras(cameras, config=config, listen=listen, duration=duration, json=json,
-                          seed=seed, fps=fps, max_restarts=max_restarts, pin=pin)  # fmt: skip
+                          seed=seed, fps=fps, max_restarts=max_restarts, pin=pin,
+                          world=world)  # fmt: skip
+    from ovis.services.cli.physical import live_physical, world_options
+
     cfg = config_with_options(
         config,
         connect=[listen],
@@ -275,7 +280,9 @@ def up(
         state_dir=state_dir,
         seed=seed,
         source_topic=topic,
+        **world_options(config, world),
     )
+    physical = live_physical(cfg, calibration)  # exit 2 when it cannot run here
     topics = arena_topics(cfg)
     cpus = _cpus(pin) or []
     if record is not None and record.exists():
@@ -301,8 +308,13 @@ def up(
     cfg_path = log_dir / "config.toml"
     from ovis.common.config import dump_toml
     from ovis.services.bus import local_peers
-    from ovis.services.placement import cpus_option, off_path_cpus
+    from ovis.services.placement import cpus_option, off_path_cpus, off_path_option
 
+    if physical:  # the empty floor, for segmenting the frames against it
+        from ovis.services.cli.physical import with_empty_floor
+
+        cfg, said = with_empty_floor(cfg, log_dir)
+        print(f"ovis up: {said}", file=out)
     # The services share the router's machine: they talk to each other directly.
     services_cfg = startup.with_keys(startup.services_config(cfg, calib))
     services_cfg = msgspec.structs.replace(services_cfg, zenoh=local_peers(cfg.zenoh))
@@ -312,9 +324,14 @@ def up(
 
     fleet = Supervisor(log_dir, max_restarts=max_restarts)
     stop = stop_on_signals()
+    renderer = ""
+    if physical:
+        renderer = (
+            f" (the physical world's capture on {','.join(map(str, off_path_cpus(cpus))) or 'any'})"
+        )
     print(
         f"ovis up: arena {topics.arena}, router {listen}, frame path on cores "
-        f"{','.join(map(str, cpus)) or 'any'}, logs in {log_dir}",
+        f"{','.join(map(str, cpus)) or 'any'}{renderer}, logs in {log_dir}",
         file=out,
     )
     if recorded:
@@ -327,7 +344,6 @@ def up(
         raise
     if view:
         from ovis.services.cli.view import DEFAULT_LISTEN
-        from ovis.services.placement import off_path_option
 
         view_args = ["view", "--connect", listen, "--arena", topics.arena,
                      "--trust", cfg.trust.keys_dir]  # fmt: skip
@@ -336,15 +352,16 @@ def up(
         print(f"ovis up: live view on http://{where}/ (log: {log_dir / 'view.log'})", file=out)
 
     def start(stage: str) -> None:
-        args = ["run", stage, "--config", str(cfg_path), *cpus_option(stage, cpus)]
+        where = cpus_option(stage, cpus)
+        if physical and stage == "capture":  # the renderer is the camera: off the path
+            where = off_path_option(cpus)
+        args = ["run", stage, "--config", str(cfg_path), *where]
         fleet.start(stage, args, standby=stage in STANDBY, spare_cpus=off_path_cpus(cpus))
 
     downstream = ("calibrator", "pose", "label", "preprocess")
     for stage in downstream:
         start(stage)
     if ros2:
-        from ovis.services.placement import off_path_option
-
         fleet.start("ros2", ["run", "ros2", "--config", str(cfg_path), *off_path_option(cpus)])
         downstream = (*downstream, "ros2")
     if record is not None:
@@ -352,7 +369,8 @@ def up(
                                  "--out", str(record)])  # fmt: skip
         downstream = (*downstream, "recorder")
     summary = _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir,
-                   duration=duration, live=live, json=json)  # fmt: skip
+                   duration=duration, live=live, json=json,
+                   first_frame_s=PHYSICAL_OPEN_S if physical else 0.0)  # fmt: skip
     if json:
         sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
     else:
@@ -393,11 +411,29 @@ def _wait_router(fleet, listen: str, stop) -> None:
         stop.wait(0.05)
 
 
-def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, duration, live, json):
+#: How long the physical world's capture may take to build its world and deliver its
+#: first frame before `ovis up --duration` counts anyway.
+PHYSICAL_OPEN_S = 60.0
+
+
+def _wait_first_frame(fleet, score, limit_s: float, stop) -> None:
+    """Wait (supervising) until the first frame's truth or obstacles came, at most
+    ``limit_s``."""
+    deadline = time.monotonic() + limit_s
+    while not stop.is_set() and time.monotonic() < deadline:
+        if score.truth_frames or score.frames:
+            return
+        fleet.supervise()
+        stop.wait(0.1)
+
+
+def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, duration, live, json,
+         first_frame_s: float = 0.0):  # fmt: skip
     """Run the started system until ``stop`` or ``duration``: the capture once the other
-    stages listen, the live view, the supervision; then stop it and sum up (only this
-    run's processes and frames)."""
-    from ovis.common.analysis.live import with_verdict
+    stages listen (``duration`` counted from its first frame when ``first_frame_s``
+    says how long that may take), the live view, the supervision; then stop it and sum
+    up (only this run's processes and frames)."""
+    from ovis.common.analysis.live import heights_basis, with_verdict
     from ovis.common.config import ZenohConfig
     from ovis.services.bus import open_session
     from ovis.services.cli.watching import LiveView
@@ -418,6 +454,8 @@ def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, durati
                 )
             if not stop.is_set():
                 start("capture")
+            if first_frame_s:  # a source that takes a while to open: from its first frame
+                _wait_first_frame(fleet, live_view.score, first_frame_s, stop)
             # --duration counts from here: a slow start (a loaded machine) takes no frames away.
             stop_polling = _poll_counters(fleet, session, topics)
             live_view.run(
@@ -442,6 +480,7 @@ def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, durati
         fleet.totals(),
         streams=fleet.streams("capture"),
     )
+    summary = msgspec.structs.replace(summary, heights=heights_basis(cfg.pose))
     return with_verdict(summary, statuses.get("capture"), fleet.failures(codes))
 
 

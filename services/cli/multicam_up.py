@@ -57,8 +57,15 @@ def chain_cores(allowed: list[int], cameras: int, pin: str) -> list[list[int]]:
     return [cores for _ in range(cameras)]
 
 
-def _configs(grid: tuple[int, int], base: Any, log_dir: Path) -> tuple[dict[str, Path], Path]:
-    """Write each camera's chain configuration and the fusion's; their paths."""
+def _configs(
+    grid: tuple[int, int],
+    base: Any,
+    log_dir: Path,
+    calibrated: dict[str, tuple[Any, str]] | None = None,
+) -> tuple[dict[str, Path], Path]:
+    """Write each camera's chain configuration and the fusion's; their paths. Each chain
+    works with its camera's known simulated model, or (the physical world) with the
+    camera ``calibrated`` gives it and that camera's empty floor as its background."""
     from ovis.common.config import CameraSpec, dump_toml
     from ovis.common.sim.gridview import grid_specs
     from ovis.services.bus import local_peers
@@ -66,17 +73,19 @@ def _configs(grid: tuple[int, int], base: Any, log_dir: Path) -> tuple[dict[str,
     nx, ny = grid
     specs = grid_specs(nx, ny, base, base.service.seed)
     shared = msgspec.structs.replace(base, zenoh=local_peers(base.zenoh))
-    chains = {}
+    chains, cameras = {}, []
     for spec in specs:
         service = msgspec.structs.replace(
             shared.service, camera_name=spec.name, source=f"grid:{nx}x{ny}:{spec.name}"
         )
-        # the chain is calibrated with its camera's known simulated model
-        cfg = msgspec.structs.replace(shared, camera=spec.camera, service=service)
+        camera, image = spec.camera, shared.image
+        if calibrated is not None:
+            camera, background = calibrated[spec.name]
+            image = msgspec.structs.replace(image, background=background)
+        cfg = msgspec.structs.replace(shared, camera=camera, image=image, service=service)
         chains[spec.name] = log_dir / f"{spec.name}.toml"
         chains[spec.name].write_text(dump_toml(msgspec.to_builtins(cfg)))
-    cameras = [CameraSpec(name=s.name, source=f"grid:{nx}x{ny}:{s.name}", camera=s.camera)
-               for s in specs]  # fmt: skip
+        cameras.append(CameraSpec(name=spec.name, source=service.source, camera=camera))
     fusion = msgspec.structs.replace(shared, cameras=cameras)
     fusion_path = log_dir / "fusion.toml"
     fusion_path.write_text(dump_toml(msgspec.to_builtins(fusion)))
@@ -94,22 +103,31 @@ def up_cameras(
     fps: float | None,
     max_restarts: int,
     pin: str,
+    world: str | None = None,
 ) -> None:
     """Run the simulated ``grid_text`` (e.g. "2x2") camera grid end to end (module
-    docstring) until ``duration`` s of frames or Ctrl-C, and print the summary."""
+    docstring) until ``duration`` s of frames or Ctrl-C, and print the summary; with
+    ``world`` "physical", over the physical world, each camera calibrated on the floor
+    marks it sees before it starts."""
     import os
 
     from ovis.common.config import ConfigError, with_options
     from ovis.common.messages import Topics
     from ovis.common.sim.scenes import marked_scene
     from ovis.services.cli.cameras import parse_grid
+    from ovis.services.cli.physical import require_physical, world_options
     from ovis.services.cli.startup import with_keys
     from ovis.services.placement import pick_cpus
     from ovis.services.supervisor import Supervisor
 
     grid = parse_grid(grid_text)
     try:
-        base = with_options(config, connect=[listen], seed=seed, fps=fps)
+        base = with_options(
+            config, connect=[listen], seed=seed, fps=fps, **world_options(config, world)
+        )
+        physical = base.simulator.world == "physical"
+        if physical:
+            require_physical()
         base = with_keys(marked_scene(base, ROBOTS, OBSTACLES))
         topics = Topics(base.service.arena)
         log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-cameras-"))
@@ -134,7 +152,12 @@ def up_cameras(
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    _prerender(chains, grid, max(1, len(os.sched_getaffinity(0))), out, stop)
+    calibrated = _prerender(chains, grid, max(1, len(os.sched_getaffinity(0))), out, stop)
+    if physical and not stop.is_set():
+        chains, fusion_cfg = _configs(grid, base, log_dir, calibrated)
+        print(f"ovis up: the physical world (seed {base.service.seed}): each camera "
+              "calibrated on the floor marks it sees, segmented against its empty floor",
+              file=out)  # fmt: skip
     fleet.start("router", ["router", "--listen", listen])
     time.sleep(0.5)
     fusion_cpus = ["--cpus", ",".join(map(str, fusion_on)) or "none"]
@@ -284,6 +307,7 @@ class _Run:
     def summary(self, fleet: Any, elapsed_s: float) -> dict[str, Any]:
         import numpy as np
 
+        from ovis.common.analysis.live import heights_basis
         from ovis.common.analysis.multicam import CameraRun, percentiles
 
         score, latency, scored = self.watch.score(self.clock_from)
@@ -323,6 +347,12 @@ class _Run:
                     "mean": score.world_error_cm_mean,
                     "max": score.world_error_cm_max,
                 },
+                # the fused top heights less the true ones, and what they rest on
+                "height_error_cm": {
+                    "mean": score.height_error_cm_mean,
+                    "max": score.height_error_cm_max,
+                },
+                "heights": heights_basis(self.base.pose),
                 "latency_ms": latency,
                 # world frames refused for want of the fusion key's proof, and the last why
                 "unproven": self.unproven.n,
@@ -358,25 +388,46 @@ def _wait_alive(fleet: Any, session: Any, topics: Any, names: list[str], stop: A
     return waiting
 
 
-def _render_period(config_path: str, grid: tuple[int, int], name: str) -> None:
-    """One camera's period rendered into the cache (in a worker process)."""
+def _render_period(
+    config_path: str, grid: tuple[int, int], name: str
+) -> tuple[dict[str, Any], str] | None:
+    """One camera's period rendered into the cache (in a worker process); over the
+    physical world, also the camera calibrated on its floor marks and its empty floor,
+    written beside its configuration: (the camera, the floor's path)."""
     from ovis.common.capture.sources import grid_cache_dir
     from ovis.common.config import load_config
     from ovis.common.sim.gridview import GridCamera
 
     cfg = load_config(Path(config_path))
-    GridCamera(cfg, *grid, name, cfg.service.seed).render_period(None, grid_cache_dir())
+    if cfg.simulator.world != "physical":
+        GridCamera(cfg, *grid, name, cfg.service.seed).render_period(None, grid_cache_dir())
+        return None
+    from ovis.common.analysis.plots import save_png
+    from ovis.common.physical.grid import PhysicalGridCamera, calibrate_grid_camera
+
+    camera = PhysicalGridCamera(cfg, *grid, name, cfg.service.seed)
+    try:
+        camera.render_period(None, grid_cache_dir())
+        calib, floor = calibrate_grid_camera(camera)
+    finally:
+        camera.close()
+    background = Path(config_path).with_name(f"{name}-background.png")
+    save_png(background, floor)
+    return msgspec.to_builtins(calib.camera), str(background)
 
 
 def _prerender(
     chains: dict[str, Path], grid: tuple[int, int], workers: int, out: Any, stop: Any
-) -> None:
+) -> dict[str, tuple[Any, str]] | None:
     """Render (or find in the cache) every camera's period before any camera runs, on
     ``workers`` processes, saying how far it is: a camera that started while others
     still rendered would lose frames to their rendering, and the cameras would not
-    start together."""
+    start together. Over the physical world: each camera calibrated on its floor marks
+    and its empty floor (:func:`_render_period`), by name; else None."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
+
+    from ovis.common.config import CameraModel
 
     began = time.monotonic()
     ctx = multiprocessing.get_context("spawn")  # no fork of this process's threads
@@ -396,6 +447,15 @@ def _prerender(
                 job.cancel()
             elif job.exception() is not None:
                 raise UserError(f"rendering the simulated cameras failed: {job.exception()}")
+        if stop.is_set():
+            return None
+        made = {name: job.result() for name, job in zip(chains, jobs, strict=True)}
+    if any(v is None for v in made.values()):
+        return None
+    return {
+        name: (msgspec.convert(camera, CameraModel), background)
+        for name, (camera, background) in made.items()
+    }
 
 
 def _wait_prerendered(
@@ -451,6 +511,12 @@ def _print_summary(summary: dict[str, Any]) -> None:
         f" cm; latency capture → world p50 {w['latency_ms']['p50']:.1f} ms, p99 "
         f"{w['latency_ms']['p99']:.1f} ms"
     )
+    dz = w["height_error_cm"]
+    if dz["mean"] is not None:
+        con.print(
+            f"height error mean {dz['mean']:.3f} cm, max {dz['max']:.3f} cm (heights "
+            f"{escape(w['heights'])})"
+        )
     if w["unproven"]:
         con.print(
             f"[red]refused {w['unproven']} world frame(s) without the fusion service's proof "

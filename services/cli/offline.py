@@ -14,7 +14,7 @@ from ovis.common.config import resolve_config
 from ovis.common.vision.imageio import read_image
 from ovis.services.cli.camera import BoardOriginOpt, BoardRowEndOpt
 from ovis.services.cli.errors import UserError
-from ovis.services.cli.options import JsonOpt, OfflineConfigOpt, PresetOpt
+from ovis.services.cli.options import JsonOpt, OfflineConfigOpt, PresetOpt, WorldOpt
 from ovis.services.cli.ui import (
     calibrate_with_progress,
     console,
@@ -58,6 +58,15 @@ def simulate(
     obstacles: Annotated[
         int | None, typer.Option(min=0, max=500, help="Obstacles (default: the config's).")
     ] = None,
+    world: WorldOpt = None,
+    camera: Annotated[
+        str | None,
+        typer.Option(
+            help="--world physical: the camera the frames are rendered through: 'oblique' "
+            "(a tripod at the side), 'overhead' (straight down) or a calibration JSON "
+            "(its camera); default: the configuration's.",
+        ),
+    ] = None,
 ) -> None:
     """Render frames of the simulated arena with ground truth.
 
@@ -65,10 +74,27 @@ def simulate(
     id, kind, x_cm, y_cm, radius_cm) and points.toml (the first frame's objects as
     control points, plus the configuration), ready for
     `ovis calibrate OUT/frame_0000.png --points OUT/points.toml --out calib.json`.
+
+    With --world physical (the `physical` preset unless --config or --preset says
+    otherwise): solid objects rendered by MuJoCo at [simulator] fps, truth.json (each
+    frame's time and every solid's footprint centre, height, yaw, velocity, shape and how
+    much of it is seen), background.png (the empty floor), points.toml (the floor marks,
+    their pixels measured in the empty floor), lens.yaml (the camera's lens) and
+    true_calibration.json (the true camera), ready for `ovis calibrate
+    OUT/background.png --intrinsics OUT/lens.yaml --points OUT/points.toml --out calib.json`
+    (docs/physical.md).
     """
+    from ovis.services.cli.physical import simulate_physical, world_config
+
+    cfg = world_config(config, preset, world)
+    if cfg.simulator.world == "physical":
+        simulate_physical(out, cfg, frames, seed, json=json, robots=robots,
+                          obstacles=obstacles, camera=camera)  # fmt: skip
+        return
+    if camera is not None:
+        raise UserError("--camera picks the camera of --world physical")
     from ovis.common.sim.arena import write_dataset
 
-    cfg = resolve_config(config, preset)
     cfg = _scene(cfg, robots, obstacles)
     try:
         info = write_dataset(out, cfg, frames, seed)
@@ -567,7 +593,7 @@ config_app = typer.Typer(help="Show configurations.", no_args_is_help=True, rich
 @config_app.command("show")
 def config_show(
     preset: Annotated[
-        str, typer.Option(help="Built-in preset: 'default', 'paper' or 'pinhole'.")
+        str, typer.Option(help="Built-in preset: 'default', 'paper', 'pinhole' or 'physical'.")
     ] = "default",
     config: OfflineConfigOpt = None,
 ) -> None:

@@ -30,6 +30,7 @@ __all__ = [
     "PresetOpt",
     "SummaryJsonOpt",
     "TrustOpt",
+    "WorldOpt",
     "arena_topics",
     "config_with_options",
     "stop_on_signals",
@@ -79,7 +80,8 @@ OfflineConfigOpt = Annotated[
 PresetOpt = Annotated[
     str | None,
     typer.Option(
-        help="Built-in preset when no --config is given: 'default', 'paper' or 'pinhole'."
+        help="Built-in preset when no --config is given: 'default', 'paper', 'pinhole' or "
+        "'physical'."
     ),
 ]
 ConnectOpt = Annotated[
@@ -102,6 +104,14 @@ TrustOpt = Annotated[
         "calibrator.pub: only what it signed is shown. Default: [trust] in --config, "
         "else <state_dir>/keys/ (ovis-state/keys/, where `ovis up` makes them); copy "
         "pose.pub from the pose stage's host to watch from another (docs/trust.md).",
+    ),
+]
+WorldOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="The simulated world: 'light' (flat top faces painted, fast) or 'physical' "
+        "(solid objects rendered by MuJoCo; the `physical` preset unless --config says "
+        "otherwise; docs/physical.md). Default: [simulator] world of the configuration.",
     ),
 ]
 ArenaOpt = Annotated[

@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable, Collection, Iterable, Iterator
 from contextlib import contextmanager
+from pathlib import PurePath
 from typing import Any
 
 import msgspec
@@ -41,9 +42,16 @@ def table(title: str, columns: Iterable[str], *, left: Collection[str] = ()):
     return t
 
 
+def _path_as_text(obj: Any) -> Any:
+    if isinstance(obj, PurePath):
+        return str(obj)
+    raise NotImplementedError(f"cannot write {type(obj).__name__} as JSON")
+
+
 def emit_json(data: Any) -> None:
-    """``data`` (Structs, dicts, lists) as indented JSON on stdout."""
-    sys.stdout.write(msgspec.json.format(msgspec.json.encode(data), indent=2).decode() + "\n")
+    """``data`` (Structs, dicts, lists; paths as text) as indented JSON on stdout."""
+    text = msgspec.json.encode(data, enc_hook=_path_as_text)
+    sys.stdout.write(msgspec.json.format(text, indent=2).decode() + "\n")
 
 
 @contextmanager

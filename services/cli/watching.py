@@ -289,6 +289,8 @@ class LiveView:
 
 
 def summary_table(s: RunSummary):
+    from rich.markup import escape
+
     t = table("ovis up: summary", ("measure", "value"), left={"measure"})
 
     def fmt(v: float | None, unit: str, digits: int = 2) -> str:
@@ -313,6 +315,10 @@ def summary_table(s: RunSummary):
         if s.position_error_flag:
             error += f"\n[red]UNRELIABLE: {s.position_error_flag}[/]"
         t.add_row("position error mean / max", error)
+        height = f"{fmt(s.height_error_cm_mean, 'cm', 3)} / {fmt(s.height_error_cm_max, 'cm', 3)}"
+        if s.heights:
+            height += f"\nheights {escape(s.heights)}"
+        t.add_row("height error mean / max (abs.)", height)
     t.add_row("calibration version", str(s.calibration_version))
     t.add_row("dropped frames", ", ".join(f"{k} {v}" for k, v in s.dropped.items()) or "0")
     errs = "; ".join(f"{k}: {v}" for k, v in s.errors.items())
