@@ -1,4 +1,5 @@
-"""Where the CPU of ``ovis up --cameras 2x2`` goes, per world frame (issue 31).
+"""Where the CPU of ``ovis up --cameras 2x2`` goes, per world frame (issue 31), in its
+default layout: one process per stage serving the four cameras (issue 38).
 
 Two runs of the same four chains plus fusion at 30 frames/s per camera: ``ovis up
 --cameras 2x2`` itself and the empty topology of :mod:`benchmarks.topology` (the same
@@ -83,7 +84,7 @@ def _read(path: str) -> str | None:
 def process_cpu(root: int) -> dict[int, tuple[str, dict[str, float], int]]:
     """Every process under ``root`` (itself included) with a stage: pid → (stage, CPU
     seconds by thread kind, voluntary context switches)."""
-    from benchmarks.fusion import tree_cpu
+    from ovis.services.cpu import tree_cpu
 
     tick = os.sysconf("SC_CLK_TCK")
     out = {}
@@ -211,7 +212,7 @@ def budget_rows(quick: bool, log=print) -> list[Row]:
         used, span = ours.usage()
         steps = ours.steps()
     empty = Window()
-    empty_chains(int(seconds * FPS), probe=empty)
+    empty_chains(int(seconds * FPS), probe=empty, layout="per-stage")
     floor_used, floor_span = empty.usage()
     frames, floor_frames = span * FPS, floor_span * FPS
     rows: list[Row] = []
@@ -250,8 +251,11 @@ def budget_rows(quick: bool, log=print) -> list[Row]:
     return rows
 
 
-#: The thread each stage works on (pose: its worker thread, main: its status loop).
-WORKS_ON = {"preprocess": "main", "label": "main", "pose": "python"}
+#: The stages whose handlers are timed: in the per-stage layout every camera's handler
+#: runs on the process's shared loop, a thread of its own (not the main one).
+WORKS_ON = ("preprocess", "label", "pose")
+#: Cameras of the run (2×2): each stage process handles a frame of each per world frame.
+CAMERAS = 4
 #: Memory written between the stages in the eviction run (more than the caches hold).
 EVICT_MB = 32.0
 
@@ -268,14 +272,15 @@ def _stage_work_rows(used: dict[str, Usage], frames: float, quick: bool, log) ->
     evicted = stage_work_ms(SEED % 1000, reps, EVICT_MB)
     log(f"  stages in one process, warm {warm}, {EVICT_MB:g} MB evicted between: {evicted}")
     rows = []
-    for stage, kind in WORKS_ON.items():
+    for stage in WORKS_ON:
         u = used.get(stage)
         if u is None:
             continue
-        value = u.cpu[kind] * 1e3 / frames / u.processes
-        rows.append(Row(f"{PREFIX} {stage}: its thread per camera frame in the run (decode, "
-                        "compute, encode, publish; floor: the compute alone in one process, "
-                        "warm, on cam00's frames)", "ms", value, warm[stage],
+        value = u.cpu["python"] * 1e3 / frames / CAMERAS
+        rows.append(Row(f"{PREFIX} {stage}: its Python threads per camera frame in the run "
+                        "(the shared loop's decode, compute, encode, publish, and its few "
+                        "other threads; floor: the compute alone in one process, warm, on "
+                        "cam00's frames)", "ms", value, warm[stage],
                         ratio(value, warm[stage])))  # fmt: skip
         rows.append(Row(f"{PREFIX} {stage}: the compute alone in one process with "
                         f"{EVICT_MB:g} MB written between the stages, as other processes "

@@ -19,11 +19,13 @@ import msgspec
 import numpy as np
 
 from benchmarks.core import Row
+from ovis.common.calibration.calibrate import calibrate
 from ovis.common.calibration.ga import GAResult, run_ga
-from ovis.common.calibration.problem import INFEASIBLE, CalibrationProblem, calibrate
+from ovis.common.calibration.problem import INFEASIBLE, CalibrationProblem
 from ovis.common.config import OvisConfig, load_config
 from ovis.common.sim.arena import Arena, control_points
-from ovis.common.vision.preprocess import as_gray, smooth
+from ovis.common.vision.frames import as_gray
+from ovis.common.vision.smoothing import smooth
 
 __all__ = ["calibration_rows"]
 
@@ -69,7 +71,7 @@ def _ga(fitness, config: OvisConfig, generations: int, dedupe: bool) -> tuple[GA
 _PEAK_SCRIPT = """
 import json, resource, sys, time
 from ovis.common.config import load_config, with_ga
-from ovis.common.calibration.problem import calibrate
+from ovis.common.calibration.calibrate import calibrate
 from ovis.common.sim.arena import Arena, control_points
 population, generations = int(sys.argv[1]), int(sys.argv[2])
 config = load_config()

@@ -52,6 +52,7 @@ GROUPS = {
     "recovery": "Recovery",
     "trust": "Proof of origin",
     "ros2": "ROS 2 output",
+    "heights": "Measured heights",
     "physical": "Physical world",
 }
 DEFAULT = (
@@ -66,6 +67,7 @@ DEFAULT = (
     "fusion",
     "trust",
     "ros2",
+    "heights",
     "budget",
     "physical",
 )
@@ -87,6 +89,7 @@ TIMED = {
     "trust": ("benchmarks.trust", "trust_rows"),
     "ros2": ("benchmarks.ros2", "ros2_rows"),
     "budget": ("benchmarks.budget", "budget_rows"),
+    "heights": ("benchmarks.heights", "heights_rows"),
     "physical": ("benchmarks.physical", "physical_rows"),
 }
 
@@ -223,7 +226,11 @@ def table(
     rows: list[dict[str, Any]],
     machine: dict[str, Any],
     render: Callable[[list[dict[str, Any]]], list[str]] = row_lines,
+    *,
+    runs_page: str | None = None,
 ) -> str:
+    """The rows as ``render`` shows them, the machine, and when and under what load each
+    group ran (on ``runs_page``, a link to the page that lists them, when given)."""
     lines = render(rows)
     runs = machine.get("groups") or {}
     shown = [g for g in GROUPS if g in runs and any(group_of(r["name"]) == g for r in rows)]
@@ -236,7 +243,9 @@ def table(
         f"OpenCV {machine['opencv']}, eclipse-zenoh {machine['zenoh']}. "
         "Floors are measured in the same run; ratio = value / floor.",
     ]
-    if shown:
+    if shown and runs_page is not None:
+        lines += ["", f"When and under what load each group ran: [{runs_page}]({runs_page})."]
+    elif shown:
         unknown = [
             g for g in GROUPS if g not in runs and any(group_of(r["name"]) == g for r in rows)
         ]
@@ -253,28 +262,30 @@ def table(
     return "\n".join(lines)
 
 
-def update_page(
-    page: Path,
-    rows: list[dict[str, Any]],
-    machine: dict[str, Any],
-    render: Callable[[list[dict[str, Any]]], list[str]] = row_lines,
-) -> bool:
-    """Rewrite the table between the markers of one page with ``rows``."""
+def page_table(page: Path, rows: list[dict[str, Any]], machine: dict[str, Any]) -> str:
+    """What goes between the markers of ``page`` (one of :data:`PAGES`): the README
+    links to the benchmarks page for when each group ran."""
+    runs_page = "docs/benchmarks.md" if page == ROOT / "README.md" else None
+    return table(rows, machine, PAGES[page], runs_page=runs_page)
+
+
+def update_page(page: Path, rows: list[dict[str, Any]], machine: dict[str, Any]) -> bool:
+    """Rewrite the table between the markers of one page of :data:`PAGES` with ``rows``."""
     text = page.read_text("utf-8")
     if START not in text or END not in text:
         log(f"{page.relative_to(ROOT)} has no {START} … {END} markers; table not written")
         return False
     head, rest = text.split(START, 1)
     _, tail = rest.split(END, 1)
-    text = f"{head}{START}\n{table(rows, machine, render)}\n{END}{tail}"
+    text = f"{head}{START}\n{page_table(page, rows, machine)}\n{END}{tail}"
     page.write_text(text, encoding="utf-8")
     return True
 
 
 def update_pages(rows: list[dict[str, Any]], machine: dict[str, Any]) -> None:
     """Rewrite the table of every page in :data:`PAGES` with the rows it shows."""
-    for page, render in PAGES.items():
-        update_page(page, rows, machine, render)
+    for page in PAGES:
+        update_page(page, rows, machine)
 
 
 def main(argv: list[str] | None = None) -> int:

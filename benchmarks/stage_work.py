@@ -25,8 +25,8 @@ from ovis.common.camera.plane_table import PlaneTables
 from ovis.common.config import OvisConfig, PinholeParams
 from ovis.common.messages import Frame, ObstacleFrame
 from ovis.common.pipeline.stages import SizeFilter, binary_frame, blob_list, obstacle_frame
-from ovis.common.vision.preprocess import as_gray
-from ovis.common.vision.segmentation import ObjectWindow
+from ovis.common.vision.contrast import ObjectWindow
+from ovis.common.vision.frames import as_gray
 from ovis.common.world.detection import Detector
 from ovis.common.world.marker_search import BlobMarkers
 

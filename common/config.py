@@ -33,6 +33,7 @@ __all__ = [
     "FusionConfig",
     "GAConfig",
     "ImageParams",
+    "NavigationConfig",
     "OvisConfig",
     "PhysicalConfig",
     "PinholeParams",
@@ -253,14 +254,18 @@ class PinholeRanges(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 class ImageParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Image pipeline settings (paper §3). ``threshold``/``size_filter_cm2`` are calibrated.
 
-    Beyond the paper, for real floors (:mod:`ovis.common.vision.segmentation`):
+    Beyond the paper, for real floors (:mod:`ovis.common.vision.segmentation`,
+    :mod:`ovis.common.vision.contrast`):
     ``threshold_mode`` "fixed" (the paper's grey level), "otsu" (Otsu's level of the
     frame), "adaptive" (``threshold`` applied to the local contrast: the frame minus its
     Gaussian local mean over ``block_px``, by default a window that follows the objects,
     plus 128) or "auto" (Otsu's level of that local contrast around the objects);
     ``background``, an image of the empty floor subtracted first (then
     128 is "as the empty floor"); ``roi``, a mask image (non-zero: look here);
-    ``max_size_cm2``, the largest object kept.
+    ``max_size_cm2``, the largest object kept. ``size_filter_cm2`` is compared with a
+    blob's area on the obstacles' top plane (``pose.obstacle_height_cm``), or on the
+    floor when heights are measured (``pose.heights``): a silhouette carried onto the
+    floor covers at least its footprint.
     """
 
     median: Literal["paper", "ordinary", "none"] = "paper"
@@ -273,6 +278,11 @@ class ImageParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     background: str | None = None
     roi: str | None = None
     max_size_cm2: Annotated[float, msgspec.Meta(gt=0.0, le=1e9)] | None = None
+    #: how far an edge spreads in this camera's frames (the σ of a Gaussian blur, px):
+    #: the sub-pixel outlines of measured heights model it (:mod:`ovis.common.vision.outline`)
+    edge_blur_px: Annotated[float, msgspec.Meta(ge=0.2, le=5.0)] = 0.6
+    #: the sensor noise of this camera's frames (grey levels, 1σ)
+    noise_sigma: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 1.5
 
 
 class CalibrationRanges(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -399,9 +409,12 @@ class RobotFilterConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True
 class PoseConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Robot/obstacle rule, object heights, tracking and goal (paper §5.2).
 
-    The robot is the blob with the lowest compactness among those whose compactness is
-    at most ``robot_max_compactness`` and whose floor area lies in ``robot_area_cm2``.
-    Back-projection uses the plane of each class's top face (``*_height_cm``).
+    With configured heights (``heights``), the robot is the blob with the lowest
+    compactness among those whose compactness is at most ``robot_max_compactness`` and
+    whose floor area lies in ``robot_area_cm2``, and back-projection uses the plane of
+    each class's top face (``*_height_cm``). With measured heights, every solid's
+    footprint and height are measured and the unmarked robot is the box of
+    ``robot_size_cm`` and ``robot_height_cm``.
     """
 
     robot_max_compactness: _rng(0.0, 2.0) = 0.92
@@ -418,9 +431,31 @@ class PoseConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     #: where its filter predicts it, with the age of its last sighting
     robot_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 1.0
     filter: RobotFilterConfig = msgspec.field(default_factory=RobotFilterConfig)
+    #: "configured": every object's top face is taken to lie at its class's height
+    #: (``robot_height_cm``, ``obstacle_height_cm``) and its position is its blob's
+    #: centroid carried onto that plane (the light simulator's flat tops); "measured":
+    #: each solid's shape, footprint and height are fitted to its silhouette
+    #: (:mod:`ovis.common.solids`; needs ``[image] background``, the empty floor)
+    heights: Literal["configured", "measured"] = "configured"
+    #: with measured heights, the classes whose configured height is declared true: not
+    #: measured, used as it is (the footprint is still fitted, at that height)
+    declared_heights: Annotated[list[Literal["robot", "obstacle"]], msgspec.Meta(max_length=2)] = []
+    #: the unmarked robot's footprint, length × width (cm): with measured heights it is
+    #: the box of this size and ``robot_height_cm`` (not the least compact blob)
+    robot_size_cm: PairF = (16.0, 10.0)
+    #: a measured height less certain than this (1σ, cm) is not measurable there: the
+    #: class's configured height is reported instead, and said
+    height_sigma_max_cm: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 0.35
+    #: with measured heights, full fits of a blob's solids per frame (a new or changed
+    #: blob, or a periodic refit that averages a height over its track); 0: every blob
+    #: that needs one, at once (offline)
+    fits_per_frame: Annotated[int, msgspec.Meta(ge=0, le=1000)] = 1
 
     def __post_init__(self) -> None:
         _check_pair("pose", "robot_area_cm2", self.robot_area_cm2, 0.0, 1e7)
+        _check_pair("pose", "robot_size_cm", tuple(sorted(self.robot_size_cm)), 0.1, 1e4)
+        if len(set(self.declared_heights)) != len(self.declared_heights):
+            raise ValueError(f"pose.declared_heights repeats a class: {self.declared_heights}")
         if self.goal_cm is not None and not all(math.isfinite(v) for v in self.goal_cm):
             raise ValueError("pose.goal_cm must be finite")
         size = MARKER_DICTIONARIES[self.marker_dictionary]
@@ -594,6 +629,13 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     #: one camera of several (``[[cameras]]``): this process is in that camera's chain
     #: and its topics are ``ovis/<arena>/cam/<camera_name>/…``; None: the one camera
     camera_name: CameraName | None = None
+    #: the cameras of ``[[cameras]]`` a stage process serves, each on its own topics
+    #: (``ovis run STAGE --cameras a,b``); empty: every one listed
+    cameras: Annotated[list[CameraName], msgspec.Meta(max_length=64)] = []
+    #: how ``ovis up --cameras`` lays out a host's cameras: "per-stage", one process per
+    #: stage serving every camera of the host; "per-camera", one process per stage per
+    #: camera (a camera per host)
+    layout: Literal["per-stage", "per-camera"] = "per-stage"
     #: an MCAP source another tool wrote: the topic of the image channel to read (empty:
     #: its only image channel); ``ovis up --topic``
     source_topic: Annotated[str, msgspec.Meta(max_length=4096)] = ""
@@ -602,6 +644,13 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     keep_calibrations: Annotated[int, msgspec.Meta(ge=1, le=100000)] = KEEP_CALIBRATIONS
 
     def __post_init__(self) -> None:
+        if self.camera_name is not None and self.cameras:
+            raise ValueError(
+                f"service: camera_name {self.camera_name!r} makes this process one camera's "
+                f"chain; cameras {self.cameras} names several: give one or the other"
+            )
+        if len(set(self.cameras)) != len(self.cameras):
+            raise ValueError(f"service: cameras {self.cameras} names a camera twice")
         if self.source_topic and not self.source.lower().endswith(".mcap"):
             raise ValueError(
                 f"source_topic {self.source_topic!r} picks a channel of an MCAP file, but "
@@ -617,14 +666,15 @@ class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
 
 class TrustConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Where the keys of the proof of origin are (``[trust]``, docs/trust.md): the
-    calibrator, the pose stage and fusion sign with ``<keys_dir>/<role>.key`` (made on first
-    start); the others trust ``<keys_dir>/<role>.pub``, or the public key files named
-    here (copied from the host that made them)."""
+    calibrator, the pose stage, fusion and the planner sign with ``<keys_dir>/<role>.key``
+    (made on first start); the others trust ``<keys_dir>/<role>.pub``, or the public key
+    files named here (copied from the host that made them)."""
 
     keys_dir: Annotated[str, msgspec.Meta(max_length=4096)] = ""  # "": <state_dir>/keys
     calibrator_public: Annotated[str, msgspec.Meta(max_length=4096)] = ""
     pose_public: Annotated[str, msgspec.Meta(max_length=4096)] = ""
     fusion_public: Annotated[str, msgspec.Meta(max_length=4096)] = ""
+    planner_public: Annotated[str, msgspec.Meta(max_length=4096)] = ""
 
 
 class CameraSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
@@ -637,6 +687,9 @@ class CameraSpec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     source: Annotated[str, msgspec.Meta(min_length=1, max_length=4096)] = "sim"
     camera: CameraModel | None = None
     calibration: Annotated[str, msgspec.Meta(min_length=1, max_length=4096)] | None = None
+    #: the camera's own image of its empty floor (its ``[image] background``); None:
+    #: the arena's ``[image] background``
+    background: Annotated[str, msgspec.Meta(min_length=1, max_length=4096)] | None = None
 
     def __post_init__(self) -> None:
         if (self.camera is None) == (self.calibration is None):
@@ -657,7 +710,13 @@ class FusionConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     two obstacles are one when their distance is within ``gate_sigmas`` of the combined
     error (plus ``gate_floor_cm``) and their radii differ by at most ``radius_gate_cm``.
     A world obstacle keeps its identity while it moves less than ``track_gate_cm`` per
-    frame and is dropped after ``lost_frames`` frames unseen.
+    frame and is dropped after ``lost_frames`` frames unseen. A solid's footprint and
+    height fitted by several cameras are merged by their covariances, each camera's
+    (x, y) variance raised by ``footprint_bias_cm``² (what a fit's own covariance leaves
+    out); the merged height counts as measured where its σ is at most
+    ``height_sigma_max_cm``. Cameras' fitted heights (and footprints) of one obstacle
+    disagree when their χ² about the merged point has a probability below
+    ``disagree_p`` (:mod:`ovis.common.fusion.merge`).
     """
 
     match_window_ms: Annotated[float, msgspec.Meta(gt=0.0, le=10000.0)] = 10.0
@@ -668,6 +727,9 @@ class FusionConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     radius_gate_cm: Annotated[float, msgspec.Meta(ge=0.0, le=1e4)] = 2.0
     track_gate_cm: Annotated[float, msgspec.Meta(gt=0.0, le=1e4)] = 10.0
     lost_frames: Annotated[int, msgspec.Meta(ge=1, le=100000)] = 15
+    disagree_p: Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)] = 0.001
+    footprint_bias_cm: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 0.15
+    height_sigma_max_cm: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 0.35
 
 
 #: What the ROS 2 bridge can publish (``[ros2] topics``).
@@ -699,6 +761,68 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     connect: list[str] = []
 
 
+Planner = Literal["fuzzy", "dwa", "straight"]
+
+
+class NavigationConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    """Robots driven to their goals (``[navigation]``, docs/navigation.md;
+    :mod:`ovis.common.navigation`).
+
+    **Planner**: ``planner`` (the genetic-fuzzy planner, the dynamic window baseline or
+    the straight-to-goal driver); ``planner_file``, a tuned fuzzy planner (``ovis
+    navigate --tune``; empty: the one shipped); a robot is at its goal within
+    ``goal_tolerance_cm``.
+
+    **Robots** (differential drive, :mod:`ovis.common.navigation.base`): top speed
+    ``max_speed_cm_s`` and acceleration ``max_accel_cm_s2`` of each wheel's rim, and
+    ``brake_cm_s2`` when a safety rule stops it; turn rate at most
+    ``max_yaw_rate_deg_s``.
+
+    **Safety** (robot side): a robot stops when no command came for
+    ``command_timeout_s``, or when the frame a command was made from is older than
+    ``max_frame_age_s`` (also the planner's limit: it never drives on an older frame).
+    ``follow``: what the physical world's robots follow: ovis's signed commands
+    (``"ovis"``), or each robot's ROS 2 ``cmd_vel`` (``"cmd_vel"``: a TwistStamped
+    with no proof of origin, docs/navigation.md; ``ovis up --drive --follow cmd_vel``).
+    ``cmd_vel``: the planner also publishes each command as ROS 2's ``TwistStamped`` on
+    ``<[ros2] namespace>/robots/robot_<id>/cmd_vel`` (``ovis up --drive --ros2``).
+    ``drive``: the physical world's live source is the seed's scenario, its robots
+    driven by the commands (``ovis up --world physical --drive``). A robot whose marker
+    was not seen in a frame (an obstacle touching it merges their blobs) is planned
+    for on the pose filter's prediction for at most ``predict_s``, then told to stop.
+
+    **Scenarios** (``ovis navigate``, ``ovis up --drive``): ``case`` 1 (two obstacles)
+    or 2 (four) crossing the robots' paths at up to ``obstacle_speed`` × the top speed;
+    ``robots`` driven robots; frames and commands at ``rate_hz``; the pipeline's latency
+    (frame capture → command at the robot) drawn per frame from a log-normal with median
+    and 99th percentile ``latency_ms``; a run ends unfinished after ``timeout_factor`` ×
+    the straight-line time at top speed.
+    """
+
+    planner: Planner = "fuzzy"
+    planner_file: Annotated[str, msgspec.Meta(max_length=4096)] = ""
+    goal_tolerance_cm: Annotated[float, msgspec.Meta(gt=0.0, le=1e3)] = 4.0
+    max_speed_cm_s: Annotated[float, msgspec.Meta(gt=0.0, le=1e3)] = 20.0
+    max_accel_cm_s2: Annotated[float, msgspec.Meta(gt=0.0, le=1e4)] = 60.0
+    brake_cm_s2: Annotated[float, msgspec.Meta(gt=0.0, le=1e4)] = 300.0
+    max_yaw_rate_deg_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 240.0
+    command_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 0.22
+    max_frame_age_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 0.5
+    follow: Literal["ovis", "cmd_vel"] = "ovis"
+    cmd_vel: bool = False
+    drive: bool = False
+    predict_s: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.3
+    case: Literal[1, 2] = 2
+    robots: Annotated[int, msgspec.Meta(ge=1, le=2)] = 1
+    obstacle_speed: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.6
+    rate_hz: Annotated[float, msgspec.Meta(gt=0.0, le=1000.0)] = 10.0
+    latency_ms: PairF = (45.0, 90.0)
+    timeout_factor: Annotated[float, msgspec.Meta(ge=1.0, le=100.0)] = 3.0
+
+    def __post_init__(self) -> None:
+        _check_pair("navigation", "latency_ms", self.latency_ms, 0.0, 10000.0)
+
+
 class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     """Everything ovis needs: camera, image pipeline, GA ranges and settings, pose, simulator."""
 
@@ -717,6 +841,7 @@ class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     fusion: FusionConfig = msgspec.field(default_factory=FusionConfig)
     trust: TrustConfig = msgspec.field(default_factory=TrustConfig)
     ros2: Ros2Config = msgspec.field(default_factory=Ros2Config)
+    navigation: NavigationConfig = msgspec.field(default_factory=NavigationConfig)
 
     @property
     def starts_with_configured_camera(self) -> bool:
@@ -733,6 +858,19 @@ class OvisConfig(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
         twice = sorted({n for n in names if names.count(n) > 1})
         if twice:
             raise ValueError(f"cameras: names must be unique, {', '.join(twice)} repeated")
+        unknown = [n for n in self.service.cameras if n not in names]
+        if unknown:
+            listed = ", ".join(names) or "none"
+            raise ValueError(
+                f"service: cameras {', '.join(unknown)} not in [[cameras]] (listed: {listed})"
+            )
+        renders_its_floor = self.service.simulated_source and self.simulator.world == "physical"
+        if self.pose.heights == "measured" and not (self.image.background or renders_its_floor):
+            raise ValueError(
+                'pose.heights = "measured" needs image.background, an image of the empty '
+                "floor (objects are told from it by being brighter); the physical world's "
+                "own source renders it at start"
+            )
 
 
 class ControlPoint(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):

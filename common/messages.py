@@ -11,6 +11,7 @@ Key expressions are rooted at ``ovis/<arena>/`` (see :class:`Topics`).
 from __future__ import annotations
 
 import re
+import threading
 from typing import Annotated, Any, Literal
 
 import msgspec
@@ -21,6 +22,7 @@ from ovis.common.calibration.file import Calibration
 from ovis.common.camera.projection import PixelJacobian
 from ovis.common.sim.arena import SimObject
 from ovis.common.vision.markers import Markers
+from ovis.common.vision.outline import Patch
 from ovis.common.world.detection import Blobs, DetectedObject, PlannerEntry
 from ovis.common.world.plans import RobotPlan
 from ovis.common.world.robots import RobotState, UnknownMarker
@@ -47,6 +49,8 @@ __all__ = [
     "ObstacleFrame",
     "PlaneMap",
     "ReplayMark",
+    "RobotCommand",
+    "RobotDrive",
     "ServiceStatus",
     "SourceGap",
     "SourceState",
@@ -209,6 +213,10 @@ class BinaryFrame(_Msg, tag="binary", kw_only=True):
     #: too small for the median), one byte per pixel, row-major: sent only when marked
     #: robots are configured, for the label stage's marker search around the blobs
     median: bytes | None = None
+    #: the grey frame itself, one byte per pixel, row-major: sent only when heights are
+    #: measured (``[pose] heights``), for the label stage's patches of each blob (the
+    #: frame less the empty floor around it, :class:`BlobPatch`)
+    gray: bytes | None = None
 
     def __post_init__(self) -> None:
         expected = (self.rows * self.cols + 7) // 8
@@ -216,11 +224,19 @@ class BinaryFrame(_Msg, tag="binary", kw_only=True):
             raise ValueError(
                 f"bits holds {len(self.bits)} bytes, {self.rows} x {self.cols} needs {expected}"
             )
-        if self.median is not None and len(self.median) != self.rows * self.cols:
-            raise ValueError(
-                f"median holds {len(self.median)} bytes, {self.rows} x {self.cols} needs "
-                f"{self.rows * self.cols}"
-            )
+        for name in ("median", "gray"):
+            image = getattr(self, name)
+            if image is not None and len(image) != self.rows * self.cols:
+                raise ValueError(
+                    f"{name} holds {len(image)} bytes, {self.rows} x {self.cols} needs "
+                    f"{self.rows * self.cols}"
+                )
+
+    def gray_image(self) -> NDArray[np.uint8] | None:
+        """``gray`` as a read-only (rows, cols) array (no copy), or None."""
+        if self.gray is None:
+            return None
+        return np.frombuffer(self.gray, dtype=np.uint8).reshape(self.rows, self.cols)
 
     def median_image(self) -> NDArray[np.uint8] | None:
         """``median`` as a read-only (rows, cols) array (no copy), or None."""
@@ -240,6 +256,7 @@ class BinaryFrameView(BinaryFrame, tag="binary", kw_only=True):
 
     bits: memoryview  # type: ignore[assignment]
     median: memoryview | None = None  # type: ignore[assignment]
+    gray: memoryview | None = None  # type: ignore[assignment]
 
 
 class BlobMeasure(msgspec.Struct):
@@ -257,6 +274,47 @@ class BlobMeasure(msgspec.Struct):
 
 
 Column = Annotated[list[Finite], msgspec.Meta(max_length=100000)]
+
+
+class BlobPatch(msgspec.Struct, kw_only=True):
+    """One blob's surroundings for measured heights: the frame less the empty floor
+    (``D = frame − background``, grey levels) over ``rows`` × ``cols`` pixels from
+    (``top``, ``left``), int16 little-endian, row-major; and the blob's area (px²) and
+    centroid (row, col) with its holes filled."""
+
+    top: Annotated[int, msgspec.Meta(ge=0, le=MAX_IMAGE_SIDE)]
+    left: Annotated[int, msgspec.Meta(ge=0, le=MAX_IMAGE_SIDE)]
+    rows: Side
+    cols: Side
+    diff: bytes
+    filled_area_px: NonNeg
+    filled_row: Finite
+    filled_col: Finite
+
+    def __post_init__(self) -> None:
+        if len(self.diff) != 2 * self.rows * self.cols:
+            raise ValueError(
+                f"diff holds {len(self.diff)} bytes, {self.rows} x {self.cols} int16 needs "
+                f"{2 * self.rows * self.cols}"
+            )
+
+    @classmethod
+    def of(cls, patch: Patch, filled: NDArray[np.float64]) -> BlobPatch:
+        rows, cols = patch.diff.shape
+        return cls(
+            top=patch.top,
+            left=patch.left,
+            rows=rows,
+            cols=cols,
+            diff=np.ascontiguousarray(patch.diff, dtype="<i2").tobytes(),
+            filled_area_px=float(filled[0]),
+            filled_row=float(filled[1]),
+            filled_col=float(filled[2]),
+        )
+
+    def patch(self) -> Patch:
+        diff = np.frombuffer(self.diff, dtype="<i2").reshape(self.rows, self.cols)
+        return Patch(self.top, self.left, diff.astype(np.int16))
 
 
 class PlaneMap(msgspec.Struct):
@@ -315,8 +373,16 @@ class BlobList(_Msg, tag="blobs", kw_only=True):
     markers: MarkerList | None = None
     markers_at_border: Annotated[int, msgspec.Meta(ge=0)] = 0
     stream: str = ""  # the capture's stream identity (Frame.stream)
+    #: one per blob when heights are measured (``[pose] heights``): its patch of the frame
+    #: less the empty floor, which the pose stage fits its solids to
+    patches: Annotated[list[BlobPatch], msgspec.Meta(max_length=100000)] | None = None
 
     def __post_init__(self) -> None:
+        if self.patches is not None and len(self.patches) != len(self.blobs):
+            raise ValueError(
+                f"patches must have one entry per blob ({len(self.patches)} for "
+                f"{len(self.blobs)} blobs)"
+            )
         if self.maps is None:
             return
         for name in ("obstacle", "robot"):
@@ -338,7 +404,17 @@ class BlobList(_Msg, tag="blobs", kw_only=True):
         table = np.array(
             [msgspec.structs.astuple(b) for b in self.blobs], dtype=np.float64
         ).reshape(-1, len(names))
-        return Blobs(**{f: table[:, k].copy() for k, f in enumerate(names)})
+        filled = None
+        if self.patches is not None:
+            filled = np.array(
+                [(p.filled_area_px, p.filled_row, p.filled_col) for p in self.patches],
+                dtype=np.float64,
+            ).reshape(-1, 3)
+        return Blobs(**{f: table[:, k].copy() for k, f in enumerate(names)}, filled=filled)
+
+    def blob_patches(self) -> list[Patch] | None:
+        """The blobs' patches as arrays, or None."""
+        return None if self.patches is None else [p.patch() for p in self.patches]
 
 
 class ObstacleFrame(_Msg, tag="obstacles", kw_only=True):
@@ -420,9 +496,15 @@ class SourceState(_Msg, tag="source", kw_only=True):
 class WorldObject(msgspec.Struct, kw_only=True):
     """One object of the fused world (several cameras, :mod:`ovis.common.fusion`): its
     world identity (a robot's: its marker's robot id; an obstacle's: kept across
-    hand-overs between cameras), where it is on the shared floor (cm), the expected
+    hand-overs between cameras), where it stands on the shared floor (cm; with heights
+    measured its footprint, else its top's centroid on its class's plane), the expected
     error of that position (``sigma_cm``, the larger axis of the merged covariance) and
-    the cameras that saw it in this frame."""
+    the cameras that saw it in this frame. ``z_cm`` is its top's height: where it comes
+    from in ``z_source`` ("cameras": measured by two or more of them, combined by their
+    information; "one camera"; else "configured" or a robot's "marker"), its 1σ in
+    ``z_sigma_cm`` (None: not measured); ``disagreeing`` names the cameras whose
+    measured height disagreed with the others' beyond their combined uncertainty and
+    was left out (:mod:`ovis.common.fusion.merge`)."""
 
     id: Annotated[int, msgspec.Meta(ge=0)]
     kind: Literal["robot", "obstacle"]
@@ -434,6 +516,9 @@ class WorldObject(msgspec.Struct, kw_only=True):
     cameras: list[str]
     marker_id: Annotated[int, msgspec.Meta(ge=0)] | None = None
     heading_deg: Finite | None = None
+    z_sigma_cm: NonNeg | None = None
+    z_source: Literal["configured", "marker", "one camera", "cameras"] = "configured"
+    disagreeing: list[str] = []
 
 
 class WorldFrame(_Msg, tag="world", kw_only=True):
@@ -538,6 +623,74 @@ class ServiceStatus(_Msg, tag="status", kw_only=True):
     shm_fallbacks: int = 0  # messages sent as plain bytes instead: the pool was full
 
 
+class RobotCommand(_Msg, tag="cmd", kw_only=True):
+    """A velocity command for one robot, published by the planner on
+    ``ovis/<arena>/robots/<id>/cmd`` with the planner's proof of origin (the robots
+    refuse, and count, any other): forwards ``v_cm_s`` and counter-clockwise
+    ``omega_deg_s`` in the floor frame, made from the frame captured at ``stamp_ns``
+    (a robot stops when that frame is too old). ``stop`` says why the robot must stop
+    ("" when it may drive): a stale or unproven frame, the camera's source lost, the
+    stream's health not ok, the robot not seen. ``seq`` counts the planner run's
+    commands (all robots), ``stream`` is that run (random, new at each start: a replay
+    is told by them). The rest says why: the planner, the goal, whether the robot is at
+    it, the most critical obstacle (id, the paper's distance and angle) and the fuzzy
+    planner's deviation."""
+
+    robot_id: Annotated[int, msgspec.Meta(ge=0)]
+    seq: Seq
+    stream: str
+    stamp_ns: Stamp
+    published_ns: Stamp
+    v_cm_s: Finite
+    omega_deg_s: Finite
+    stop: str = ""
+    planner: str = ""
+    arena: str = "default"
+    goal_cm: tuple[Finite, Finite] | None = None
+    arrived: bool = False
+    critical_id: Annotated[int, msgspec.Meta(ge=0)] | None = None
+    distance_cm: Finite | None = None
+    angle_deg: Finite | None = None
+    deviation_deg: Finite | None = None
+
+
+class RobotDrive(_Msg, tag="drive", kw_only=True):
+    """What a driven robot of the simulated physical world did, published by its capture
+    on ``ovis/<arena>/robots/<id>/drive`` with each frame (stamped as the frame): its
+    true pose and velocity, its goal and whether and when (``time_s`` since the start)
+    it reached it, its contacts with other solids (``collisions``: each new touch) and
+    closest approach to any (cm; ≤ 0 touching), the commands it followed and refused
+    (``refused``: without the planner's current proof, or not a command; with
+    ``follows`` "cmd_vel": ROS 2 messages not followed, ``clamped``: followed clamped
+    to the robot's limits), why it stands (``stopped``; "" while it drives), what it
+    follows (``follows``: "ovis", the planner's signed commands, or "cmd_vel", ROS
+    2's) and the newest command it received (``command_*``: v, ω in ovis's floor
+    frame, the stamp of the frame it was made from; its safety rules may not follow
+    it)."""
+
+    robot_id: Annotated[int, msgspec.Meta(ge=0)]
+    stamp_ns: Stamp
+    t_s: NonNeg
+    x_cm: Finite
+    y_cm: Finite
+    heading_deg: Finite
+    v_cm_s: Finite
+    omega_deg_s: Finite
+    goal_cm: tuple[Finite, Finite] | None = None
+    goal_reached: bool = False
+    time_s: NonNeg | None = None
+    collisions: Annotated[int, msgspec.Meta(ge=0)] = 0
+    min_clearance_cm: Finite | None = None
+    commands: Annotated[int, msgspec.Meta(ge=0)] = 0
+    refused: Annotated[int, msgspec.Meta(ge=0)] = 0
+    stopped: str = ""
+    follows: Literal["ovis", "cmd_vel"] = "ovis"
+    clamped: Annotated[int, msgspec.Meta(ge=0)] = 0
+    command_v_cm_s: Finite | None = None
+    command_omega_deg_s: Finite | None = None
+    command_stamp_ns: Stamp | None = None
+
+
 class ReplayMark(msgspec.Struct, kw_only=True, forbid_unknown_fields=False):
     """Rides as the Zenoh *attachment* of every message that ``ovis replay`` (and ``ovis up
     --source SESSION.mcap``) publishes, so that a consumer can tell a replay from a live
@@ -561,10 +714,17 @@ Message = (
     | StreamHealth
     | WorldFrame
     | SourceState
+    | RobotCommand
+    | RobotDrive
 )
 
 _ENCODER = msgspec.msgpack.Encoder()
 _DECODERS: dict[Any, msgspec.msgpack.Decoder] = {}
+#: msgspec works out a message class's decoding on a decoder's first build, which is not
+#: safe from two threads at once (a process whose cameras' threads first decoded the
+#: same class together died of a segmentation fault): decoders are built one at a time,
+#: and every message's here, at import
+_DECODERS_BUILT = threading.Lock()
 
 
 def encode(message: _Msg) -> bytes:
@@ -578,9 +738,7 @@ def decode(payload: bytes | memoryview, expected: Any = Message) -> Any:
     Raises :class:`MessageError` naming what is wrong (e.g. ``Expected `int` >= 0 - at
     `$.seq```), never anything else.
     """
-    decoder = _DECODERS.get(expected)
-    if decoder is None:
-        decoder = _DECODERS[expected] = msgspec.msgpack.Decoder(expected)
+    decoder = _DECODERS.get(expected) or _decoder(expected)
     if len(payload) == 0:
         raise MessageError("empty payload")
     try:
@@ -593,6 +751,19 @@ def decode(payload: bytes | memoryview, expected: Any = Message) -> Any:
         raise MessageError(f"a string is not valid UTF-8: {exc}") from None
     except RecursionError:
         raise MessageError("nested too deeply") from None
+
+
+def _decoder(expected: Any) -> msgspec.msgpack.Decoder:
+    """The decoder of ``expected``, built once, by one thread at a time."""
+    with _DECODERS_BUILT:
+        decoder = _DECODERS.get(expected)
+        if decoder is None:
+            decoder = _DECODERS[expected] = msgspec.msgpack.Decoder(expected)
+        return decoder
+
+
+for _expected in (Message, *Message.__args__):
+    _decoder(_expected)
 
 
 def message_schema() -> dict[str, Any]:
@@ -636,6 +807,9 @@ class Topics:
         self.calibrate = f"{root}/calibrate"
         self.status_all = f"{root}/status/*"
         self.alive_all = f"{root}/alive/*"
+        #: every robot's commands (the planner's) and drive reports (the world's)
+        self.commands_all = f"{root}/robots/*/cmd"
+        self.drives_all = f"{root}/robots/*/drive"
 
     def of_camera(self, camera: str) -> Topics:
         """The topics of one camera's chain in this arena (``ovis/<arena>/cam/<name>/…``)."""
@@ -646,3 +820,11 @@ class Topics:
 
     def alive(self, service: str) -> str:
         return f"{self.root}/alive/{service}"
+
+    def command(self, robot_id: int) -> str:
+        """Where robot ``robot_id``'s velocity commands go (the planner's, signed)."""
+        return f"{self.root}/robots/{int(robot_id)}/cmd"
+
+    def drive(self, robot_id: int) -> str:
+        """Where the simulated world reports how robot ``robot_id`` drives."""
+        return f"{self.root}/robots/{int(robot_id)}/drive"

@@ -15,6 +15,7 @@ import msgspec
 import zenoh
 
 from ovis.common.config import ZenohConfig
+from ovis.services.stopping import Stopping
 
 __all__ = [
     "LOOPBACK_PEER",
@@ -112,7 +113,7 @@ T = TypeVar("T")
 
 
 def interruptible(
-    stop: threading.Event,
+    stop: Stopping,
     work: Callable[[], T],
     *,
     discard: Callable[[T], object] | None = None,
@@ -154,7 +155,7 @@ def interruptible(
 
 @contextmanager
 def client_session(
-    zc: ZenohConfig, timeout_s: float, stop: threading.Event
+    zc: ZenohConfig, timeout_s: float, stop: Stopping
 ) -> Iterator[zenoh.Session | None]:
     """A tool's session: its router must answer within ``timeout_s`` counted from the
     process's start (:func:`~ovis.services.cli.options.time_left`;

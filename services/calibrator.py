@@ -32,9 +32,10 @@ import numpy as np
 import zenoh
 from numpy.typing import NDArray
 
+from ovis.common.calibration.calibrate import calibrate
+from ovis.common.calibration.errors import InfeasibleCalibrationError
 from ovis.common.calibration.file import Calibration, dipe_text
 from ovis.common.calibration.ga import GenerationStats
-from ovis.common.calibration.problem import InfeasibleCalibrationError, calibrate
 from ovis.common.calibration.rejected import save_rejected
 from ovis.common.calibration.store import CalibrationStore, StoreWriteError
 from ovis.common.calibration.validity import calibration_problem
@@ -64,7 +65,7 @@ from ovis.common.pipeline.recalibration import (
     too_big,
 )
 from ovis.common.pipeline.saving import cannot_save_status, cannot_save_text
-from ovis.common.vision.preprocess import ImageError
+from ovis.common.vision.frames import ImageError
 from ovis.services.inbox import Inbox
 from ovis.services.service import Service
 from ovis.services.trust import signer_for

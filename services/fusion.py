@@ -14,12 +14,11 @@ import time
 import numpy as np
 import zenoh
 
-from ovis.common.calibration.file import load_calibration
-from ovis.common.config import CameraModel, CameraSpec
 from ovis.common.fusion.accuracy import AccuracyMap
-from ovis.common.fusion.sightings import COLUMNS, Sightings
+from ovis.common.fusion.sightings import COLUMNS, Sightings, detection_row
 from ovis.common.fusion.world import WorldFrameResult, WorldFuser
 from ovis.common.messages import CalibrationUpdate, ObstacleFrame, WorldFrame, WorldObject
+from ovis.common.pipeline.hosting import camera_model
 from ovis.services.inbox import Inbox
 from ovis.services.service import Service
 from ovis.services.trust import signer_for
@@ -31,28 +30,27 @@ __all__ = ["camera_model", "main"]
 IDLE_S = 0.05
 
 
-def camera_model(spec: CameraSpec) -> CameraModel:
-    """A camera's model on the shared floor: inline, or from its calibration file."""
-    if spec.camera is not None:
-        return spec.camera
-    return load_calibration(spec.calibration).camera  # type: ignore[arg-type]
-
-
 def frame_columns(name: str, msg: ObstacleFrame) -> Sightings:
     """One camera's obstacle frame as detection columns, as fusion takes them (marked
-    robots seen in this frame, by marker; see
-    :func:`~ovis.common.fusion.accuracy.detection_columns`)."""
-    nan = float("nan")
+    robots seen in this frame, by marker, at their marker's height; other objects with
+    their measured height's covariance where their camera fitted one; see
+    :func:`~ovis.common.fusion.sightings.detection_row`)."""
     rows = [
-        (r.x_cm, r.y_cm, r.z_cm, r.radius_cm, nan, nan, nan, r.heading_deg, r.marker_id)
+        detection_row(r.x_cm, r.y_cm, r.z_cm, r.radius_cm, heading_deg=r.heading_deg,
+                      marker_id=r.marker_id, z_source="marker")
         for r in msg.robots
         if r.age_s == 0.0  # seen in this frame, not predicted
-    ]
+    ]  # fmt: skip
+    objects = list(msg.obstacles)
     if not msg.robots and msg.robot is not None:
-        r = msg.robot
-        rows.append((r.x_cm, r.y_cm, r.z_cm, r.radius_cm, nan, nan, nan, nan, nan))
-    robots = len(rows)
-    rows += [(o.x_cm, o.y_cm, o.z_cm, o.radius_cm, nan, nan, nan, nan, nan) for o in msg.obstacles]
+        objects.insert(0, msg.robot)
+    robots = len(rows) + (not msg.robots and msg.robot is not None)
+    rows += [
+        detection_row(o.x_cm, o.y_cm, o.z_cm, o.radius_cm, covariance_cm2=o.covariance_cm2,
+                      z_source=o.z_source, z_unmeasured=o.z_unmeasured,
+                      z_fit_cm=o.z_fit_cm)
+        for o in objects
+    ]  # fmt: skip
     data = np.array(rows, float).reshape(-1, COLUMNS)
     return Sightings((name,), data, np.arange(len(data)) < robots, resolved=False)
 
@@ -78,6 +76,9 @@ def world_message(
                 cameras=t.obj.cameras,
                 marker_id=t.obj.marker_id,
                 heading_deg=t.obj.heading_deg,
+                z_sigma_cm=t.obj.z_sigma_cm,
+                z_source=t.obj.z_source,  # type: ignore[arg-type]
+                disagreeing=t.obj.disagreeing,
             )
             for t in r.objects
         ],
@@ -166,6 +167,10 @@ def main(service: Service) -> None:
         nonlocal seq
         for r in results:
             out = world_message(r, seq, service.topics.arena, fuser.matcher.late, stream)
+            for o in out.objects:  # counted in the status: errors["cameras disagree"]
+                if o.disagreeing:
+                    service.error("cameras disagree", f"object {o.id}: height of "
+                                  f"{', '.join(o.disagreeing)} unlike the others'")  # fmt: skip
             seq += 1
             publish(out)
             service.sent()

@@ -19,6 +19,8 @@ class Inbox:
         self._items: collections.deque[Any] = collections.deque(maxlen=depth)
         self._cond = threading.Condition()
         self.dropped = 0
+        #: set at every put, when one thread serves several inboxes (services/host.py)
+        self.wake: threading.Event | None = None
 
     def put(self, item: Any) -> None:
         with self._cond:
@@ -26,6 +28,8 @@ class Inbox:
                 self.dropped += 1
             self._items.append(item)
             self._cond.notify()
+        if self.wake is not None:
+            self.wake.set()
 
     def get(self, timeout: float) -> Any | None:
         with self._cond:

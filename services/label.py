@@ -1,8 +1,10 @@
-"""Labeling service: 8-connected labeling, size filter (A^f in cm² on the floor),
+"""Labeling service: 8-connected labeling, size filter (A^f in cm², on the obstacles'
+plane, or the floor when heights are measured),
 Koplowitz–Bruckstein perimeter and compactness (paper §3) of each binary frame;
 publishes the blobs on ``ovis/<arena>/blobs``, with where its back-projection put them on
 the obstacles' and the robot's top planes (the pose service then needs none), and with
-marked robots their markers, searched for around the blobs in the frame's median."""
+marked robots their markers, searched for around the blobs in the frame's median, and
+with measured heights each blob's patch of the frame less the empty floor."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ from ovis.common.camera.plane_table import PlaneTables
 from ovis.common.config import PinholeParams
 from ovis.common.messages import BinaryFrameView
 from ovis.common.pipeline.stages import SizeFilter, blob_list
+from ovis.common.world.detection import size_plane_cm
 from ovis.common.world.marker_search import BlobMarkers
 from ovis.services.service import Service
 
@@ -28,7 +31,7 @@ def main(service: Service) -> None:
             find_markers.sizes(calib.version, calib.camera, calib.pose)
         if isinstance(calib.camera, PinholeParams):
             pose = calib.pose
-            heights = (pose.obstacle_height_cm, pose.robot_height_cm)
+            heights = {pose.obstacle_height_cm, pose.robot_height_cm, size_plane_cm(pose)}
             tables.prepare(calib.camera, heights, wait=wait)
 
     # at start, all of it before the first frame (which would otherwise take many frame

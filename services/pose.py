@@ -9,6 +9,12 @@ from __future__ import annotations
 import threading
 import time
 
+# The matcher (tracks to blobs) and the edge model of measured heights load with the
+# process, not on the frame that first needs them (a stall there makes the stage skip
+# frames); the modules that use them load them lazily for the processes that never do.
+import scipy.optimize
+import scipy.spatial
+import scipy.special  # noqa: F401
 import zenoh
 
 from ovis.common.calibration.file import Calibration
@@ -22,12 +28,15 @@ from ovis.services.trust import signer_for
 
 def main(service: Service) -> None:
     calib = service.calibration
-    detector = Detector(calib.camera, calib.image, calib.pose)
+    # measured heights: the solids are fitted beside the frames, none waits for a fit
+    detector = Detector(calib.camera, calib.image, calib.pose, background_fits=True)
     detector.robots.prepare(calib.camera)  # the marker planes' tables, before any frame
+    detector.prepare()
 
     def recalibrate(c: Calibration) -> None:
         detector.robots.prepare(c.camera)  # the new tables first: no frame waits for them
         detector.recalibrate(c.camera, c.image, c.pose)
+        detector.prepare()
 
     service.follow_calibration(recalibrate)
     signer = signer_for(service.config, "pose")  # consumers believe what this key signed

@@ -22,6 +22,7 @@ from ovis.common.recording.foreign import ForeignError, ForeignFrames, choose_ch
 from ovis.common.recording.pacing import Pacer, Restamp
 from ovis.common.recording.session import RecordingError, SessionReader
 from ovis.services.service import Service
+from ovis.services.stopping import Stopping
 
 __all__ = [
     "ONLY",
@@ -34,11 +35,12 @@ __all__ = [
 
 #: ``--only STAGE``: the topics each stage publishes.
 ONLY: dict[str, tuple[str, ...]] = {
-    "capture": ("frames", "truth"),
+    "capture": ("frames", "truth", "drive"),
     "preprocess": ("binary",),
     "label": ("blobs",),
     "pose": ("obstacles", "health"),
     "calibrator": ("calibration",),
+    "planner": ("cmd",),
 }
 #: Stamps older than this are moved to now by ``--stamps auto`` (the preprocess service
 #: refuses frames stamped more than MAX_CLOCK_SKEW_S away from its clock).
@@ -90,7 +92,7 @@ class Replayer:
         only: list[str] | None = None,
         arena: str | None = None,
         stamps: str = "auto",
-        stop: threading.Event | None = None,
+        stop: Stopping | None = None,
         on_frame: Callable[[int, int, str], None] | None = None,
         topic: str | None = None,
         on_skip: Callable[[str], None] | None = None,

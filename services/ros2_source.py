@@ -27,7 +27,6 @@ from ovis.common.capture.sources import open_source as open_common_source
 from ovis.common.config import OvisConfig, ZenohConfig
 from ovis.common.pipeline.stages import MAX_CLOCK_SKEW_S
 from ovis.common.ros2 import wire
-from ovis.common.ros2.images import IMAGE_TYPES, ImageError, image_from_cdr
 from ovis.common.sim.arena import FrameTruth
 from ovis.services.bus import zenoh_config
 from ovis.services.inbox import Inbox
@@ -52,6 +51,11 @@ class Ros2Source:
     (its header stamp, or its receipt when the stamp is unset or far from this clock)."""
 
     def __init__(self, spec: str, config: OvisConfig) -> None:
+        # ROS 2's message types load here, not where the capture starts: rosbags' type
+        # store is slow to import and every other source does without it
+        from ovis.common.ros2 import images
+
+        self._images = images
         self.topic = spec.removeprefix(PREFIX)
         cfg = config.ros2
         self.domain_id = cfg.domain_id
@@ -74,6 +78,20 @@ class Ros2Source:
         self._first = True
         self.capture_ns: int | None = None
         self._sub = self.session.declare_subscriber(pattern, self._on_sample)
+        # The graph as rmw_zenoh keeps it: liveliness tokens followed from the start, so
+        # an error after the wait names what was there even if a last query is slow.
+        self._tokens: dict[str, wire.Token] = {}
+        self._graph_sub = self.session.liveliness().declare_subscriber(
+            f"{wire.ADMIN_SPACE}/{self.domain_id}/**", self._on_token, history=True
+        )
+
+    def _on_token(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if sample.kind == zenoh.SampleKind.DELETE:
+            self._tokens.pop(key, None)
+            return
+        with contextlib.suppress(wire.WireError):
+            self._tokens[key] = wire.parse_token(key)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         self._box.put((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
@@ -89,16 +107,17 @@ class Ros2Source:
         key, payload, receipt = item
         try:
             type_name = wire.parse_topic_key(key).type_name
-            image, stamp = image_from_cdr(payload, type_name)
-        except (wire.WireError, ImageError) as exc:
+            image, stamp = self._images.image_from_cdr(payload, type_name)
+        except (wire.WireError, self._images.ImageError) as exc:
             raise SourceError(f"{self.description}: {exc}") from None
         trusted = stamp > 0 and abs(stamp - receipt) < MAX_CLOCK_SKEW_S / 2 * 1e9
         self.capture_ns = stamp if trusted else receipt
         return image, None
 
     def _graph(self) -> str:
-        """What the ROS 2 graph says of this topic's publishers (liveliness tokens)."""
-        found: list[wire.Token] = []
+        """What the ROS 2 graph says of this topic's publishers (liveliness tokens followed
+        since the start, and a last query for any the subscription has not yet had)."""
+        found: list[wire.Token] = list(self._tokens.values())
         try:
             for reply in self.session.liveliness().get(
                 f"{wire.ADMIN_SPACE}/{self.domain_id}/**", timeout=GRAPH_S
@@ -113,7 +132,7 @@ class Ros2Source:
         mine = [t for t in found if t.kind == "MP" and t.topic == self.topic]
         if mine:
             types = ", ".join(sorted({t.type_name for t in mine}))
-            readable = " or ".join(IMAGE_TYPES)
+            readable = " or ".join(self._images.IMAGE_TYPES)
             return f"its publisher ({types}) sends nothing ovis reads ({readable})"
         others = sorted({t.topic for t in found if t.kind == "MP"})
         graph = (
@@ -126,4 +145,5 @@ class Ros2Source:
     def close(self) -> None:
         with contextlib.suppress(zenoh.ZError):
             self._sub.undeclare()
+            self._graph_sub.undeclare()
         self.session.close()

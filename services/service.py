@@ -17,7 +17,7 @@ import sys
 import threading
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import msgspec
@@ -42,14 +42,17 @@ from ovis.common.pipeline.following import (
     label,
     pick,
 )
+from ovis.common.pipeline.hosting import camera_config
 from ovis.common.pipeline.limits import Input, PayloadLimits, oversized
 from ovis.common.pipeline.stages import wrong_size
 from ovis.common.trust.proof import Signer
 from ovis.services.bus import open_session
+from ovis.services.host import SharedLoop, serve_cameras
 from ovis.services.inbox import Inbox
 from ovis.services.memory import GUARD, keep_freed_memory
 from ovis.services.placement import pin_to_cpus
 from ovis.services.shm import ShmWriter
+from ovis.services.stopping import Stop
 from ovis.services.trust import attachment_of, every_reply, unproven, verifier_for
 
 __all__ = ["Service", "run"]
@@ -69,7 +72,7 @@ class Service:
         self.session = session
         self.topics = Topics(config.service.arena, config.service.camera_name)
         self.log = logging.getLogger(f"ovis.{name}")
-        self.stop = threading.Event()
+        self.stop = Stop()  # set by the signal handler (see ovis.services.stopping)
         self.started_ns = time.time_ns()
         self.state = "starting"
         self.counters = StageCounters()
@@ -81,9 +84,15 @@ class Service:
         self._token: zenoh.LivelinessToken | None = None  # declared by ready()
         #: what a stage adds to its status (the capture: its source's losses)
         self.amend_status: Callable[[ServiceStatus], ServiceStatus] | None = None
+        #: what SIGUSR1 toggles in this stage, if anything (a capture: its camera
+        #: unplugged); the process's handler calls it for each of its cameras
+        self.on_user_signal: Callable[[], None] | None = None
         #: the shared memory that large messages are written into (:meth:`publisher`)
         self.shm: ShmWriter | None = None
         self._shm_lock = threading.Lock()  # publishers are declared from several threads
+        #: the one loop that serves every camera of this process (services/host.py), or
+        #: None: :meth:`serve` runs its own
+        self.shared: SharedLoop | None = None
         self._status_q = session.declare_queryable(self.topics.status(name), self._on_status)
 
     # --- inputs -------------------------------------------------------------------
@@ -403,25 +412,35 @@ class Service:
         the older ones are dropped (counted) instead of queueing up in the network
         stack, and what is processed is always the newest."""
         self.await_calibration()
+        if self.stop.is_set():  # stopped before a calibration came: its session is closed
+            return
         self.state = "waiting for input"
         self.ready()
+        if self.shared is not None:  # one loop serves every camera of the process
+            self.shared.add(self, inbox, handle)
+            self.stop.wait()
+            return
         while not self.stop.is_set():
             item = inbox.get(timeout=0.2)
-            if item is None:
-                continue
-            calib, sent = self.calibration, self.counters.frames_out
-            try:
-                handle(*item)
-            except Exception as exc:
-                error = f"{type(exc).__name__}: {exc}"
-                self.error("processing", error)
-                self.counters.outcome(False)
-                self._frame_failed(calib, error)
-                continue
-            worked = self.counters.frames_out > sent
-            self.counters.outcome(worked)
-            if worked and self.follower is not None:
-                self.follower.worked(calib)
+            if item is not None:
+                self.handle_one(item, handle)
+
+    def handle_one(self, item: tuple[bytes, int], handle: Callable[[bytes, int], None]) -> None:
+        """Run ``handle`` on one input: an exception is counted and logged, and a
+        calibration that made it fail is rolled back; the outcome is counted."""
+        calib, sent = self.calibration, self.counters.frames_out
+        try:
+            handle(*item)
+        except Exception as exc:
+            error = f"{type(exc).__name__}: {exc}"
+            self.error("processing", error)
+            self.counters.outcome(False)
+            self._frame_failed(calib, error)
+            return
+        worked = self.counters.frames_out > sent
+        self.counters.outcome(worked)
+        if worked and self.follower is not None:
+            self.follower.worked(calib)
 
 
 def wait_for_activation() -> bool:
@@ -438,8 +457,24 @@ def wait_for_activation() -> bool:
     return True
 
 
-def run(name: str, config: OvisConfig, main: Callable[[Service], None]) -> int:
-    """Open a session, build the service, run ``main`` until SIGINT/SIGTERM, close."""
+def run(
+    name: str,
+    config: OvisConfig,
+    main: Callable[[Service], None],
+    cameras: Sequence[str] = (),
+    warm: Callable[[OvisConfig], None] | None = None,
+) -> int:
+    """Open a session, build the service, run ``main`` until SIGINT/SIGTERM, close.
+
+    With ``cameras`` (names of ``[[cameras]]``), the process serves each of them, on its
+    own topics with its own status (:func:`~ovis.services.host.serve_cameras`); one
+    camera is that camera's chain, as with ``[service] camera_name``. A spare process
+    runs ``warm`` on each camera's configuration before it waits to take over (what its
+    stage makes at start and can make ahead: its first frames then come sooner)."""
+    configs = [camera_config(config, camera) for camera in cameras] or [config]
+    if warm is not None and os.environ.get("OVIS_STANDBY") == "1":
+        for each in configs:
+            warm(each)
     if not wait_for_activation():
         return 0
     logging.basicConfig(
@@ -447,31 +482,49 @@ def run(name: str, config: OvisConfig, main: Callable[[Service], None]) -> int:
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
     pinned = pin_to_cpus(config.service.cpus, log)  # before Zenoh starts its threads
-    keep_freed_memory(max(PayloadLimits.of(config.camera)))  # … and allocates
+    keep_freed_memory(max(max(PayloadLimits.of(c.camera)) for c in configs))  # … and allocates
     with open_session(config.zenoh) as session:
-        service = Service(name, config, session)
+        services = [Service(name, c, session) for c in configs]
+        service = services[0]
 
         def on_signal(signum: int, _frame: Any) -> None:
             service.log.info("signal %d: stopping", signum)
             if not service.stop.is_set():
                 exit_if_stuck_after(STOP_GRACE_S, service.log)
-            service.stop.set()
+            for each in services:
+                each.stop.set()
+
+        def on_user_signal(_signum: int, _frame: Any) -> None:
+            toggles = [each.on_user_signal for each in services if each.on_user_signal]
+            if not toggles:
+                service.log.warning("SIGUSR1 ignored: this stage has nothing it toggles")
+            for toggle in toggles:
+                toggle()
 
         signal.signal(signal.SIGTERM, on_signal)
         signal.signal(signal.SIGINT, on_signal)
+        # set here, in the main thread: a stage's main may run in a thread of its own
+        # (several cameras), where it cannot set a handler, and SIGUSR1's default ends
+        # the process
+        signal.signal(signal.SIGUSR1, on_user_signal)
         service.log.info(
-            "started (arena %s, pid %d, zenoh %s %s%s)",
+            "started (arena %s, pid %d, zenoh %s %s%s%s)",
             config.service.arena,
             os.getpid(),
             config.zenoh.mode,
             ",".join(config.zenoh.connect or config.zenoh.listen),
             f", cores {','.join(map(str, config.service.cpus))}" if pinned else "",
+            f", cameras {','.join(cameras)}" if cameras else "",
         )
         try:
-            main(service)
+            if len(services) > 1:
+                serve_cameras(services, main)
+            else:
+                main(service)
         finally:
-            service.stop.set()
-            service.log.info("stopped: %s", msgspec.json.encode(service.status()).decode())
+            for each in services:
+                each.stop.set()
+                each.log.info("stopped: %s", msgspec.json.encode(each.status()).decode())
             exit_anyway_after(EXIT_GRACE_S, service.log)
     # The session is closed: end here rather than in the interpreter's shutdown, where
     # Zenoh's threads (shared memory's among them) still inside its native code can

@@ -27,14 +27,21 @@ from ovis.common.pipeline.restarts import RestartBudget, describe_exit
 from ovis.common.pipeline.totals import CounterTotals, ServiceTotals
 from ovis.services.placement import ALLOWED_ENV
 
-__all__ = ["Child", "Supervisor", "die_with_parent"]
+__all__ = ["STANDBY", "Child", "Supervisor", "die_with_parent"]
 
 log = logging.getLogger("ovis.up")
 
 #: A spare is started this long after its stage (not while everything starts at once).
 SPARE_AFTER_S = 5.0
+#: Stages of the frame path that `ovis up` keeps a spare process ready for: a killed one
+#: is replaced without an interpreter start (the cost: one idle process each).
+STANDBY = ("preprocess", "label", "pose")
 #: On stopping, how long the stages get after the cameras stop for the frames in flight.
 DRAIN_S = 0.3
+#: Children that write a file on stopping (the recorder: its backlog, then the file's
+#: summary and index), stopped after the stages (their last messages recorded) and given
+#: this long before SIGKILL, which would leave a recording without its index.
+WRITERS_STOP_S = {"recorder": 60.0}
 
 
 def die_with_parent() -> None:
@@ -224,14 +231,24 @@ class Supervisor:
         """Each child's counters over all of its processes."""
         return self.counters.totals()
 
+    def pids(self) -> dict[str, int]:
+        """The running processes by name (a spare as ``<name> spare``)."""
+        running = {}
+        for name, child in self.children.items():
+            for label, proc in ((name, child.proc), (f"{name} spare", child.spare)):
+                if proc is not None and proc.poll() is None:
+                    running[label] = proc.pid
+        return running
+
     def restarts(self) -> dict[str, int]:
         return {n: c.budget.restarts for n, c in self.children.items()}
 
     def stop(self, timeout: float = 5.0, *, sources: Sequence[str] = ()) -> dict[str, int]:
         """SIGTERM the ``sources`` (the cameras) and wait for them, give what they sent
         :data:`DRAIN_S` to reach the stages (a recording then holds every frame
-        captured), then SIGTERM the other stages, then the router; SIGKILL whatever
-        outlives ``timeout``."""
+        captured), then SIGTERM the other stages, then the writers
+        (:data:`WRITERS_STOP_S`), then the router; SIGKILL whatever outlives ``timeout``
+        (a writer: its own time)."""
         self.stopping = True
         codes: dict[str, int] = {}
         for child in self.children.values():
@@ -239,11 +256,17 @@ class Supervisor:
                 child.spare.kill()  # only waiting: nothing to stop cleanly
                 child.spare.wait()
         first = [n for n in self.children if n in sources]
-        stages = [n for n in self.children if n != "router" and n not in sources]
-        for group in (first, stages, [n for n in self.children if n == "router"]):
-            codes |= self._stop_group(group, timeout)
-            if group is first and first:
-                time.sleep(DRAIN_S)
+        last = ("router", *WRITERS_STOP_S)
+        stages = [n for n in self.children if n not in last and n not in sources]
+        codes |= self._stop_group(first, timeout)
+        if first:
+            time.sleep(DRAIN_S)
+        codes |= self._stop_group(stages, timeout)
+        for name, writer_s in WRITERS_STOP_S.items():
+            if name in self.children:
+                codes |= self._stop_group([name], writer_s)
+        if "router" in self.children:
+            codes |= self._stop_group(["router"], timeout)
         return codes
 
     def _stop_group(self, names: list[str], timeout: float) -> dict[str, int]:

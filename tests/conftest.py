@@ -1,5 +1,9 @@
 """Shared by every test file.
 
+- The suite runs on two workers (pytest-xdist, ``-n 2``, a file's tests on one worker);
+  a file that asserts timing a neighbour's load would falsify runs alone
+  (tests/lanes.py). ``pytest -n 0`` runs in one process (for a debugger).
+
 - The leak guard (tests/leak_guard.py) fails the test that leaves a process, a Zenoh
   session, a thread, a listening port or a changed test process (cores, priority,
   environment, signals) behind for the tests that run after it.
@@ -30,7 +34,7 @@ import pytest
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-pytest_plugins = ["leak_guard", "pytester"]
+pytest_plugins = ["lanes", "leak_guard", "pytester"]
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:

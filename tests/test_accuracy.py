@@ -15,8 +15,8 @@ from ovis.common.calibration.accuracy import (
     floor_error_grid,
     load_checks,
 )
+from ovis.common.calibration.calibrate import calibrate
 from ovis.common.calibration.file import load_calibration, save_calibration
-from ovis.common.calibration.problem import calibrate
 from ovis.common.config import ConfigError, load_config
 from ovis.common.sim.arena import Arena, control_points, write_dataset
 

@@ -26,6 +26,9 @@ import zenoh
 from bus_client import BusClient
 from zenoh_helpers import frame_map, free_port, wait_for
 
+# alone: services answering within a second under attack
+pytestmark = pytest.mark.alone
+
 STAGES = ("capture", "preprocess", "label", "pose", "calibrator")
 ROOT = "ovis/default"
 #: How often a stage asks the calibrator for its calibration (docs/state.md), and slack

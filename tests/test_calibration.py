@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from ovis.common.analysis.evaluation import match_objects
+from ovis.common.calibration.calibrate import calibrate
 from ovis.common.calibration.problem import (
     INFEASIBLE,
     CalibrationProblem,
     InfeasibleCalibrationError,
-    calibrate,
 )
 from ovis.common.config import CALIBRATED_VARIABLES, load_config
 from ovis.common.sim.arena import Arena, control_points

@@ -8,6 +8,7 @@ import msgspec
 import numpy as np
 import pytest
 
+from ovis.common.calibration.calibrate import calibrate
 from ovis.common.calibration.file import load_calibration
 from ovis.common.calibration.gate import (
     DIPE_FLOOR_PX,
@@ -17,7 +18,6 @@ from ovis.common.calibration.gate import (
     gate_problem,
     sight_problem,
 )
-from ovis.common.calibration.problem import calibrate
 from ovis.common.calibration.rejected import KEEP_REJECTED, save_rejected
 from ovis.common.config import ControlPoint, load_config
 from ovis.common.pipeline.candidate import judge_candidate, seen_by

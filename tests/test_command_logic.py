@@ -30,8 +30,8 @@ from ovis.common.config import (
 )
 from ovis.common.messages import ObstacleFrame, ServiceStatus, TruthFrame
 from ovis.common.sim.arena import Arena
+from ovis.common.vision.frames import ImageError
 from ovis.common.vision.imageio import read_image
-from ovis.common.vision.preprocess import ImageError
 from ovis.common.world.detection import Detector
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "chessboard-9x6"

@@ -9,7 +9,7 @@ import pytest
 from ovis.common.analysis.evaluation import match_objects
 from ovis.common.config import load_config
 from ovis.common.sim.arena import Arena
-from ovis.common.vision.preprocess import ImageError
+from ovis.common.vision.frames import ImageError
 from ovis.common.world.detection import Detector, find_blobs
 from ovis.common.world.planner import planner_inputs
 

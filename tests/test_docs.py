@@ -147,11 +147,11 @@ def test_benchmark_tables_are_rendered_from_the_results(monkeypatch: pytest.Monk
 
     rows = json.loads(run.RESULTS.read_text("utf-8"))
     machine = json.loads(run.MACHINE.read_text("utf-8"))
-    for page, render in run.PAGES.items():
+    for page in run.PAGES:
         text = page.read_text("utf-8")
         assert text.count(run.START) == 1 and text.count(run.END) == 1, page
         between = text.split(run.START, 1)[1].split(run.END, 1)[0].strip()
-        expected = run.table(rows, machine, render)
+        expected = run.page_table(page, rows, machine)
         assert between == expected, f"{page.name}: rerun python -m benchmarks.run --render"
 
 

@@ -26,6 +26,9 @@ from ovis.common.camera.projection import back_project
 from ovis.common.config import ControlPoint
 from ovis.common.vision.boards import parse_board
 
+# long: minutes of work, started early so the run ends with both workers busy
+pytestmark = pytest.mark.long
+
 OUTER = (0, 8, 45, 53)  # the board's four outer inner-corners
 FIVE = (*OUTER, 22)  # and one in the middle
 #: the issue's bounds, in squares

@@ -9,10 +9,14 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pytest
 from cli_helpers import assert_one_line_error, ovis
 from pipeline_helpers import run_up
 from real_photos import opencv_corners, photo_paths
 from test_floor_pose import OUTER, write_points
+
+# long: minutes of work, started early so the run ends with both workers busy
+pytestmark = pytest.mark.long
 
 
 def test_image_size_comes_from_the_image(tmp_path: Path) -> None:
@@ -94,7 +98,7 @@ def test_up_with_a_calibration_processes_a_folder_without_truth(tmp_path: Path) 
     for f in data.glob("frame_*.png"):
         shutil.copy(f, frames / f.name)
     args = ("--source", str(frames), "--calibration", str(calib))
-    code, summary, err, _ = run_up(tmp_path, "--duration", "25", "--fps", "10", *args)
+    code, summary, err, _ = run_up(tmp_path, "--duration", "12", "--fps", "10", *args)
     assert code == 0, (summary, err)
     assert "stored as version 1" in err
     assert summary["frames_processed"] > 0 and summary["calibration_version"] == 1

@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from ovis.common.vision.frames import ImageError
 from ovis.common.vision.labeling import Components, filter_components, label_components
-from ovis.common.vision.preprocess import ImageError
 
 FIELDS = ("area_px", "row", "col", "top", "left", "height", "width", "mu_rr", "mu_cc", "mu_rc")
 

@@ -20,6 +20,7 @@ FOUNDATION = {
     "atomic",
     "camera",
     "vision",
+    "solids",
     "world",
     "calibration",
     "sim",
@@ -35,18 +36,20 @@ LAYERS: dict[str, set[str]] = {
     "presets": set(),
     "camera": {"config", "atomic"},
     "vision": {"config"},
-    "world": {"config", "camera", "vision"},
+    "solids": {"config", "camera", "vision"},
+    "world": {"config", "camera", "vision", "solids"},
     "calibration": {"config", "atomic", "camera", "vision"},
     "sim": {"config", "atomic", "camera", "vision"},
     "physical": {"config", "atomic", "camera", "vision", "sim", "calibration"},
-    "capture": {"config", "atomic", "camera", "sim", "vision", "physical"},
-    "messages": {"config", "camera", "vision", "world", "calibration", "sim"},
+    "capture": {"config", "atomic", "camera", "sim", "vision", "physical", "navigation", "world"},
+    "messages": {"config", "camera", "vision", "solids", "world", "calibration", "sim"},
     "pipeline": FOUNDATION | {"trust"},
     "analysis": FOUNDATION | {"fusion"},
     "view": {"config", "camera", "calibration", "messages"},
     "fusion": {"config", "camera"},
     "trust": {"atomic", "config"},
     "ros2": {"config", "camera", "calibration", "messages", "fusion", "vision"},
+    "navigation": FOUNDATION - {"capture", "messages"},
 }
 
 #: Recording stores and replays messages: what they may import, plus them and atomic files.
@@ -184,3 +187,94 @@ def test_the_command_rule_catches_private_names_and_loops(tmp_path: Path) -> Non
         "b is in an import loop",
         "c is in an import loop",
     ]
+
+
+def module_of(path: Path, root: Path = COMMON) -> str:
+    """The dotted name of a source file under ``root`` (``ovis.common`` …)."""
+    parts = path.relative_to(root.parent).with_suffix("").parts
+    name = "ovis." + ".".join(parts)
+    return name.removesuffix(".__init__")
+
+
+def import_circles(paths: list[Path], root: Path = COMMON) -> list[list[str]]:
+    """The groups of modules that import each other round a circle, imports inside
+    functions included (Tarjan's strongly connected components of the import graph)."""
+    names = {module_of(p, root): p for p in paths}
+    graph = {
+        name: {m for _, m in imported_modules(p) if m in names and m != name}
+        for name, p in names.items()
+    }
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    circles: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while (w := stack.pop()) != v:
+                group.append(w)
+            if group:
+                circles.append(sorted([v, *group]))
+
+    for name in graph:
+        if name not in index:
+            visit(name)
+    return circles
+
+
+def test_no_modules_import_each_other_round_a_circle() -> None:
+    assert import_circles(SOURCES) == []
+
+
+def test_the_circle_rule_catches_a_lazy_import_back(tmp_path: Path) -> None:
+    pkg = tmp_path / "common" / "calib"
+    pkg.mkdir(parents=True)
+    (pkg / "problem.py").write_text(
+        "def solve():\n    from ovis.common.calib.refine import polish\n    return polish\n"
+    )
+    (pkg / "refine.py").write_text("from ovis.common.calib.problem import solve\n")
+    (pkg / "file.py").write_text("from ovis.common.calib.problem import solve\n")
+    found = import_circles(sorted(pkg.glob("*.py")), tmp_path / "common")
+    assert found == [["ovis.common.calib.problem", "ovis.common.calib.refine"]]
+
+
+def _heavy_modules_after(*modules: str) -> set[str]:
+    """The scipy and rosbags modules a fresh interpreter holds after importing
+    ``modules``."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        + "".join(f"import {m}\n" for m in modules)
+        + "print(' '.join(m for m in sys.modules if m.split('.')[0] in ('scipy', 'rosbags')))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return set(out.stdout.split())
+
+
+def test_stages_load_scipy_and_rosbags_only_where_they_use_them() -> None:
+    """The CLI's entry point, the capture, preprocess and label stages start without
+    scipy or ROS 2's type store (slow to import; they never match tracks, fit edges or
+    read a ROS 2 message unless a ``ros2:`` source asks); the pose stage loads the
+    matcher and the edge model with the process, not on the frame that first needs them
+    (a stall there skips frames)."""
+    light = _heavy_modules_after(
+        "ovis.services.cli",
+        "ovis.services.capture",
+        "ovis.services.preprocess",
+        "ovis.services.label",
+    )
+    assert light == set(), sorted(light)
+    assert {"scipy.optimize", "scipy.spatial", "scipy.special"} <= _heavy_modules_after(
+        "ovis.services.pose"
+    )

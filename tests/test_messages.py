@@ -32,6 +32,7 @@ from ovis.common.messages import (
     BinaryFrame,
     BlobList,
     BlobMeasure,
+    BlobPatch,
     CalibrateReply,
     CalibrateRequest,
     CalibrationUpdate,
@@ -40,6 +41,8 @@ from ovis.common.messages import (
     MessageError,
     ObstacleFrame,
     PlaneMap,
+    RobotCommand,
+    RobotDrive,
     ServiceStatus,
     SourceGap,
     SourceState,
@@ -68,6 +71,8 @@ MESSAGE_TYPES = [
     StreamHealth,
     WorldFrame,
     SourceState,
+    RobotCommand,
+    RobotDrive,
 ]
 
 
@@ -122,6 +127,22 @@ def _obstacle_frame(**kw: Any) -> ObstacleFrame:
     )
     fields.update(kw)
     return ObstacleFrame(**fields)
+
+
+def _patch(**kw: Any) -> BlobPatch:
+    diff = np.arange(-6, 6, dtype=np.int16).reshape(3, 4) * 40  # signed: shadows are < 0
+    fields: dict[str, Any] = dict(
+        top=4,
+        left=17,
+        rows=3,
+        cols=4,
+        diff=diff.astype("<i2").tobytes(),
+        filled_area_px=310.0,
+        filled_row=10.75,
+        filled_col=20.0,
+    )
+    fields.update(kw)
+    return BlobPatch(**fields)
 
 
 def _blob(**kw: Any) -> BlobMeasure:
@@ -212,6 +233,38 @@ def sample_messages() -> dict[str, Any]:
             blobs=[_blob(), _blob(row=479.0, col=0.0, mu_rc=1e9)],
         ),
         "blobs-empty": BlobList(seq=0, stamp_ns=0, rows=1, cols=1, calibration_version=0, blobs=[]),
+        "binary-gray": BinaryFrame(
+            seq=7,
+            stamp_ns=8,
+            rows=mask.shape[0],
+            cols=mask.shape[1],
+            bits=np.packbits(mask).tobytes(),
+            threshold=131,
+            calibration_version=2,
+            gray=(mask * 200).astype(np.uint8).tobytes(),
+        ),
+        "blobs-patches": BlobList(
+            seq=11,
+            stamp_ns=12,
+            rows=480,
+            cols=640,
+            calibration_version=1,
+            blobs=[_blob()],
+            patches=[_patch()],
+        ),
+        "obstacles-measured": _obstacle_frame(
+            obstacles=[
+                _detected(
+                    2,
+                    z_cm=12.25,
+                    z_source="one camera",
+                    z_sigma_cm=0.07,
+                    covariance_cm2=[0.01, 0.0, 0.002, 0.0, 0.01, 0.001, 0.002, 0.001, 0.0049],
+                    shape="box",
+                ),
+                _detected(3, z_source="configured", z_unmeasured="not measurable", shape="prism5"),
+            ]
+        ),
         "obstacles": _obstacle_frame(),
         "obstacles-no-robot": _obstacle_frame(robot=None, obstacles=[], planner=[]),
         "truth": TruthFrame(
@@ -344,6 +397,46 @@ def sample_messages() -> dict[str, Any]:
             cameras=["cam00", "cam10"],
             missing=["cam11"],
             late_frames={"cam00": 0, "cam10": 2, "cam11": 0},
+        ),
+        "robot_command": RobotCommand(
+            robot_id=1,
+            seq=9,
+            stream="c0ffee",
+            stamp_ns=1_700_000_000_000_000_000,
+            published_ns=1_700_000_000_002_000_000,
+            v_cm_s=12.5,
+            omega_deg_s=-30.0,
+            planner="fuzzy",
+            goal_cm=(135.0, 60.0),
+            critical_id=4,
+            distance_cm=18.2,
+            angle_deg=-25.0,
+            deviation_deg=40.0,
+        ),
+        "robot_command_stop": RobotCommand(
+            robot_id=2,
+            seq=10,
+            stream="c0ffee",
+            stamp_ns=1_700_000_000_000_000_000,
+            published_ns=1_700_000_000_002_000_000,
+            v_cm_s=0.0,
+            omega_deg_s=0.0,
+            stop="stream health stalled",
+        ),
+        "robot_drive": RobotDrive(
+            robot_id=1,
+            stamp_ns=1_700_000_000_000_000_000,
+            t_s=3.2,
+            x_cm=60.0,
+            y_cm=58.5,
+            heading_deg=170.0,
+            v_cm_s=19.0,
+            omega_deg_s=4.0,
+            goal_cm=(15.0, 60.0),
+            collisions=0,
+            min_clearance_cm=6.5,
+            commands=31,
+            refused=1,
         ),
     }
 
@@ -577,6 +670,38 @@ REFUSALS = [
     ("binary", _set("bits", b"\x00" * 247), "bits holds 247 bytes, 37 x 53 needs 246"),
     ("binary", _set("bits", b""), "bits holds 0 bytes, 37 x 53 needs 246"),
     ("binary", _set("threshold", 256), "Expected `int` <= 255 - at `$.threshold`"),
+    ("binary-gray", _set("gray", b"\x00" * 1960), "gray holds 1960 bytes, 37 x 53 needs 1961"),
+    (
+        "blobs-patches",
+        _set("patches", []),
+        "patches must have one entry per blob (0 for 1 blobs)",
+    ),
+    (
+        "blobs-patches",
+        _set("patches[0].diff", b"\x00" * 23),
+        "diff holds 23 bytes, 3 x 4 int16 needs 24 - at `$.patches[0]`",
+    ),
+    ("blobs-patches", _set("patches[0].top", -1), "Expected `int` >= 0 - at `$.patches[0].top`"),
+    (
+        "blobs-patches",
+        _set("patches[0].filled_row", math.nan),
+        "Expected `float` >= -1000000000.0 - at `$.patches[0].filled_row`",
+    ),
+    (
+        "obstacles-measured",
+        _set("obstacles[0].z_source", "guess"),
+        "Invalid enum value 'guess' - at `$.obstacles[0].z_source`",
+    ),
+    (
+        "obstacles-measured",
+        _set("obstacles[0].covariance_cm2", [0.0] * 8),
+        "Expected `array` of length >= 9 - at `$.obstacles[0].covariance_cm2`",
+    ),
+    (
+        "obstacles-measured",
+        _set("obstacles[0].z_sigma_cm", -0.1),
+        "Expected `float` >= 0.0 - at `$.obstacles[0].z_sigma_cm`",
+    ),
     (
         "blobs",
         _set("blobs[1].row", math.nan),
@@ -1126,3 +1251,53 @@ def test_an_obstacle_frame_with_robots_still_decodes_with_the_earlier_schema() -
     defs = message_schema()["$defs"]
     assert {"robots", "robot_plans", "unknown_markers"} <= set(defs["ObstacleFrame"]["properties"])
     assert {"heading_deg", "age_s", "vx_cm_s"} <= set(defs["RobotState"]["properties"])
+
+
+def test_blob_patches_carry_the_signed_difference_and_the_filled_blob() -> None:
+    """A patch travels as int16 (shadows are darker than the floor: negative) and comes
+    back as the same array; the filled centroids become the blobs' ``filled``."""
+    msg = decode(encode(SAMPLES["blobs-patches"]), BlobList)
+    (patch,) = msg.blob_patches()
+    expected = np.arange(-6, 6, dtype=np.int16).reshape(3, 4) * 40
+    np.testing.assert_array_equal(patch.diff, expected)
+    assert (patch.top, patch.left) == (4, 17)
+    blobs = msg.to_blobs()
+    np.testing.assert_array_equal(blobs.filled, [[310.0, 10.75, 20.0]])
+    assert SAMPLES["blobs"].to_blobs().filled is None
+    gray = decode(encode(SAMPLES["binary-gray"]), BinaryFrame).gray_image()
+    np.testing.assert_array_equal(gray, _mask() * 200)
+
+
+def test_decoders_are_built_at_import_and_once_when_threads_race(monkeypatch) -> None:
+    """msgspec works out a class's decoding when a decoder is first built, and two
+    threads doing so at once crashed a process (a segmentation fault in `ovis up
+    --cameras`' scorer): every message's decoder is built at import, any other once."""
+    import threading
+
+    import ovis.common.messages as messages
+
+    assert all(tp in messages._DECODERS for tp in (messages.Message, *messages.Message.__args__))
+    built = []
+    real = msgspec.msgpack.Decoder
+    gate = threading.Barrier(8)
+
+    def counting(tp):
+        built.append(tp)
+        return real(tp)
+
+    monkeypatch.setattr(msgspec.msgpack, "Decoder", counting)
+    expected = list[messages.TruthFrame]  # a type no decoder exists for yet
+    monkeypatch.delitem(messages._DECODERS, expected, raising=False)
+    payload = msgspec.msgpack.encode([])
+    results = []
+
+    def first_use() -> None:
+        gate.wait()
+        results.append(messages.decode(payload, expected))
+
+    threads = [threading.Thread(target=first_use) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert results == [[]] * 8 and built == [expected]

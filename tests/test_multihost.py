@@ -52,6 +52,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+# alone: latency percentiles across hosts; network namespaces of fixed names
+pytestmark = pytest.mark.alone
+
 REPO = Path(__file__).resolve().parents[1]
 DEPLOY = REPO / "deploy"
 NET = "10.231.0"  # only inside the test's own namespaces

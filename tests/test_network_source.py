@@ -34,6 +34,9 @@ from ovis.common.capture.sources import (
 from ovis.common.messages import Frame, ServiceStatus, SourceState, StreamHealth, Topics, decode
 from ovis.services.cli.watching import query_statuses, summary_table
 
+# alone: timeouts kept to a tenth of a second
+pytestmark = pytest.mark.alone
+
 #: The requirement: a lost source is said within this many seconds.
 SAY_LOST_S = 2.0
 #: How long the camera stays off or frozen.

@@ -19,6 +19,7 @@ skip_module_without_physical()  # before MuJoCo is imported: without OpenGL its 
 from ovis.common.calibration.floor import solve_floor_pose  # noqa: E402
 from ovis.common.camera.projection import back_project, project  # noqa: E402
 from ovis.common.capture.physical import PhysicalSource  # noqa: E402
+from ovis.common.capture.sources import NoFrameError  # noqa: E402
 from ovis.common.config import ControlPoint, OvisConfig, load_config  # noqa: E402
 from ovis.common.physical.dataset import write_physical_dataset  # noqa: E402
 from ovis.common.physical.grid import PhysicalGridCamera, calibrate_grid_camera  # noqa: E402
@@ -193,3 +194,33 @@ def test_the_calibrator_calibrates_a_pinhole_camera_on_the_marks_and_says_why_no
     assert "pinhole" in (marks_problem(paper) or "")
     with pytest.raises(ValueError, match="pinhole"):
         FloorMarksCalibration(paper)()
+
+
+def test_the_unplugged_camera_gives_no_frame_while_the_driven_world_runs_on() -> None:
+    """The camera's source lost mid-drive: each frame due while unplugged is a
+    NoFrameError, the robot's watchdog runs on the world's clock (it stops, and says
+    why), and the frame after it is plugged back shows the instant it is due at."""
+    cfg = _with(_config(), seed=3, fps=10.0)
+    cfg = msgspec.structs.replace(
+        cfg, navigation=msgspec.structs.replace(cfg.navigation, drive=True)
+    )
+    clock = _Clock(1_000_000_000_000)
+    source = PhysicalSource(cfg, 3, clock=clock, sleep=clock.sleep)
+    try:
+        (task,) = source.tasks
+        _, truth = source.read()
+        source.command(task.id, 15.0, 0.0, truth.stamp_ns)
+        _, truth = source.read()
+        source.command(task.id, 15.0, 0.0, truth.stamp_ns)
+        source.unplugged = True
+        for k in range(2, 7):
+            with pytest.raises(NoFrameError, match="unplugged"):
+                source.read()
+            (report,) = source.drives()
+            assert report["t_s"] == pytest.approx(k / 10.0)  # the world ran on
+        assert report["v_cm_s"] == 0.0 and report["stopped"].startswith("no command for")
+        source.unplugged = False
+        _, truth = source.read()
+        assert truth.index == 7 and truth.stamp_ns == clock.now
+    finally:
+        source.close()

@@ -133,6 +133,10 @@ def test_frames_are_deterministic_per_seed_and_show_solids_brighter_than_the_flo
             assert int(frame[r, c]) > int(floor[r, c]) + 40
         visible = a.visible_px()
         assert all(v > 100 for v in visible.values())
+        alone = a.alone_px()
+        assert alone.keys() == visible.keys()
+        assert all(alone[k] >= visible[k] for k in alone)  # others can only hide a solid
+        assert np.array_equal(a.render(45), frame)  # and the world is as it was
     finally:
         a.close()
         b.close()

@@ -17,8 +17,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from ovis.common.calibration.calibrate import calibrate
 from ovis.common.calibration.file import Calibration, load_calibration, save_calibration
-from ovis.common.calibration.problem import calibrate
 from ovis.common.camera import paper_model as paper
 from ovis.common.camera import pinhole, projection
 from ovis.common.camera.export import (

@@ -53,8 +53,10 @@ from ovis.common.pipeline.stages import (
     wrong_size,
 )
 from ovis.common.sim.arena import Arena, control_points
-from ovis.common.vision.preprocess import as_gray, smooth
-from ovis.common.vision.segmentation import ObjectWindow, segmentation
+from ovis.common.vision.contrast import ObjectWindow
+from ovis.common.vision.frames import as_gray
+from ovis.common.vision.segmentation import segmentation
+from ovis.common.vision.smoothing import smooth
 from ovis.common.world.detection import Detector, size_filter_px
 
 CFG = load_config(preset="default")

@@ -15,7 +15,7 @@ import pytest
 
 from ovis.common.analysis.plots import plot_convergence, plot_error_map, plot_residuals
 from ovis.common.calibration.accuracy import assess
-from ovis.common.calibration.problem import calibrate
+from ovis.common.calibration.calibrate import calibrate
 from ovis.common.config import load_config
 from ovis.common.sim.arena import Arena, control_points
 

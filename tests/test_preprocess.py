@@ -1,4 +1,5 @@
-"""Tests of ovis.common.vision.preprocess: grey conversion, the paper's median, binarization."""
+"""Tests of the first steps of a frame: grey conversion (vision.frames), the paper's median
+(vision.smoothing), binarization (vision.threshold)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,9 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from numpy.lib.stride_tricks import sliding_window_view
 
-from ovis.common.vision.preprocess import ImageError, as_gray, binarize, paper_median, smooth
+from ovis.common.vision.frames import ImageError, as_gray
+from ovis.common.vision.smoothing import paper_median, smooth
+from ovis.common.vision.threshold import binarize
 
 gray_images = arrays(
     np.uint8,

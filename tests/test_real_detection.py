@@ -15,6 +15,9 @@ import pytest
 from cli_helpers import assert_one_line_error, ovis
 from scipy import ndimage as ndi
 
+# long: minutes of work, started early so the run ends with both workers busy
+pytestmark = pytest.mark.long
+
 skimage = pytest.importorskip("skimage")
 from skimage import data, filters, segmentation  # noqa: E402
 
@@ -139,8 +142,17 @@ def test_coins_on_any_canvas_give_24_of_24_at_defaults(
     window_follows_the_coins(out, labels)
 
 
-@pytest.mark.parametrize("place", ["corner", "centre", "random"])
-@pytest.mark.parametrize("cols, rows", CANVASES)
+#: Every canvas with some placements, every placement on small and large canvases, the
+#: smallest and largest with all three.
+SPREAD = [
+    (384, 303, "corner"), (384, 303, "centre"), (384, 303, "random"),
+    (512, 400, "random"), (640, 480, "corner"), (1024, 768, "centre"),
+    (1280, 960, "random"),
+    (1920, 1440, "corner"), (1920, 1440, "centre"), (1920, 1440, "random"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("cols, rows, place", SPREAD)
 def test_coins_anywhere_on_any_canvas_give_24_of_24_at_defaults(
     coins, tmp_path: Path, cols: int, rows: int, place: str
 ) -> None:

@@ -9,8 +9,9 @@ import pytest
 
 from ovis.common.analysis.compare import METHODS, compare_methods, summarise_compare, write_compare
 from ovis.common.calibration.accuracy import arena_world_error, calibration_values
+from ovis.common.calibration.calibrate import calibrate
 from ovis.common.calibration.ga import run_ga
-from ovis.common.calibration.problem import INFEASIBLE, CalibrationProblem, calibrate, camera_with
+from ovis.common.calibration.problem import INFEASIBLE, CalibrationProblem, camera_with
 from ovis.common.calibration.refine import (
     CONTINUOUS_SLICE,
     dipe_of,

@@ -39,6 +39,9 @@ from ovis.common.messages import (
 )
 from ovis.services.cli.watching import collect_status
 
+# alone: a flood and a restart within seconds
+pytestmark = pytest.mark.alone
+
 TOPICS = Topics("default")
 
 
@@ -70,6 +73,7 @@ cfg = load_config()
 c = Calibration(dipe_px=0.5, dipe_mm=0.1, dipe_max_px=0.6, dipe_max_mm=0.2,
                 camera=cfg.camera, image=cfg.image, pose=cfg.pose)
 store = CalibrationStore(sys.argv[1])
+store.save(c)  # one whole save first: a kill before any save completes leaves nothing to keep
 print("ready", flush=True)
 while True:
     store.save(c)

@@ -37,8 +37,8 @@ from ovis.common.messages import (
 from ovis.common.pipeline.stages import binary_frame, blob_list, obstacle_frame
 from ovis.common.sim.arena import Arena, SimObject
 from ovis.common.sim.scenes import marked_scene
+from ovis.common.vision.frames import as_gray
 from ovis.common.vision.markers import Markers, find_markers, marker_cells
-from ovis.common.vision.preprocess import as_gray
 from ovis.common.world.detection import DetectedObject, Detector
 from ovis.common.world.marker_search import BlobMarkers
 from ovis.common.world.planner import planner_inputs, wrap_deg
@@ -53,6 +53,9 @@ from ovis.common.world.robots import (
 )
 from ovis.common.world.unmarked import PATH_FRAMES, UnmarkedRobot
 from ovis.services.cli.watching import format_obstacles
+
+# long: minutes of work, started early so the run ends with both workers busy
+pytestmark = pytest.mark.long
 
 
 def _robot(i: int, marker: int | None = None, **kw) -> dict:

@@ -13,6 +13,9 @@ from cli_helpers import assert_one_line_error, ovis
 from ovis.common.calibration.file import Calibration, save_calibration
 from ovis.common.config import load_points
 
+# long: minutes of work, started early so the run ends with both workers busy
+pytestmark = pytest.mark.long
+
 
 @pytest.fixture(scope="module")
 def marked(tmp_path_factory: pytest.TempPathFactory) -> Path:

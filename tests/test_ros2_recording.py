@@ -115,7 +115,9 @@ def test_record_ros2_writes_ros2_channels_matching_ovis_frame_by_frame(tmp_path:
     with open(out, "rb") as fh:
         channels = make_reader(fh).get_summary().channels.values()
         assert channels and all(c.message_encoding != "cdr" for c in channels)
-    assert len(ovis) >= RECORD_S * 10 * 0.5, len(ovis)
+    # a quarter of the camera's 10 frames/s at least: another test file may run beside
+    # this one (the rate is the benchmarks' to measure, the recording's content this test's)
+    assert len(ovis) >= RECORD_S * 10 * 0.25, len(ovis)
     # every ROS 2 obstacle message is one of ovis's frames; at most the frames before the
     # recorder got the calibration are missing (the log says how many)
     poses = ros["/ovis/obstacles"]

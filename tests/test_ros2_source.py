@@ -26,6 +26,9 @@ from ovis.common.config import ZenohConfig
 from ovis.common.ros2 import wire
 from ovis.services.bus import zenoh_config
 
+# alone: frames at a camera node's rate, counted over seconds
+pytestmark = pytest.mark.alone
+
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 RATE_HZ = 10.0
 

@@ -9,13 +9,13 @@ import pytest
 from test_real_detection import evenly_lit, on_canvas, reference_coins
 
 from ovis.common.config import ImageParams, PinholeParams, PoseConfig
-from ovis.common.vision.segmentation import (
+from ovis.common.vision.contrast import (
     FIRST_WINDOW_PX,
     WINDOW_PER_OBJECT,
     ObjectWindow,
     follow_objects,
-    segmentation,
 )
+from ovis.common.vision.segmentation import segmentation
 from ovis.common.world.detection import Detector
 from ovis.common.world.pixels import detect_pixels
 

@@ -27,27 +27,49 @@ while True:
 """
 
 
-def test_cameras_stop_first_then_the_stages_then_the_router(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def started(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, scripts: dict[str, str]
+) -> supervisor.Supervisor:
+    """A supervisor whose children (name → script) run and have said so."""
+
     def spawn(self, child: supervisor.Child, *, spare: bool = False) -> subprocess.Popen[bytes]:
-        return subprocess.Popen([sys.executable, "-c", CHILD, str(tmp_path / child.name)])
+        return subprocess.Popen(
+            [sys.executable, "-c", scripts[child.name], str(tmp_path / child.name)]
+        )
 
     monkeypatch.setattr(supervisor.Supervisor, "_spawn", spawn)
     fleet = supervisor.Supervisor(tmp_path)
-    names = ("router", "preprocess", "recorder", "capture")
-    for name in names:
+    for name in scripts:
         fleet.start(name, [])
     deadline = time.monotonic() + 30
-    while not all((tmp_path / f"{n}.up").exists() for n in names):
+    while not all((tmp_path / f"{n}.up").exists() for n in scripts):
         assert time.monotonic() < deadline, "the children did not start"
         time.sleep(0.05)
+    return fleet
+
+
+def test_cameras_stop_first_then_the_stages_then_the_router(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    names = ("router", "preprocess", "recorder", "capture")
+    fleet = started(tmp_path, monkeypatch, dict.fromkeys(names, CHILD))
     codes = fleet.stop(sources=("capture",))
     assert codes == dict.fromkeys(("capture", "router", "preprocess", "recorder"), 0)
     at = {n: float((tmp_path / n).read_text()) for n in names}
-    # The stages get the signal once the camera has gone and the drain time has passed.
-    assert min(at["preprocess"], at["recorder"]) - at["capture"] >= supervisor.DRAIN_S
-    assert at["router"] > max(at["preprocess"], at["recorder"])
+    # The stages get the signal once the camera has gone and the drain time has passed;
+    # the recorder once they have stopped (their last messages recorded), the router last.
+    assert at["preprocess"] - at["capture"] >= supervisor.DRAIN_S
+    assert at["capture"] < at["preprocess"] < at["recorder"] < at["router"]
+
+
+def test_a_recorder_slow_to_write_its_file_is_given_its_time_not_killed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A recorder still writing when the stages' 5 s are over (its backlog on a busy
+    machine) finishes: SIGKILL would leave its recording without an index."""
+    slow = CHILD.replace("sys.exit(0)", "time.sleep(1.5); sys.exit(0)")
+    fleet = started(tmp_path, monkeypatch, {"preprocess": CHILD, "recorder": slow})
+    assert fleet.stop(timeout=0.5) == {"preprocess": 0, "recorder": 0}
 
 
 def test_a_child_that_gave_up_does_not_hide_another_that_exited_abnormally(

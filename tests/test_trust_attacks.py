@@ -293,6 +293,15 @@ def _watch(up: Up, seconds: int) -> Iterator[subprocess.Popen[str]]:
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
+        # listening once it shows a genuine obstacle frame (its start takes seconds on a
+        # loaded host; a health line may come first, and a replay sent before the watch
+        # took any obstacle frame would be the first it sees)
+        assert watch.stdout is not None
+        for line in watch.stdout:
+            if json.loads(line)["type"] == "obstacles":
+                break
+        else:
+            raise AssertionError("ovis watch showed no obstacle frame")
         yield watch
     finally:
         if watch.poll() is None:
@@ -307,7 +316,6 @@ def test_forged_obstacle_messages_are_neither_shown_nor_believed(up: Up, client:
     before = up.api_state()["health"].get("unproven", {}).get("obstacles", 0)
     forged_seqs, shown = set(), []
     with _watch(up, 8) as watch:
-        time.sleep(2.0)  # watch is listening
         for i in range(40):
             forged = dict(template, seq=10**9 + i, obstacles=[
                 dict(o, x_cm=o["x_cm"] + MOVED_CM) for o in template["obstacles"]])  # fmt: skip
@@ -351,7 +359,6 @@ def test_replayed_genuine_obstacle_messages_are_neither_shown_nor_believed(
     before = up.api_state()["health"].get("unproven", {}).get("obstacles", 0)
     shown = []
     with _watch(up, 6) as watch:
-        time.sleep(2.0)  # watch is listening and has taken genuine messages
         for payload, proof in recorded:
             client.session.put(f"{ROOT}/obstacles", payload, attachment=proof)
             shown.append(up.api_state()["obstacles"]["seq"])

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import msgspec
 import numpy as np
+import pytest
 from cli_helpers import assert_one_line_error, ovis
 from physical_helpers import needs_physical
 from pipeline_helpers import Recorder, start_up, up_log_dir
@@ -24,6 +25,9 @@ from zenoh_helpers import client, free_port, ovis_cmd, wait_for
 from ovis.common.camera.projection import project
 from ovis.common.config import config_from_dict, load_config, load_points
 from ovis.common.physical.scene import random_scene
+
+# long: minutes of work, started early so the run ends with both workers busy
+pytestmark = pytest.mark.long
 
 #: a library that is not one, where the dynamic loader looks first: EGL fails to load
 #: as on a machine without it
@@ -117,8 +121,11 @@ def test_up_physical_calibrates_on_the_marks_and_scores_against_the_physics(
 ) -> None:
     """Frames rendered live (5 frames/s asked): each truth is the physics at its frame's
     instant (index / fps, stamped with it); the calibrator's calibration is made on the
-    floor marks; the summary scores positions and heights against the truth."""
-    proc, endpoint, err = start_up(tmp_path, "--world", "physical", "--duration", "10",
+    floor marks; heights measured (the preset's): every frame captured decodes and is
+    processed, every obstacle found and nothing spurious, the robot reported as the
+    robot; every height measured within 1 cm of the physics and its footprint within
+    0.5 cm; the others only while their fits are still to come (their first frames)."""
+    proc, endpoint, err = start_up(tmp_path, "--world", "physical", "--duration", "15",
                                    "--seed", "52")  # fmt: skip
     try:
         with client(endpoint) as session:
@@ -142,12 +149,27 @@ def test_up_physical_calibrates_on_the_marks_and_scores_against_the_physics(
             assert math.hypot(obj.x_cm - float(x), obj.y_cm - float(y)) < 1e-6
             assert obj.z_cm == solids[obj.id].height_cm
     summary = json.loads(out)
-    # on a loaded 2-core host the renderer may keep only a few frames a second
-    assert summary["calibration_version"] >= 1 and summary["frames_processed"] >= 5
-    assert summary["truth_frames"] >= 5 and summary["objects_matched"] >= 5
-    assert summary["height_error_cm_mean"] is not None
-    assert summary["height_error_cm_max"] >= summary["height_error_cm_mean"] >= 0
-    assert summary["heights"]
+    assert summary["calibration_version"] >= 1 and summary["frames_refused"] == 0
+    # on a loaded 2-core host the renderer may keep only a few frames a second; what it
+    # renders, the stages keep up with
+    captured = summary["frames_captured"]
+    assert captured >= 20 and summary["frames_processed"] >= 0.9 * captured, summary
+    assert summary["truth_frames"] >= 20
+    n = len(scene.solids)
+    assert summary["objects_matched"] >= 0.8 * n * summary["frames_processed"], summary
+    assert (summary["objects_missed"], summary["objects_spurious"]) == (0, 0), summary
+    assert "measured" in summary["heights"]
+    by = summary["by_height"]
+    assert set(by) <= {"one camera", "configured (pending)"}, by
+    measured = by["one camera"]
+    assert measured["position_error_cm_max"] <= 0.5 and measured["height_error_cm_max"] <= 1.0
+    assert measured["wrong_kind"] == 0  # the robot told by its fitted size and height
+    # a blob waits for its fit only in the first seconds (one fit at a time, beside the
+    # frames: a few seconds' work for the scene's solids, longer on a loaded host); the
+    # frames after it have every height measured
+    assert summary["fits_pending_s"] is None or summary["fits_pending_s"] <= 12.0, summary
+    assert summary["latency_after_fits_ms_p50"] is not None
+    assert measured["objects"] >= 0.25 * summary["objects_matched"], by
     calibrator = (Path(up_log_dir(err)) / "calibrator.log").read_text()
     assert "on the floor marks" in calibrator
     assert "segmented against its empty floor" in err.read_text()

@@ -29,6 +29,9 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus
 from ws_helpers import serving, texts_until, ws_connect
 from zenoh_helpers import free_port, ovis_cmd, spawn, stop, wait_for
 
+# long: minutes of work, started early so the run ends with both workers busy
+pytestmark = pytest.mark.long
+
 TOKEN = "Qm7vK2xP9dLr4TzW8nHc3sYb6FgJ5uEa"  # 32 random letters and digits
 ALLOWED = "http://example.org:8000"
 

@@ -16,10 +16,26 @@ import pytest
 
 from ovis.common.calibration.file import PointResidual, calibration_from_config
 from ovis.common.camera.projection import project
-from ovis.common.config import load_config
-from ovis.common.messages import BinaryFrame, BlobList, ReplayMark, ServiceStatus, StreamHealth
+from ovis.common.config import NavigationConfig, load_config
+from ovis.common.messages import (
+    BinaryFrame,
+    BlobList,
+    ReplayMark,
+    RobotCommand,
+    RobotDrive,
+    ServiceStatus,
+    StreamHealth,
+)
 from ovis.common.sim.arena import Arena
 from ovis.common.view import picture
+from ovis.common.view.driving import (
+    COMMAND_FROM,
+    GOAL_FROM,
+    WORLD_TRAIL_FROM,
+    Drives,
+    command_state,
+    robot_poses,
+)
 from ovis.common.view.freshness import (
     STALL_S,
     Freshness,
@@ -506,3 +522,78 @@ def test_control_points_only_on_the_calibrations_own_frame() -> None:
     assert magenta.sum() > 3 * 20, magenta.sum()
     blank = draw_overlay(np.zeros((480, 640), np.uint8), 1.0, points=points_of(calib, 8))
     assert not blank.any()
+
+
+# --- driven robots: goal, command, the world's trail (ovis.common.view.driving) -------
+def _command(seq: int, stamp_ns: int, **fields) -> RobotCommand:
+    base = dict(robot_id=0, seq=seq, stream="s1", stamp_ns=stamp_ns, published_ns=stamp_ns,
+                v_cm_s=12.0, omega_deg_s=-30.0, goal_cm=(50.0, -20.0), planner="fuzzy")  # fmt: skip
+    return RobotCommand(**{**base, **fields})
+
+
+def _drive(t_s: float, x: float) -> RobotDrive:
+    pose = dict(x_cm=x, y_cm=1.0, heading_deg=90.0, v_cm_s=10.0, omega_deg_s=0.0)
+    return RobotDrive(robot_id=0, stamp_ns=int(t_s * 1e9), t_s=t_s, goal_cm=(9.0, 9.0), **pose)
+
+
+def test_a_command_is_stale_past_either_of_the_robots_limits() -> None:
+    nav = NavigationConfig(max_frame_age_s=0.5, command_timeout_s=0.22)
+    assert command_state(0.3, 0.1, "", nav) == ("current", "")
+    state, why = command_state(0.51, 0.1, "", nav)
+    assert state == "stale" and "0.51 s old" in why and "max_frame_age_s" in why
+    state, why = command_state(0.1, 0.23, "", nav)
+    assert state == "stale" and "0.23 s" in why and "command_timeout_s" in why
+    assert command_state(0.1, 0.1, "source lost", nav) == (
+        "stop",
+        "the planner says stop: source lost",
+    )
+    assert command_state(0.9, 0.1, "source lost", nav)[0] == "stale"  # stale wins
+
+
+def test_drives_show_goal_command_on_its_frame_and_the_worlds_trail() -> None:
+    nav = NavigationConfig(max_frame_age_s=0.5, command_timeout_s=0.22)
+    drives = Drives(nav)
+    t0 = 1_700_000_000 * 10**9
+    for i in range(3):
+        drives.drive(_drive(i * 0.1, float(i)))
+    (robot,) = drives.shown(t0, 100.0, {}, {})
+    assert robot.goal_cm == (9.0, 9.0) and robot.goal_from == GOAL_FROM["world"]  # no command
+    assert robot.trail_cm == [(0.0, 1.0), (1.0, 1.0), (2.0, 1.0)]
+    assert robot.trail_from == WORLD_TRAIL_FROM and robot.command is None
+    drives.command(_command(7, t0 - 200_000_000), received_s=100.0, replay=None)
+    drives.command(_command(6, t0 - 300_000_000), received_s=100.0, replay=None)  # older: kept 7
+    frames = {t0 - 200_000_000: 41, t0 - 100_000_000: 42}
+    poses = {41: {0: (1.0, 2.0, 30.0)}, 42: {0: (3.0, 4.0, 35.0)}}
+    (robot,) = drives.shown(t0, 100.1, frames, poses)
+    c = robot.command
+    assert robot.goal_cm == (50.0, -20.0) and robot.goal_from == GOAL_FROM["planner"]
+    assert (c.seq, c.frame_seq, c.at, c.at_from) == (7, 41, (1.0, 2.0, 30.0), COMMAND_FROM["frame"])
+    assert c.age_s == pytest.approx(0.2) and c.since_s == pytest.approx(0.1)
+    assert (c.state, c.v_cm_s, c.omega_deg_s) == ("current", 12.0, -30.0)
+    (robot,) = drives.shown(t0 + 150_000_000, 100.25, {}, poses)  # its frame gone; no newer cmd
+    c = robot.command
+    assert (c.frame_seq, c.at, c.at_from) == (None, (3.0, 4.0, 35.0), COMMAND_FROM["newest"])
+    assert c.state == "stale" and "watchdog" in c.reason
+    # a new run of the world (t_s back at 0) starts a new trail
+    drives.drive(_drive(0.0, 5.0))
+    assert drives.shown(t0, 100.0, {}, {})[0].trail_cm == [(5.0, 1.0)]
+
+
+def test_a_replayed_command_is_aged_on_the_recordings_clock() -> None:
+    nav = NavigationConfig(max_frame_age_s=0.5, command_timeout_s=0.22)
+    drives = Drives(nav)
+    recorded = 1_600_000_000 * 10**9  # years before now: its age is not now's
+    mark = ReplayMark(recording="drive.mcap", recorded_ns=recorded, start_ns=recorded)
+    drives.command(_command(3, recorded - 150_000_000), received_s=50.0, replay=mark)
+    (robot,) = drives.shown(1_800_000_000 * 10**9, 50.05, {}, {})
+    c = robot.command
+    assert c.age_s == pytest.approx(0.2) and c.state == "current"
+    assert c.replay == "drive.mcap" and c.at is None
+    assert drives.shown(1_800_000_000 * 10**9, 50.4, {}, {})[0].command.state == "stale"
+
+
+def test_robot_poses_of_an_obstacle_message() -> None:
+    message = {"robots": [{"id": 2, "x_cm": 1.5, "y_cm": -2.0, "heading_deg": 45.0},
+                          {"id": 3, "x_cm": "bad"}, {"x_cm": 1.0}]}  # fmt: skip
+    assert robot_poses(message) == {2: (1.5, -2.0, 45.0)}
+    assert robot_poses({}) == {}

@@ -41,6 +41,11 @@ from zenoh_helpers import free_port, ovis_cmd, wait_for
 
 from ovis.services.supervisor import die_with_parent
 
+# alone: the page's commands run as written, with their default timeouts (`ovis watch`
+# gives its router 5 s); at a neighbour's lower priority a client's start alone took
+# longer than that in CI
+pytestmark = pytest.mark.alone
+
 DOC = Path(__file__).resolve().parents[1] / "docs" / "real-camera.md"
 #: What the page calls the network camera, the router and the web view.
 DOC_STREAM = "http://192.168.1.20:8080/stream"

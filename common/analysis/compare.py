@@ -49,13 +49,9 @@ from ovis.common.atomic import write_atomic
 from ovis.common.calibration.accuracy import arena_world_error
 from ovis.common.calibration.dipe import match_points, pixel_error_mm
 from ovis.common.calibration.ga import run_ga
-from ovis.common.calibration.problem import (
-    INFEASIBLE,
-    CalibrationProblem,
-    camera_with,
-    centre_image_settings,
-)
+from ovis.common.calibration.problem import INFEASIBLE, CalibrationProblem, camera_with
 from ovis.common.calibration.refine import CONTINUOUS_SLICE, fit_camera, matched_blobs, polish
+from ovis.common.calibration.solve import centre_image_settings
 from ovis.common.camera.paper_model import project
 from ovis.common.config import OvisConfig
 from ovis.common.sim.arena import Arena, control_points

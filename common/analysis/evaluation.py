@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
-__all__ = ["FrameAccuracy", "TrackingScore", "match_objects", "match_to_truth"]
+__all__ = ["FrameAccuracy", "TrackingScore", "height_basis", "match_objects", "match_to_truth"]
 
 
 class FrameAccuracy(NamedTuple):
@@ -91,16 +91,28 @@ class TrackedObject(FloorObject, Protocol):
     z_cm: float
 
 
+def height_basis(detection: object) -> str:
+    """What a detection's ``z_cm`` rests on: its ``z_source`` ("one camera", "cameras",
+    "marker"), or "configured" with why it is not measured ("configured (pending)": its
+    fit is still to come, its position then its centroid on its class's plane)."""
+    source = str(getattr(detection, "z_source", "configured"))
+    why = str(getattr(detection, "z_unmeasured", ""))
+    return f"{source} ({why})" if source == "configured" and why else source
+
+
 class TrackingScore:
     """Detections of many frames against their ground truth, added up: position, radius
     and height errors of the matched objects (height: the detection's ``z_cm`` less the
-    true top's), missed, spurious and mislabelled ones, and identity switches (a true
-    object whose matched detection changes id)."""
+    true top's) and what each matched detection's height rests on (:func:`height_basis`),
+    missed, spurious and mislabelled ones, and identity switches (a true object whose
+    matched detection changes id)."""
 
     def __init__(self) -> None:
         self.position_error_cm: list[float] = []
         self.radius_error_cm: list[float] = []
         self.height_error_cm: list[float] = []
+        self.height_basis: list[str] = []
+        self.kind_correct: list[bool] = []
         self.matched = self.missed = self.spurious = self.wrong_kind = self.id_switches = 0
         self._id_of: dict[int, int] = {}  # true id -> the detection id it was matched to
 
@@ -115,6 +127,8 @@ class TrackingScore:
             detected[di].z_cm - truth[ti].z_cm
             for ti, di in zip(acc.truth_index, acc.detection_index, strict=True)
         )
+        self.height_basis.extend(height_basis(detected[di]) for di in acc.detection_index)
+        self.kind_correct.extend(acc.kind_correct.tolist())
         self.matched += int(acc.truth_index.size)
         self.missed += acc.missed
         self.spurious += acc.spurious

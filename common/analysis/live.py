@@ -18,6 +18,7 @@ from ovis.common.messages import (
     IDLE_STATES,
     SOURCE_LOST,
     ObstacleFrame,
+    RobotDrive,
     ServiceStatus,
     SourceGap,
     TruthFrame,
@@ -27,9 +28,14 @@ __all__ = [
     "IDLE_STATES",
     "SOURCE_LOST",
     "UNSCORED_SHARE",
+    "BasisErrors",
+    "CpuUse",
     "LiveScore",
+    "NavigationRobot",
+    "NavigationRun",
     "RunSummary",
     "heights_basis",
+    "navigation_run",
     "position_error_flag",
     "with_verdict",
 ]
@@ -46,6 +52,78 @@ class Counts(Protocol):
 
 #: Frames (and truths) kept while waiting for their partner.
 KEEP = 512
+
+
+class CpuUse(msgspec.Struct, kw_only=True):
+    """The CPU time of a run's processes (from /proc) over a window of it, per frame
+    delivered in that window (obstacle frames; world frames with several cameras)."""
+
+    window_s: float
+    frames: int
+    #: every process the run started together (router, stages, spares); None: no frame
+    ms_per_frame: float | None
+    by_process_ms: dict[str, float | None] = {}
+    #: `ovis up`'s own process (its live view and this summary), not in the above
+    own_ms_per_frame: float | None = None
+
+
+class BasisErrors(msgspec.Struct):
+    """The matched objects whose heights rest on one basis (``RunSummary.by_height``):
+    how many (over all frames), their position error (cm) and their reported top height
+    less the true one (cm, absolute): mean and largest; how many were of the wrong
+    kind."""
+
+    objects: int
+    position_error_cm_mean: float
+    position_error_cm_max: float
+    height_error_cm_mean: float
+    height_error_cm_max: float
+    #: of them reported as the other kind (an obstacle as the robot, or the robot as an
+    #: obstacle)
+    wrong_kind: int = 0
+
+
+class NavigationRobot(msgspec.Struct, kw_only=True):
+    """One driven robot at the end of a run (``ovis up --drive``): whether it reached
+    its goal, when (s since the world's start; None: not reached), its contacts with
+    other solids (MuJoCo's) and its closest approach to any (cm; ≤ 0 touching); what
+    it followed (``follows``: "ovis" or "cmd_vel", :class:`RobotDrive`)."""
+
+    id: int
+    goal_reached: bool
+    time_s: float | None
+    collisions: int
+    min_clearance_cm: float | None
+    commands: int = 0
+    refused: int = 0
+    follows: str = "ovis"
+    clamped: int = 0
+
+
+class NavigationRun(msgspec.Struct, kw_only=True):
+    """The driven robots of a run, each as its last drive report said."""
+
+    robots: list[NavigationRobot]
+
+
+def navigation_run(last: Mapping[int, RobotDrive]) -> NavigationRun:
+    """The summary's navigation part from each robot's last :class:`RobotDrive`."""
+    return NavigationRun(
+        robots=[
+            NavigationRobot(
+                id=d.robot_id,
+                goal_reached=d.goal_reached,
+                time_s=d.time_s,
+                collisions=d.collisions,
+                min_clearance_cm=d.min_clearance_cm,
+                commands=d.commands,
+                refused=d.refused,
+                follows=d.follows,
+                clamped=d.clamped,
+            )
+            for _, d in sorted(last.items())
+        ]
+    )
 
 
 class RunSummary(msgspec.Struct):
@@ -87,6 +165,28 @@ class RunSummary(msgspec.Struct):
     height_error_cm_mean: float | None = None
     height_error_cm_max: float | None = None
     heights: str = ""
+    #: what the run's processes cost per frame, from 1 s after the first frame to the end
+    cpu: CpuUse | None = None
+    #: the same errors by what each matched object's height rests on
+    #: (:func:`~ovis.common.analysis.evaluation.height_basis`): "one camera" (measured:
+    #: its ``x_cm``, ``y_cm`` the footprint), "marker", "configured (pending)" (its fit
+    #: still to come: its centroid on its class's plane), "configured (not measurable)"…
+    by_height: dict[str, BasisErrors] = {}
+    #: obstacle frames that arrived but did not decode as one (not counted as processed),
+    #: and why the last did not
+    frames_refused: int = 0
+    refused_because: str = ""
+    #: matched objects reported as the other kind (an obstacle as the robot, or the
+    #: robot as an obstacle)
+    objects_wrong_kind: int = 0
+    #: measured heights: capture seconds from the first frame processed to the last one
+    #: in which an object still waited for its fit ("pending"; None: none waited), and
+    #: the latency of the frames after it (ms: median, 99th percentile)
+    fits_pending_s: float | None = None
+    latency_after_fits_ms_p50: float | None = None
+    latency_after_fits_ms_p99: float | None = None
+    #: ``ovis up --drive``: each driven robot's outcome
+    navigation: NavigationRun | None = None
 
 
 #: The position error is flagged when the objects missed plus spurious exceed this share
@@ -130,6 +230,19 @@ class LiveScore:
         self._pending: collections.OrderedDict[int, ObstacleFrame] = collections.OrderedDict()
         self._lock = threading.Lock()
         self._closed = False
+        self.refused = 0
+        self.refused_because = ""
+        #: capture stamps (ns) and latencies of the frames, and the last stamp of a frame
+        #: in which an object waited for its fit
+        self._stamps: list[int] = []
+        self._waited_ns: int | None = None
+
+    def refuse(self, why: str) -> None:
+        """An obstacle frame that arrived but could not be decoded: counted, and why."""
+        with self._lock:
+            if not self._closed:
+                self.refused += 1
+                self.refused_because = why
 
     def close(self) -> None:
         """Count no more obstacle frames: every frame counted was captured before any
@@ -151,6 +264,10 @@ class LiveScore:
             latency = (received_ns - msg.stamp_ns) / 1e6
             self.latency_ms.append(latency)
             self._by_stream[msg.stream].append(latency)
+            self._stamps.append(msg.stamp_ns)
+            objects = ([msg.robot] if msg.robot else []) + msg.obstacles
+            if any(o.z_unmeasured == "pending" for o in objects):
+                self._waited_ns = max(self._waited_ns or msg.stamp_ns, msg.stamp_ns)
             self.latest = msg
             self.frames += 1
             _keep(self._pending, msg.seq, msg)
@@ -161,6 +278,14 @@ class LiveScore:
             msg = self._pending.pop(seq)
             objects = ([msg.robot] if msg.robot else []) + msg.obstacles
             self.score.add(objects, self._truth[seq].objects)
+
+    def _after_fits(self) -> tuple[float | None, np.ndarray]:
+        """Seconds until the last frame with an object waiting for its fit (None: none
+        waited), and the latencies (ms) of the frames after it (all, when none waited)."""
+        stamps, lat = np.asarray(self._stamps), np.asarray(self.latency_ms)
+        if self._waited_ns is None or not stamps.size:
+            return None, lat
+        return (self._waited_ns - int(stamps.min())) / 1e9, lat[stamps > self._waited_ns]
 
     def recent(self, n: int = 200) -> tuple[ObstacleFrame | None, list[float]]:
         """The newest frame and the latencies of the last ``n``."""
@@ -185,6 +310,9 @@ class LiveScore:
             lat = np.concatenate([np.asarray(v) for v in own]) if own else np.zeros(0)
             err = np.asarray(self.score.position_error_cm)
             dz = np.abs(np.asarray(self.score.height_error_cm))
+            basis = np.asarray(self.score.height_basis, dtype=object)
+            right = np.asarray(self.score.kind_correct, dtype=bool)
+            waited, after = self._after_fits()
             score = self.score
         versions = [s.calibration_version for s in statuses.values()]
         counts: dict[str, Counts] = {**statuses, **(totals or {})}
@@ -217,7 +345,34 @@ class LiveScore:
             gaps=source.gaps if source else [],
             height_error_cm_mean=float(dz.mean()) if dz.size else None,
             height_error_cm_max=float(dz.max()) if dz.size else None,
+            by_height=_by_basis(basis, err, dz, right),
+            fits_pending_s=waited,
+            latency_after_fits_ms_p50=float(np.percentile(after, 50)) if after.size else None,
+            latency_after_fits_ms_p99=float(np.percentile(after, 99)) if after.size else None,
+            objects_wrong_kind=score.wrong_kind,
+            frames_refused=self.refused,
+            refused_because=self.refused_because,
         )
+
+
+def _by_basis(
+    basis: np.ndarray, position: np.ndarray, height: np.ndarray, right: np.ndarray
+) -> dict[str, BasisErrors]:
+    """The matched objects' errors grouped by their heights' basis (``right``: whether
+    each was of the right kind)."""
+    out = {}
+    for name in sorted(set(basis.tolist())):
+        on = basis == name
+        p, h = position[on], height[on]
+        out[str(name)] = BasisErrors(
+            int(on.sum()),
+            float(p.mean()),
+            float(p.max()),
+            float(h.mean()),
+            float(h.max()),
+            int((~right[on]).sum()),
+        )
+    return out
 
 
 def _unwell(status: ServiceStatus) -> bool:
@@ -269,6 +424,11 @@ def with_verdict(
             reason = f"no frame was captured: {source}"
         else:
             why = _why(summary) or "no stage said why"
+            if summary.frames_refused:
+                why = (
+                    f"{summary.frames_refused} obstacle frames did not decode "
+                    f"({summary.refused_because}); {why}"
+                )
             reason = f"{summary.frames_captured} frames captured, none processed: {why}"
         code = 3
         reason = "; ".join([reason, *failures])

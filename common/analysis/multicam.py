@@ -262,6 +262,7 @@ class WorldWatch:
                 [(o.id, o.x_cm, o.y_cm) for o in objects],
                 {o.id for o, s in zip(objects, seen, strict=True) if s},
                 ([o.z_cm for o in w.objects], [o.z_cm for o in objects]),
+                [o.z_source for o in w.objects],
             )
             scored += 1
         return scorer.score(), percentiles(latency), scored

@@ -38,12 +38,7 @@ from scipy.optimize import linear_sum_assignment
 
 from ovis.common.calibration.file import Calibration
 from ovis.common.calibration.ga import run_ga
-from ovis.common.calibration.problem import (
-    INFEASIBLE,
-    CalibrationProblem,
-    camera_with,
-    centre_image_settings,
-)
+from ovis.common.calibration.problem import INFEASIBLE, CalibrationProblem, camera_with
 from ovis.common.calibration.quality import (
     AccuracyReport,
     HeldOut,
@@ -59,11 +54,13 @@ from ovis.common.calibration.refine import (
     polish,
     residuals_px,
 )
+from ovis.common.calibration.solve import centre_image_settings
 from ovis.common.camera.projection import back_project, pixel_footprint_cm2, project
 from ovis.common.config import CameraModel, ConfigError, ControlPoint, OvisConfig
+from ovis.common.vision.frames import as_gray
 from ovis.common.vision.labeling import label_components
-from ovis.common.vision.preprocess import as_gray, smooth
 from ovis.common.vision.segmentation import segment
+from ovis.common.vision.smoothing import smooth
 
 __all__ = [
     "CheckSet",

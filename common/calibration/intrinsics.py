@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from ovis.common.calibration.lens_check import distortion_problems
 from ovis.common.camera.intrinsics import CameraIntrinsics
 from ovis.common.vision.boards import BoardSpec, BoardView, find_board
-from ovis.common.vision.preprocess import as_gray
+from ovis.common.vision.frames import as_gray
 
 __all__ = [
     "COVERAGE_GRID",

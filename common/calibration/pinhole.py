@@ -36,11 +36,8 @@ from scipy.optimize import least_squares
 from ovis.common.calibration.dipe import match_points
 from ovis.common.calibration.file import Calibration, mm_or_none
 from ovis.common.calibration.ga import GAResult, GenerationStats
-from ovis.common.calibration.problem import (
-    CalibrationProblem,
-    build_calibration,
-    run_constrained_ga,
-)
+from ovis.common.calibration.problem import CalibrationProblem
+from ovis.common.calibration.solve import build_calibration, run_constrained_ga
 from ovis.common.camera.pinhole import project
 from ovis.common.config import (
     PINHOLE_VARIABLES,

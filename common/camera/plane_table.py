@@ -25,16 +25,19 @@ from ovis.common.camera.paper_model import PixelJacobian, five_points, jacobian_
 from ovis.common.camera.projection import back_project
 from ovis.common.config import CameraModel, PinholeParams
 
-__all__ = ["PlaneTable", "PlaneTables", "frame_rays"]
+__all__ = ["PlaneTable", "PlaneTables", "frame_rays", "warm_rays"]
 
-_RAYS: dict[bytes, pinhole.Undistorted] = {}  # the newest cameras' (a few)
+#: Cameras whose undistorted rays are kept: every camera of a host's stage process, and
+#: a recalibrated one's new model beside the old.
+RAYS_KEPT = 16
+_RAYS: dict[bytes, pinhole.Undistorted] = {}  # the newest cameras'
 _RAYS_LOCK = threading.Lock()
 
 
 def frame_rays(camera: PinholeParams) -> pinhole.Undistorted:
     """Every pixel centre of a pinhole camera's frame, undistorted: the costly half of
     back-projecting the whole frame, the same for every plane, so made once per camera
-    (kept for the last few cameras: a recalibration brings a new one)."""
+    (kept for the last :data:`RAYS_KEPT` cameras: a recalibration brings a new one)."""
     key = msgspec.msgpack.encode(camera)
     with _RAYS_LOCK:
         rays = _RAYS.get(key)
@@ -42,10 +45,17 @@ def frame_rays(camera: PinholeParams) -> pinhole.Undistorted:
         r, c = np.mgrid[0 : camera.rows, 0 : camera.cols]
         rays = pinhole.undistort_normalised(r.astype(np.float64), c.astype(np.float64), camera)
         with _RAYS_LOCK:
-            while len(_RAYS) >= 4:
+            while len(_RAYS) >= RAYS_KEPT:
                 del _RAYS[next(iter(_RAYS))]
             _RAYS[key] = rays
     return rays
+
+
+def warm_rays(camera: CameraModel) -> None:
+    """Make a pinhole camera's :func:`frame_rays` now (a spare process, before it takes
+    over from a stage that died: its tables are then made in a fraction of the time)."""
+    if isinstance(camera, PinholeParams):
+        frame_rays(camera)
 
 
 class PlaneTable:

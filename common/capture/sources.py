@@ -18,13 +18,18 @@ import time
 import urllib.parse
 from collections.abc import Callable
 from pathlib import Path
-from typing import Protocol
 
 import cv2
 import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
+from ovis.common.capture.frame_source import (
+    FrameSource,
+    NoFrameError,
+    SourceEndedError,
+    SourceError,
+)
 from ovis.common.config import OvisConfig
 from ovis.common.sim.arena import Arena, FrameTruth
 from ovis.common.vision.imageio import to_uint8
@@ -37,6 +42,7 @@ __all__ = [
     "FolderSource",
     "FrameSource",
     "GridSource",
+    "NoFrameError",
     "SimSource",
     "SourceEndedError",
     "SourceError",
@@ -53,25 +59,6 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".pp
 STREAM_OPEN_TIMEOUT_S = 3.0
 #: … and to deliver each frame, before it counts as lost.
 STREAM_READ_TIMEOUT_S = 1.0
-
-
-class SourceError(RuntimeError):
-    """A source that cannot deliver frames (missing camera, unreadable file, ended)."""
-
-
-class SourceEndedError(SourceError):
-    """A folder or video that ended with looping off: it has nothing more to give. The
-    text starts with "ended"."""
-
-
-class FrameSource(Protocol):
-    description: str
-
-    def read(self) -> tuple[NDArray[np.uint8], FrameTruth | None]:
-        """The next frame and, for simulated frames, its ground truth."""
-        ...
-
-    def close(self) -> None: ...
 
 
 class SimSource:

@@ -15,7 +15,19 @@ from numpy.typing import ArrayLike, NDArray
 from ovis.common.camera.projection import disks_in_image, pixel_jacobian, project
 from ovis.common.config import CameraModel
 from ovis.common.fusion.border import BorderTable, floor_seen
-from ovis.common.fusion.sightings import COLUMNS, CXX, CXY, CYY, MARKER, R, Sightings, X, Y, Z
+from ovis.common.fusion.sightings import (
+    COLUMNS,
+    CXX,
+    CXY,
+    CYY,
+    MARKER,
+    R,
+    Sightings,
+    X,
+    Y,
+    Z,
+    detection_row,
+)
 from ovis.common.fusion.tables import TableSet
 
 __all__ = ["AccuracyMap", "detection_columns", "position_covariance", "sightings_of"]
@@ -138,12 +150,15 @@ class AccuracyMap:
 
 def detection_columns(camera: str, objects: list[dict[str, Any]]) -> Sightings:
     """Detections as mappings (``kind, x_cm, y_cm, z_cm, radius_cm``, optionally
-    ``marker_id``, ``heading_deg``) as columns, their covariances not known yet (NaN)."""
-    nan = float("nan")
+    ``marker_id``, ``heading_deg`` and a measured height's ``covariance_cm2``,
+    ``z_source``, ``z_unmeasured``, see :func:`detection_row`) as columns, their
+    covariances not known yet (NaN) unless they came with them."""
     rows = [
-        (o["x_cm"], o["y_cm"], o["z_cm"], o["radius_cm"], nan, nan, nan,
-         nan if o.get("heading_deg") is None else o["heading_deg"],
-         nan if o.get("marker_id") is None else o["marker_id"])
+        detection_row(o["x_cm"], o["y_cm"], o["z_cm"], o["radius_cm"],
+                      heading_deg=o.get("heading_deg"), marker_id=o.get("marker_id"),
+                      covariance_cm2=o.get("covariance_cm2"),
+                      z_source=o.get("z_source", "configured"),
+                      z_unmeasured=o.get("z_unmeasured", ""), z_fit_cm=o.get("z_fit_cm"))
         for o in objects
     ]  # fmt: skip
     return Sightings(
@@ -163,22 +178,26 @@ def sightings_of(
     """One camera's detections (columns, or mappings as :func:`detection_columns`
     takes) as sightings with that camera's position covariance at each (see
     :func:`position_covariance`; from the camera's :class:`AccuracyMap` when given one,
-    then ``pixel_sigma_px`` is the map's). A blob that the image border cuts (no marker,
-    its disk not wholly inside the image, see :data:`CUT_MARGIN_PX`) is left out, and so
-    is a detection with a position or radius that is not a finite number."""
+    then ``pixel_sigma_px`` is the map's), unless it came with its own (a fitted solid).
+    A blob that the image border cuts (no marker, its disk not wholly inside the image,
+    a fitted solid's top or foot, see :data:`CUT_MARGIN_PX`) is left out, and so is a
+    detection with a position or radius that is not a finite number."""
     found = objects if isinstance(objects, Sightings) else detection_columns(camera, objects)
     if isinstance(cam, AccuracyMap):
         return cam.tables.resolve([found], {camera: cam}, CUT_MARGIN_PX)
-    d = found.data
+    d = found.data.copy()
     keep = np.isfinite(d[:, [X, Y, Z, R]]).all(axis=1)
     blob = keep & np.isnan(d[:, MARKER])
-    if blob.any():
-        b = d[blob]
-        keep[blob] = disks_in_image(b[:, X], b[:, Y], b[:, Z], b[:, R], cam, CUT_MARGIN_PX)
-    d, robot = d[keep], found.robot[keep]
-    if len(d):
-        cov = position_covariance(d[:, X], d[:, Y], d[:, Z], cam, pixel_sigma_px)
-        d[:, CXX], d[:, CXY], d[:, CYY] = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
-        seen = np.isfinite(cov).all(axis=(1, 2))
-        d, robot = d[seen], robot[seen]
-    return Sightings((camera,), d, robot)
+    solid = np.isfinite(d[:, CXX])  # came with its covariance: a fitted solid
+    for z, sel in ((d[:, Z], blob), (np.zeros(len(d)), blob & solid)):  # top, then foot
+        if sel.any():
+            b = d[sel]
+            keep[sel] &= disks_in_image(b[:, X], b[:, Y], z[sel], b[:, R], cam, CUT_MARGIN_PX)
+    d, robot, solid = d[keep], found.robot[keep], solid[keep]
+    own = ~solid
+    if own.any():
+        b = d[own]
+        cov = position_covariance(b[:, X], b[:, Y], b[:, Z], cam, pixel_sigma_px)
+        d[own, CXX], d[own, CXY], d[own, CYY] = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    seen = np.isfinite(d[:, CXX : CYY + 1]).all(axis=1)
+    return Sightings((camera,), d[seen], robot[seen])

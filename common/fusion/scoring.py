@@ -36,6 +36,9 @@ class WorldScore(msgspec.Struct, kw_only=True):
     #: given to :meth:`WorldScorer.add`; None: none were)
     height_error_cm_mean: float | None = None
     height_error_cm_max: float | None = None
+    #: the same by what each height rests on (the world object's ``z_source``, when
+    #: given): ``[count, mean, max]``
+    height_error_by_source_cm: dict[str, list[float]] = {}
 
 
 class WorldScorer:
@@ -48,6 +51,7 @@ class WorldScorer:
         self.jump = 0.0
         self.errors: list[float] = []
         self.height_errors: list[float] = []
+        self.height_sources: list[str] = []
         self._id_of_truth: dict[int, int] = {}
         self._truth_of_id: dict[int, int] = {}
         self._last: dict[int, tuple[float, float, float, float, tuple[str, ...]]] = {}
@@ -58,11 +62,13 @@ class WorldScorer:
         truth: list[tuple[int, float, float]],
         seen: set[int] | None = None,
         heights: tuple[list[float], list[float]] | None = None,
+        sources: list[str] | None = None,
     ) -> None:
         """One frame: world objects ``(world id, x, y, cameras)`` and true objects
         ``(truth id, x, y)``; ``seen``, the truth ids some camera saw (default all);
         ``heights``, the world objects' and the true objects' top heights (cm), in
-        their orders, for the height error."""
+        their orders, for the height error; ``sources``, what each world object's
+        height rests on (its ``z_source``)."""
         self.frames += 1
         w = np.array([[o[1], o[2]] for o in world]).reshape(-1, 2)
         t = np.array([[o[1], o[2]] for o in truth]).reshape(-1, 2)
@@ -90,6 +96,7 @@ class WorldScorer:
             self.errors.append(float(d[r, c]))
             if heights is not None:
                 self.height_errors.append(abs(heights[0][r] - heights[1][c]))
+                self.height_sources.append("" if sources is None else sources[r])
             if self._id_of_truth.setdefault(tid, wid) != wid:
                 self.swaps += 1
                 self._id_of_truth[tid] = wid
@@ -107,6 +114,12 @@ class WorldScorer:
         """The totals so far."""
         e = np.array(self.errors) if self.errors else np.zeros(1)
         dz = np.array(self.height_errors)
+        src = np.array(self.height_sources)
+        by_source = {
+            name: [float((src == name).sum()), float(dz[src == name].mean()),
+                   float(dz[src == name].max())]
+            for name in sorted(set(self.height_sources) - {""})
+        }  # fmt: skip
         return WorldScore(
             frames=self.frames,
             duplicates=self.duplicates,
@@ -119,4 +132,5 @@ class WorldScorer:
             world_error_cm_max=float(e.max()),
             height_error_cm_mean=float(dz.mean()) if dz.size else None,
             height_error_cm_max=float(dz.max()) if dz.size else None,
+            height_error_by_source_cm=by_source,
         )

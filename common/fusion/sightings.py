@@ -12,19 +12,63 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Sighting", "Sightings"]
+__all__ = ["Sighting", "Sightings", "detection_row"]
 
 FloatArray = NDArray[np.float64]
 
-#: the columns of :attr:`Sightings.data`
-X, Y, Z, R, CXX, CXY, CYY, HEADING, MARKER = range(9)
-COLUMNS = 9
+#: the columns of :attr:`Sightings.data`: footprint and height as reported, radius, the
+#: covariance of (x, y) (xx, xy, yy), heading, marker; then the fitted height's
+#: covariance with them (xz, yz, zz; NaN: no height fitted), where the reported height
+#: comes from (an index into :data:`Z_SOURCES`) and the fitted height (the reported one
+#: where measured, the fit's where not measurable by this camera alone; NaN: none)
+X, Y, Z, R, CXX, CXY, CYY, HEADING, MARKER, CXZ, CYZ, CZZ, ZSRC, ZFIT = range(14)
+COLUMNS = 14
+#: ``DetectedObject.z_source``'s values, by their code in the column ``ZSRC``
+Z_SOURCES = ("configured", "marker", "one camera", "cameras")
+
+
+def detection_row(
+    x_cm: float,
+    y_cm: float,
+    z_cm: float,
+    radius_cm: float,
+    *,
+    heading_deg: float | None = None,
+    marker_id: int | None = None,
+    covariance_cm2: Sequence[float] | None = None,
+    z_source: str = "configured",
+    z_unmeasured: str = "",
+    z_fit_cm: float | None = None,
+) -> tuple[float, ...]:
+    """One detection as a row of :data:`COLUMNS` (a ``DetectedObject``'s fields): its
+    covariance of (x, y, z) where its camera fitted one (9 numbers, row by row), the
+    height's part only where a height was fitted: measured (``z_source`` "one camera"
+    or "cameras") or, "not measurable" by this camera alone, ``z_fit_cm``; the (x, y)
+    covariance NaN where none came (the camera's accuracy map gives it,
+    :meth:`ovis.common.fusion.tables.TableSet.resolve`)."""
+    nan = float("nan")
+    c = [nan] * 9 if covariance_cm2 is None else [float(v) for v in covariance_cm2]
+    fit = nan
+    if z_source in ("one camera", "cameras") and not z_unmeasured:
+        fit = z_cm
+    elif z_unmeasured == "not measurable" and z_fit_cm is not None:
+        fit = z_fit_cm
+    cz = (c[2], c[5], c[8]) if fit == fit else (nan, nan, nan)
+    return (
+        x_cm, y_cm, z_cm, radius_cm, c[0], c[1], c[4],
+        nan if heading_deg is None else heading_deg,
+        nan if marker_id is None else marker_id,
+        *cz, Z_SOURCES.index(z_source), fit,
+    )  # fmt: skip
 
 
 class Sighting(msgspec.Struct, kw_only=True, frozen=True):
     """One object as one camera saw it, on the shared floor frame (cm, degrees);
     ``cov_cm2`` is the position covariance ``(xx, xy, yy)``, see
-    :func:`ovis.common.fusion.accuracy.position_covariance`."""
+    :func:`ovis.common.fusion.accuracy.position_covariance`; ``cov_z_cm2`` the measured
+    height's covariance with x, y and itself ``(xz, yz, zz)`` (None: ``z_cm`` is not
+    measured, it counts for nothing where a camera measures it); ``z_source`` one of
+    :data:`Z_SOURCES`."""
 
     camera: str
     kind: str  # "robot" or "obstacle"
@@ -35,11 +79,14 @@ class Sighting(msgspec.Struct, kw_only=True, frozen=True):
     cov_cm2: tuple[float, float, float]
     marker_id: int | None = None
     heading_deg: float | None = None
+    cov_z_cm2: tuple[float, float, float] | None = None
+    z_source: str = "configured"
+    z_fit_cm: float | None = None  # the fitted height (default: z_cm where cov_z_cm2 is given)
 
 
 class Sightings:
-    """Several sightings as columns: ``data`` ``(n, 9)`` floats (x, y, z, radius,
-    covariance xx, xy, yy, heading, marker; heading and marker NaN when absent),
+    """Several sightings as columns: ``data`` ``(n, 13)`` floats (see :data:`COLUMNS`;
+    heading and marker NaN when absent, the height's covariance NaN when not measured),
     ``robot`` (kind is "robot"), ``cam`` (index into ``cameras``, the camera names).
     ``resolved`` False: detections as a camera sent them, their covariances not known
     yet and blobs cut by the image border not left out (see
@@ -80,7 +127,10 @@ class Sightings:
         rows = [
             (s.x_cm, s.y_cm, s.z_cm, s.radius_cm, *s.cov_cm2,
              none if s.heading_deg is None else s.heading_deg,
-             none if s.marker_id is None else s.marker_id)
+             none if s.marker_id is None else s.marker_id,
+             *((none, none, none) if s.cov_z_cm2 is None else s.cov_z_cm2),
+             Z_SOURCES.index(s.z_source),
+             none if s.cov_z_cm2 is None else s.z_cm if s.z_fit_cm is None else s.z_fit_cm)
             for s in items
         ]  # fmt: skip
         return cls(
@@ -113,6 +163,7 @@ class Sightings:
         for row, robot, cam in zip(self.data.tolist(), self.robot.tolist(), self.cam.tolist(),
                                    strict=True):  # fmt: skip
             heading, marker = row[HEADING], row[MARKER]
+            cov_z = (row[CXZ], row[CYZ], row[CZZ])
             out.append(
                 Sighting(
                     camera=self.cameras[cam],
@@ -124,6 +175,9 @@ class Sightings:
                     cov_cm2=(row[CXX], row[CXY], row[CYY]),
                     marker_id=None if marker != marker else int(marker),
                     heading_deg=None if heading != heading else heading,
+                    cov_z_cm2=None if cov_z[2] != cov_z[2] else cov_z,
+                    z_source=Z_SOURCES[int(row[ZSRC])],
+                    z_fit_cm=None if row[ZFIT] != row[ZFIT] else row[ZFIT],
                 )
             )
         return out

@@ -1,7 +1,9 @@
 """Every camera's look-up tables in one: a world frame's detections, from all its
 cameras, are given their covariances and border decisions in one vectorised pass.
 
-Each camera's :class:`~ovis.common.fusion.accuracy.AccuracyMap` tabulates, per plane
+Each camera's :class:`~ovis.common.fusion.accuracy.AccuracyMap` (as
+:class:`CameraTables`: this module reads it, the accuracy module builds its tables with
+this one) tabulates, per plane
 height, the position covariance (nearest node) and the pixel of every floor node (the
 border test, :mod:`~ovis.common.fusion.border`). Here those tables are laid end to end
 with each one's origin, shape and offset, so that one gather serves detections of any
@@ -14,21 +16,44 @@ camera.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ovis.common.camera.projection import disks_in_image
-from ovis.common.fusion.border import ANGLES_COS, ANGLES_SIN, MAX_PLANES, bilinear, room_px
+from ovis.common.config import CameraModel
+from ovis.common.fusion.border import (
+    ANGLES_COS,
+    ANGLES_SIN,
+    MAX_PLANES,
+    BorderTable,
+    bilinear,
+    room_px,
+)
 from ovis.common.fusion.sightings import CXX, CYY, MARKER, R, Sightings, X, Y, Z
 
-if TYPE_CHECKING:
-    from ovis.common.fusion.accuracy import AccuracyMap
-
-__all__ = ["TableSet"]
+__all__ = ["CameraTables", "TableSet"]
 
 FloatArray = NDArray[np.float64]
+
+
+class CameraTables(Protocol):
+    """What a :class:`TableSet` reads of one camera: its model, its border table, the
+    plane heights it tabulated and each one's covariance grid, and covariances computed
+    where no table holds them (:class:`ovis.common.fusion.accuracy.AccuracyMap` is one;
+    this module does not import it, which imports this one)."""
+
+    cam: CameraModel
+    border: BorderTable
+
+    def heights(self) -> list[float]: ...
+
+    def prepare(self, *heights_cm: float) -> None: ...
+
+    def cov_grid(self, z: float) -> tuple[float, float, float, int, int, FloatArray] | None: ...
+
+    def __call__(self, x_cm: ArrayLike, y_cm: ArrayLike, z_cm: ArrayLike) -> FloatArray: ...
 
 
 def _laid_end_to_end(
@@ -55,7 +80,7 @@ class TableSet:
         self._cov = self._rc = (np.zeros((0, 6)), np.zeros((0, 3)))
         self._frame: dict[str, tuple[complex, float]] = {}
 
-    def _refresh(self, maps: Mapping[str, AccuracyMap]) -> None:
+    def _refresh(self, maps: Mapping[str, CameraTables]) -> None:
         key = tuple((n, m, len(m.heights())) for n, m in maps.items())  # maps by identity
         if key == self._key:
             return
@@ -75,41 +100,55 @@ class TableSet:
         self._key = key
 
     def resolve(
-        self, parts: Sequence[Sightings], maps: Mapping[str, AccuracyMap], margin_px: float
+        self, parts: Sequence[Sightings], maps: Mapping[str, CameraTables], margin_px: float
     ) -> Sightings:
-        """Cameras' detections (one part per camera, covariances not known) as
-        sightings: each with its camera's covariance there; a detection that is not a
-        finite number, a blob (no marker) whose disk is not wholly inside its camera's
-        image ``margin_px`` from the border, and a point its camera cannot see are left
-        out."""
+        """Cameras' detections (one part per camera) as sightings: each with its
+        camera's covariance there, unless it came with its own (a solid fitted to its
+        silhouette, heights measured); a detection that is not a finite number, a blob
+        (no marker) whose disk is not wholly inside its camera's image ``margin_px`` from
+        the border (a fitted solid: its top's disk and its foot's), and a point its camera
+        cannot see are left out."""
         s = Sightings.joined(list(parts))
         d = s.data.copy()
         names = s.cameras
         if not len(d):
             return Sightings(names, d, s.robot, s.cam)
         self._refresh(maps)
+        # a fitted solid (its camera sent its covariance): its measured height is no plane
+        # worth a table, and its silhouette reaches from its top down to its foot
+        solid = np.isfinite(d[:, CXX])
         keys = [(names[c], z) for c, z in zip(s.cam.tolist(), d[:, Z].tolist(), strict=True)]
-        ids = [self._ids.get(k, -1) for k in keys]
-        if -1 in ids:  # a height not seen before: tabulated once (bounded)
-            for n, z in {k for k, i in zip(keys, ids, strict=True) if i < 0}:
+        ids = [-1 if f else self._ids.get(k, -1) for k, f in zip(keys, solid.tolist(),
+                                                                   strict=True)]  # fmt: skip
+        wanted = {k for k, i, f in zip(keys, ids, solid.tolist(), strict=True) if i < 0 and not f}
+        if wanted:  # a height not seen before: tabulated once (bounded)
+            for n, z in wanted:
                 if np.isfinite(z) and len(maps[n].heights()) < MAX_PLANES:
                     maps[n].prepare(z)
             self._refresh(maps)
-            ids = [self._ids.get(k, -1) for k in keys]
+            ids = [-1 if f else self._ids.get(k, -1) for k, f in zip(keys, solid.tolist(),
+                                                                       strict=True)]  # fmt: skip
         tid = np.array(ids, np.intp)
         keep = np.isfinite(d[:, :4]).all(axis=1)
         blob = keep & np.isnan(d[:, MARKER])
         if blob.any():
             keep[blob] = self._whole(d[blob], tid[blob], s.cam[blob], names, maps, margin_px)
-        d, tid, cam, robot = d[keep], tid[keep], s.cam[keep], s.robot[keep]
-        d[:, CXX : CYY + 1] = self._covariance(d, tid, cam, names, maps)
+        foot = blob & keep & solid
+        for c in set(s.cam[foot].tolist()):  # its foot wholly inside the image too
+            sel = foot & (s.cam == c)
+            keep[sel] = disks_in_image(d[sel, X], d[sel, Y], np.zeros(int(sel.sum())),
+                                       d[sel, R], maps[names[c]].cam, margin_px)  # fmt: skip
+        d, tid, cam, robot, solid = d[keep], tid[keep], s.cam[keep], s.robot[keep], solid[keep]
+        if not solid.all():
+            own = ~solid
+            d[own, CXX : CYY + 1] = self._covariance(d[own], tid[own], cam[own], names, maps)
         seen = np.isfinite(d[:, CXX : CYY + 1]).all(axis=1)
         if not seen.all():
             d, robot, cam = d[seen], robot[seen], cam[seen]
         return Sightings(names, d, robot, cam)
 
     def _whole(self, d: FloatArray, tid: NDArray[np.intp], cam: NDArray[np.intp],
-               names: Sequence[str], maps: Mapping[str, AccuracyMap],
+               names: Sequence[str], maps: Mapping[str, CameraTables],
                margin_px: float) -> NDArray[np.bool_]:  # fmt: skip
         """Border decisions of blobs (see :class:`~ovis.common.fusion.border.BorderTable`):
         the rim points bilinear in their camera's pixel table, those near the decision
@@ -140,7 +179,7 @@ class TableSet:
         tid: NDArray[np.intp],
         cam: NDArray[np.intp],
         names: Sequence[str],
-        maps: Mapping[str, AccuracyMap],
+        maps: Mapping[str, CameraTables],
     ) -> FloatArray:
         """``(n, 3)`` covariances (xx, xy, yy): nearest node of the camera's grid, or
         computed where there is none."""

@@ -9,7 +9,9 @@
   joints (X, Y) and a hinge (yaw) carrying one geom: a cylinder, a box or a convex mesh
   prism, its base on the floor, matte, of the solid's albedo; they collide with each
   other. A marked robot carries a white plate with its marker's black cells on top,
-  printed so that the camera sees it unmirrored.
+  printed so that the camera sees it unmirrored. With ``driven``, each robot is a
+  differential-drive body instead (:mod:`ovis.common.physical.drive`): on a free joint
+  at its path's centre, turned by its ``yaw_deg``, rolling on wheels the floor touches.
 * **Cameras**: one per calibrated camera (``cam0``, ``cam1`` …), placed and with the
   intrinsics of :func:`~ovis.common.physical.camera.render_camera`.
 """
@@ -24,11 +26,20 @@ import numpy as np
 
 from ovis.common.config import CameraModel, OvisConfig
 from ovis.common.physical.camera import CM_PER_M, RenderCamera
+from ovis.common.physical.drive import CHASSIS_MASS_KG, WHEEL_BITS, add_wheels
 from ovis.common.physical.scene import Scene, Solid, circumradius
 from ovis.common.sim.painting import marker_hand
 from ovis.common.vision.markers import marker_cells
 
-__all__ = ["FLOOR_GROUP", "SOLID_GROUP", "add_camera", "build_spec", "camera_name", "joint_names"]
+__all__ = [
+    "FLOOR_GROUP",
+    "SOLID_GROUP",
+    "add_camera",
+    "build_spec",
+    "camera_name",
+    "is_driven",
+    "joint_names",
+]
 
 FLOOR_GROUP = 0
 SOLID_GROUP = 1
@@ -138,17 +149,35 @@ def _disc_vertices(radius_cm: float) -> list[float]:
     return _ring_prism(radius_cm, MARK_SIDES, PRINT_CM)
 
 
-def _add_solid(spec: mujoco.MjSpec, solid: Solid, config: OvisConfig, hand: float) -> None:
-    body = spec.worldbody.add_body(name=f"solid{solid.id}", pos=[0.0, 0.0, 0.0])
-    jx, jy, jyaw = joint_names(solid)
-    body.add_joint(name=jx, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1.0, 0.0, 0.0])
-    body.add_joint(name=jy, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0.0, 1.0, 0.0])
-    body.add_joint(name=jyaw, type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0.0, 0.0, 1.0])
+def is_driven(solid: Solid, driven: bool) -> bool:
+    """Whether ``solid`` is a differential-drive body in a model built with ``driven``."""
+    return driven and solid.kind == "robot"
+
+
+def _add_solid(
+    spec: mujoco.MjSpec, solid: Solid, config: OvisConfig, hand: float, driven: bool = False
+) -> None:
+    mass = SOLID_MASS_KG
+    if is_driven(solid, driven):
+        yaw = math.radians(solid.yaw_deg)
+        body = spec.worldbody.add_body(
+            name=f"solid{solid.id}",
+            pos=[_m(solid.path.cx_cm), _m(solid.path.cy_cm), 0.0],
+            quat=[math.cos(yaw / 2.0), 0.0, 0.0, math.sin(yaw / 2.0)],
+        )
+        add_wheels(spec, body, solid)
+        mass = CHASSIS_MASS_KG
+    else:
+        body = spec.worldbody.add_body(name=f"solid{solid.id}", pos=[0.0, 0.0, 0.0])
+        jx, jy, jyaw = joint_names(solid)
+        body.add_joint(name=jx, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1.0, 0.0, 0.0])
+        body.add_joint(name=jy, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0.0, 1.0, 0.0])
+        body.add_joint(name=jyaw, type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0.0, 0.0, 1.0])
     h = _m(solid.height_cm)
     common = {
         "rgba": _grey(solid.albedo),
         "group": SOLID_GROUP,
-        "mass": SOLID_MASS_KG,
+        "mass": mass,
         "name": f"solid{solid.id}_geom",
     }
     if solid.shape == "box":
@@ -172,8 +201,11 @@ def build_spec(
     cameras: Sequence[CameraModel],
     rendered: Sequence[RenderCamera],
     samples: int,
+    *,
+    driven: bool = False,
 ) -> mujoco.MjSpec:
-    """The MuJoCo model of a scene seen by ``cameras`` (module docstring)."""
+    """The MuJoCo model of a scene seen by ``cameras`` (module docstring); ``driven``:
+    its robots on wheels."""
     spec = mujoco.MjSpec()
     spec.modelname = f"ovis_physical_{scene.seed}"
     spec.option.timestep = 0.002
@@ -196,7 +228,7 @@ def build_spec(
         rgba=_grey(scene.floor_albedo),
         group=FLOOR_GROUP,
         contype=0,
-        conaffinity=0,
+        conaffinity=WHEEL_BITS,  # only wheels stand on it: the solids slide on joints
     )
     for mark in scene.marks:
         spec.add_mesh(name=f"mark_{mark.name}", uservert=_disc_vertices(mark.radius_cm))
@@ -230,7 +262,7 @@ def build_spec(
         hand = 1.0
         if solid.marker_id is not None:
             hand = marker_hand(cameras[0], mid[0], mid[1], solid.height_cm)
-        _add_solid(spec, solid, config, hand)
+        _add_solid(spec, solid, config, hand, driven)
     for k, r in enumerate(rendered):
         add_camera(spec, camera_name(k), r)
     return spec

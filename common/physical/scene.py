@@ -32,8 +32,12 @@ __all__ = [
     "Path",
     "Scene",
     "Solid",
+    "ceiling_lamps",
+    "draw_solid",
     "footprint",
+    "path_fits",
     "random_scene",
+    "spread_marks",
 ]
 
 #: Instants of the period at which paths are checked for gaps and visibility.
@@ -189,7 +193,7 @@ def _in_images(
     return True
 
 
-def _draw_solid(
+def draw_solid(
     rng: np.random.Generator, config: OvisConfig, ident: int, kind: str, marker: int | None
 ) -> Solid:
     """Shape, size, height and albedo of one solid (its path comes later)."""
@@ -261,7 +265,7 @@ class _Placed:
         self.bound.append(bound)
 
 
-def _fits(
+def path_fits(
     solid: Solid,
     path: Path,
     config: OvisConfig,
@@ -269,7 +273,8 @@ def _fits(
     times: FloatArray,
     period: float,
 ) -> tuple[FloatArray, FloatArray] | None:
-    """The path's samples if the solid stays in the arena and in every camera's view."""
+    """The path's samples at ``times`` if the solid stays in the arena and, top
+    included, in every camera's view at each of them; else None."""
     (x0, x1), (y0, y1) = config.simulator.arena_x_cm, config.simulator.arena_y_cm
     x, y = path.at(times, period)
     b = solid.bound_cm
@@ -317,7 +322,7 @@ def _draw_path(rng: np.random.Generator, solid: Solid, config: OvisConfig, perio
     )
 
 
-def _lamps(config: OvisConfig) -> list[Lamp]:
+def ceiling_lamps(config: OvisConfig) -> list[Lamp]:
     """The ceiling lamps over the arena: a row or a grid round its centre."""
     (x0, x1), (y0, y1) = config.simulator.arena_x_cm, config.simulator.arena_y_cm
     n = config.physical.lights
@@ -333,7 +338,7 @@ def _lamps(config: OvisConfig) -> list[Lamp]:
     return out
 
 
-def _marks(
+def spread_marks(
     rng: np.random.Generator, config: OvisConfig, cameras: Sequence[CameraModel]
 ) -> list[FloorMark]:
     """Floor marks spread over the arena (a jittered grid), inside every camera's view."""
@@ -385,10 +390,10 @@ def random_scene(
         kinds = [("robot", ident, m) for ident, m in zip(ids, markers, strict=True)]
         kinds += [("obstacle", first_obstacle + k, None) for k in range(phys.n_obstacles)]
         for kind, ident, marker in kinds:
-            shape = _draw_solid(rng, config, ident, kind, marker)
+            shape = draw_solid(rng, config, ident, kind, marker)
             for _ in range(TRIES):
                 path = _draw_path(rng, shape, config, period)
-                samples = _fits(shape, path, config, cameras, times, period)
+                samples = path_fits(shape, path, config, cameras, times, period)
                 if samples is None or not placed.clear_of(*samples, shape.bound_cm, phys.gap_cm):
                     continue
                 placed.add(*samples, shape.bound_cm)
@@ -403,8 +408,8 @@ def random_scene(
                 arena_x_cm=config.simulator.arena_x_cm,
                 arena_y_cm=config.simulator.arena_y_cm,
                 solids=solids,
-                marks=_marks(rng, config, cameras),
-                lamps=_lamps(config),
+                marks=spread_marks(rng, config, cameras),
+                lamps=ceiling_lamps(config),
                 floor_albedo=phys.floor_albedo,
                 ambient=phys.ambient,
                 shadows=phys.shadows,

@@ -9,6 +9,14 @@ that state in grey (anti-aliased, with the lamps' shadows when ``[physical] shad
 resampled through the lens (:mod:`ovis.common.physical.camera`), with Gaussian sensor
 noise drawn from ``(seed, frame index, camera)``: a frame depends only on the seed, the
 frame's time and index, and the camera.
+
+**Driven robots** (``driven=True``): each robot is a differential-drive body
+(:mod:`ovis.common.physical.drive`) that only its wheels move. :meth:`set_time` then
+places the obstacles alone, and :meth:`advance` runs MuJoCo's dynamics forward: the
+obstacles are put back on their paths every :data:`KINEMATIC_STEP_S` (their joints'
+positions and velocities; in between they coast at their path's velocity), the robots
+roll on their wheels' targets (:meth:`set_wheels`), and a robot touching another solid
+is a MuJoCo contact (:meth:`touching`).
 """
 
 from __future__ import annotations
@@ -25,11 +33,13 @@ from numpy.typing import NDArray
 from ovis.common.camera.projection import project
 from ovis.common.config import CameraModel, OvisConfig
 from ovis.common.physical.camera import CM_PER_M, RenderCamera, render_camera
+from ovis.common.physical.drive import free_joint_name, wheel_actuator_names
 from ovis.common.physical.model import (
     FLOOR_GROUP,
     SOLID_GROUP,
     build_spec,
     camera_name,
+    is_driven,
     joint_names,
 )
 from ovis.common.physical.scene import Scene, Solid, footprint
@@ -38,6 +48,11 @@ from ovis.common.sim.arena import FrameTruth, SimObject
 __all__ = ["PhysicalWorld", "SolidView", "grey_frame", "sensor_noise", "silhouette_px"]
 
 _STREAM_NOISE = 5
+#: Where :meth:`PhysicalWorld.alone_px` puts the solids it takes away (m along X).
+_AWAY_M = 1000.0
+#: How often (s of simulated time) :meth:`PhysicalWorld.advance` puts the obstacles back
+#: on their paths.
+KINEMATIC_STEP_S = 0.01
 #: Points per footprint edge projected for a solid's silhouette (edges bend in a lens).
 EDGE_SAMPLES = 8
 _SHAPES = {"cylinder": "disk", "box": "rect", "prism": "prism"}
@@ -125,20 +140,31 @@ class PhysicalWorld:
         cameras: Sequence[CameraModel],
         *,
         noise_sigma: float | None = None,
+        driven: bool = False,
     ) -> None:
         self.scene = scene
         self.cameras = list(cameras)
         self.rendered: list[RenderCamera] = [render_camera(c) for c in self.cameras]
         phys = config.physical
         self.noise_sigma = phys.noise_sigma if noise_sigma is None else float(noise_sigma)
-        self.spec = build_spec(scene, config, self.cameras, self.rendered, phys.samples)
+        self.spec = build_spec(
+            scene, config, self.cameras, self.rendered, phys.samples, driven=driven
+        )
         self.model = self.spec.compile()
         self.data = mujoco.MjData(self.model)
-        self._qpos = [
-            [self.model.joint(n).qposadr[0] for n in joint_names(s)] for s in scene.solids
-        ]
-        self._qvel = [[self.model.joint(n).dofadr[0] for n in joint_names(s)] for s in scene.solids]
-        self._body = [self.model.body(f"solid{s.id}").id for s in scene.solids]
+        m = self.model
+        #: the solids moved along their paths, and the differential-drive robots
+        self.kinematic = [s for s in scene.solids if not is_driven(s, driven)]
+        self.driven = [s for s in scene.solids if is_driven(s, driven)]
+        self._qpos = [[m.joint(n).qposadr[0] for n in joint_names(s)] for s in self.kinematic]
+        self._qvel = [[m.joint(n).dofadr[0] for n in joint_names(s)] for s in self.kinematic]
+        self._free = {s.id: m.joint(free_joint_name(s)) for s in self.driven}
+        self._motors = {
+            s.id: [m.actuator(n).id for n in wheel_actuator_names(s)] for s in self.driven
+        }
+        self._body = [m.body(f"solid{s.id}").id for s in scene.solids]
+        self._body_of = {s.id: b for s, b in zip(scene.solids, self._body, strict=True)}
+        self._geom = {s.id: m.geom(f"solid{s.id}_geom").id for s in scene.solids}
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
         self._options: dict[bool, mujoco.MjvOption] = {}
         self.t_s = 0.0
@@ -159,29 +185,108 @@ class PhysicalWorld:
         rate = math.remainder(yaws[2] - yaws[0], 2.0 * math.pi) / (2.0 * dt)
         return yaws[1], rate
 
-    def set_time(self, t_s: float) -> None:
-        """Move every solid to where its path is at ``t_s`` (s) and update the physics
-        state (joint positions and velocities, then MuJoCo's forward dynamics)."""
+    def _place(self, t_s: float) -> None:
+        """Every kinematic solid where its path is at ``t_s``, at its path's velocity."""
         period = self.scene.period_s
         qpos, qvel = self.data.qpos, self.data.qvel
-        for solid, pa, va in zip(self.scene.solids, self._qpos, self._qvel, strict=True):
+        for solid, pa, va in zip(self.kinematic, self._qpos, self._qvel, strict=True):
             x, y = solid.path.at(t_s, period)
             vx, vy = solid.path.velocity(t_s, period)
             yaw, rate = self._yaw(solid, t_s)
             qpos[pa] = [float(x) / CM_PER_M, float(y) / CM_PER_M, yaw]
             qvel[va] = [float(vx) / CM_PER_M, float(vy) / CM_PER_M, rate]
+
+    def set_time(self, t_s: float) -> None:
+        """Move every solid (every obstacle when robots are driven) to where its path is
+        at ``t_s`` (s) and update the physics state (joint positions and velocities, then
+        MuJoCo's forward dynamics)."""
+        self._place(t_s)
         mujoco.mj_forward(self.model, self.data)
         self.t_s = float(t_s)
+        self.data.time = self.t_s
+
+    def advance(self, seconds: float, *, settle: bool = True) -> None:
+        """Run the dynamics ``seconds`` forward (whole physics steps): the driven robots
+        on their wheels' targets, the obstacles put back on their paths every
+        :data:`KINEMATIC_STEP_S`. Then (``settle``, else at :meth:`settle`) the
+        obstacles are exactly on their paths at :attr:`t_s` and the state is MuJoCo's
+        there; unsettled, the contacts are the last step's."""
+        dt = float(self.model.opt.timestep)
+        steps = round(seconds / dt)
+        chunk = max(1, round(KINEMATIC_STEP_S / dt))
+        done = 0
+        while done < steps:
+            n = min(chunk, steps - done)
+            self._place(self.t_s + done * dt)
+            mujoco.mj_step(self.model, self.data, nstep=n)
+            done += n
+        self.t_s += steps * dt
+        if settle:
+            self.settle()
+
+    def settle(self) -> None:
+        """The obstacles on their paths at :attr:`t_s`, MuJoCo's derived state updated."""
+        self._place(self.t_s)
+        mujoco.mj_forward(self.model, self.data)
+
+    def position_cm(self, solid_id: int) -> tuple[float, float]:
+        """Where a solid's body is (cm) in the current state."""
+        x_m, y_m = self.data.xpos[self._body_of[solid_id]][:2]
+        return float(x_m) * CM_PER_M, float(y_m) * CM_PER_M
+
+    def set_wheels(self, robot_id: int, left_rad_s: float, right_rad_s: float) -> None:
+        """The wheel speeds (rad/s, positive: forwards) a driven robot's actuators hold."""
+        left, right = self._motors[robot_id]
+        self.data.ctrl[left] = left_rad_s
+        self.data.ctrl[right] = right_rad_s
+
+    def yaw_rate_deg_s(self, robot_id: int) -> float:
+        """A driven robot's turn rate (deg/s, counter-clockwise; its free joint's
+        angular velocity about the vertical, the robot standing level)."""
+        return math.degrees(float(self.data.qvel[self._free[robot_id].dofadr[0] + 5]))
+
+    def touching(self) -> list[tuple[int, int]]:
+        """Pairs (robot id, other solid's id) of the driven robots' contacts with other
+        solids in the current state (MuJoCo's contacts; each pair once)."""
+        robots = {self._geom[s.id]: s.id for s in self.driven}
+        solids = {g: i for i, g in self._geom.items()}
+        out: set[tuple[int, int]] = set()
+        con = self.data.contact
+        for g1, g2, dist in zip(con.geom1, con.geom2, con.dist, strict=True):
+            if dist > 0.0:
+                continue
+            for a, b in ((g1, g2), (g2, g1)):
+                if a in robots and b in solids:
+                    out.add((robots[a], solids[b]))
+        return sorted(out)
+
+    def clearance_cm(self, robot_id: int, within_cm: float = 50.0) -> float:
+        """The smallest distance (cm) from a driven robot's body to any other solid's
+        (MuJoCo's signed geom distance: negative inside), ``within_cm`` when none is
+        nearer."""
+        mine = self._geom[robot_id]
+        best = within_cm
+        for other, geom in self._geom.items():
+            if other == robot_id:
+                continue
+            d = mujoco.mj_geomDistance(
+                self.model, self.data, mine, geom, within_cm / CM_PER_M, None
+            )
+            best = min(best, d * CM_PER_M)
+        return best
 
     # ------------------------------------------------------------------ truth
     def truth(self, index: int, stamp_ns: int | None = None) -> FrameTruth:
         """Ground truth of the current state, read from the physics: every solid's
         footprint centre (cm), top height, yaw, equal-area radius and velocity (cm/s)."""
         objects = []
-        for solid, body, va in zip(self.scene.solids, self._body, self._qvel, strict=True):
+        velocity = {s.id: va[:2] for s, va in zip(self.kinematic, self._qvel, strict=True)}
+        velocity |= {i: [j.dofadr[0], j.dofadr[0] + 1] for i, j in self._free.items()}
+        for solid, body in zip(self.scene.solids, self._body, strict=True):
             x_m, y_m = self.data.xpos[body][:2]
             xmat = self.data.xmat[body].reshape(3, 3)
             yaw = math.degrees(math.atan2(xmat[1, 0], xmat[0, 0]))
+            va = velocity[solid.id]  # a free joint's first three: world linear velocity
             vx, vy = self.data.qvel[va[0]] * CM_PER_M, self.data.qvel[va[1]] * CM_PER_M
             length, width = solid.length_cm, solid.width_cm
             if solid.shape != "box":
@@ -256,6 +361,23 @@ class PhysicalWorld:
         for solid, body in zip(self.scene.solids, self._body, strict=True):
             mine = np.flatnonzero(self.model.geom_bodyid == body)
             out[solid.id] = int(counts[mine].sum())
+        return out
+
+    def alone_px(self, k: int = 0) -> dict[int, int]:
+        """Pixels of camera ``k``'s (canvas) image each solid (by id) covers when the
+        others are taken away: with :meth:`visible_px`, how much of it others hide."""
+        out: dict[int, int] = {}
+        t_s = self.t_s
+        try:
+            for solid in self.scene.solids:
+                self.set_time(t_s)
+                for other, qa in zip(self.kinematic, self._qpos, strict=True):
+                    if other is not solid:  # far beyond every camera's view
+                        self.data.qpos[qa[0]] = _AWAY_M
+                mujoco.mj_forward(self.model, self.data)
+                out[solid.id] = self.visible_px(k)[solid.id]
+        finally:
+            self.set_time(t_s)
         return out
 
     def views(self, k: int = 0) -> list[SolidView]:

@@ -20,7 +20,7 @@ from ovis.common.pipeline.stages import (
     obstacle_frame,
     wrong_size,
 )
-from ovis.common.vision.preprocess import ImageError, as_gray
+from ovis.common.vision.frames import ImageError, as_gray
 from ovis.common.world.detection import Detector
 from ovis.common.world.marker_search import BlobMarkers
 

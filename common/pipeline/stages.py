@@ -10,6 +10,7 @@ from typing import Protocol
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from ovis.common.calibration.file import Calibration
 from ovis.common.camera.plane_table import PlaneTables
@@ -17,19 +18,30 @@ from ovis.common.config import CameraModel
 from ovis.common.messages import (
     BinaryFrame,
     BlobList,
+    BlobPatch,
     FloorMaps,
     Frame,
     MarkerCorners,
     ObstacleFrame,
     PlaneMap,
 )
-from ovis.common.vision.preprocess import GrayImage, smooth
-from ovis.common.vision.segmentation import ObjectWindow, segmentation
-from ovis.common.world.detection import Detector, measure_blobs_and_maps, size_filter_px
+from ovis.common.vision.contrast import ObjectWindow
+from ovis.common.vision.frames import GrayImage
+from ovis.common.vision.outline import background_spots, blob_patches
+from ovis.common.vision.segmentation import Segmentation, background_image, segmentation
+from ovis.common.vision.smoothing import smooth
+from ovis.common.world.detection import (
+    Detector,
+    measure_blobs_and_maps,
+    size_filter_px,
+    size_plane_cm,
+    solid_pixels,
+)
 from ovis.common.world.marker_search import BlobMarkers
 
 __all__ = [
     "MAX_CLOCK_SKEW_S",
+    "FloorSpots",
     "SizeFilter",
     "binary_frame",
     "blob_list",
@@ -70,26 +82,49 @@ def wrong_size(frame: _Sized, camera: CameraModel, kind: str) -> str | None:
     )
 
 
+class FloorSpots:
+    """The bright spots of one empty-floor image (:func:`background_spots`), worked out
+    once for it."""
+
+    def __init__(self) -> None:
+        self._floor: NDArray[np.uint8] | None = None
+        self._spots: NDArray[np.uint8] | None = None
+
+    def of(self, floor: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        if floor is not self._floor or self._spots is None:
+            self._floor, self._spots = floor, background_spots(floor)
+        return self._spots
+
+
 def binary_frame(
     frame: Frame,
     gray: GrayImage,
     calib: Calibration,
     markers: BlobMarkers | None = None,
     window: ObjectWindow | None = None,
+    spots: FloorSpots | None = None,
 ) -> BinaryFrame:
     """The preprocessing stage: the median step and binarization (§3) of ``gray`` (the
     frame's grey image) with the calibration's whole segmentation (threshold mode and
     level, polarity, empty-floor background, region of interest, as `ovis detect` and
     the calibration applied it; ``window``: the local-contrast window carried between
-    one camera's frames), packed, with the level used; with marked
+    one camera's frames; with measured heights, the pixels brighter than the empty floor
+    that the fitted outlines come from, :func:`solid_pixels`, ``spots`` keeping the
+    floor's bright spots), packed, with the level used; with marked
     robots configured, also the image the label stage searches their markers in around
     the blobs: the frame's 3×3 median (the smoothing step computes it anyway), or the
     frame itself when the markers' cells are too small for it (``markers``'
-    :meth:`~BlobMarkers.search_image`; without ``markers``, the median)."""
+    :meth:`~BlobMarkers.search_image`; without ``markers``, the median); with heights
+    measured, the grey frame (the label stage cuts each blob's patch from it)."""
     params = calib.image
     median3 = cv2.medianBlur(gray, 3) if calib.pose.robots else None
-    smoothed = smooth(gray, params.median, median3=median3)
-    seg = segmentation(smoothed, params, window)
+    measured = calib.pose.heights == "measured"
+    if measured:  # the object pixels the fitted outlines come from
+        floor = background_image(params, gray.shape)
+        mask = solid_pixels(gray, floor, params, spots.of(floor) if spots else None)
+        seg = Segmentation(mask, 0, int(params.threshold))
+    else:
+        seg = segmentation(smooth(gray, params.median, median3=median3), params, window)
     search = median3
     if median3 is not None and markers is not None:
         search = markers.search_image(gray, median3, calib.version, calib.camera, calib.pose)
@@ -102,14 +137,16 @@ def binary_frame(
         threshold=min(255, seg.level),
         calibration_version=calib.version,
         stream=frame.stream,
-        # a view, not a copy: the message is encoded straight away, the image not changed
+        # views, not copies: the message is encoded straight away, the images not changed
         median=None if search is None else memoryview(np.ascontiguousarray(search)).cast("B"),  # type: ignore[arg-type]
+        gray=memoryview(np.ascontiguousarray(gray)).cast("B") if measured else None,  # type: ignore[arg-type]
     )
 
 
 class SizeFilter:
-    """The smallest blob worth measuring (A^f on the obstacles' plane, in px), computed
-    once per calibration version."""
+    """The smallest blob worth measuring (A^f on the size filter's plane,
+    :func:`~ovis.common.world.detection.size_plane_cm`, in px), computed once per
+    calibration version."""
 
     def __init__(self) -> None:
         self._version: int | None = None
@@ -117,7 +154,7 @@ class SizeFilter:
 
     def min_area_px(self, calib: Calibration) -> float:
         if calib.version != self._version:
-            plane = calib.pose.obstacle_height_cm
+            plane = size_plane_cm(calib.pose)
             self._px = size_filter_px(calib.image, calib.camera, plane)
             self._version = calib.version
         return self._px
@@ -136,11 +173,26 @@ def blob_list(
     from ``tables``, kept by the caller between frames); with marked robots, the
     markers ``find_markers`` finds around the blobs in the image the binary frame brings
     (its ``median``, as
-    :meth:`Detector.detect` does), unless the binary frame brings them decoded."""
+    :meth:`Detector.detect` does), unless the binary frame brings them decoded; with
+    heights measured, each blob's patch of the frame less the empty floor (when the
+    binary frame brings the grey frame)."""
     planes = (calib.pose.obstacle_height_cm, calib.pose.robot_height_cm)
     blobs, (floor, top) = measure_blobs_and_maps(
-        frame.mask(), calib.image, calib.camera, planes, min_area_px=min_area_px, tables=tables
+        frame.mask(),
+        calib.image,
+        calib.camera,
+        planes,
+        min_area_px=min_area_px,
+        tables=tables,
+        size_plane_cm=size_plane_cm(calib.pose),
     )
+    patches = None
+    gray = frame.gray_image()
+    if calib.pose.heights == "measured" and gray is not None and blobs.box is not None:
+        background = background_image(calib.image, gray.shape)
+        cut = blob_patches(gray, background, *blobs.box.T)
+        assert blobs.filled is not None
+        patches = [BlobPatch.of(p, f) for p, f in zip(cut, blobs.filled, strict=True)]
     markers, at_border = frame.markers, frame.markers_at_border
     median3 = frame.median_image()
     if markers is None and median3 is not None and find_markers and calib.pose.robots:
@@ -157,6 +209,7 @@ def blob_list(
         markers=markers,
         markers_at_border=at_border,
         stream=frame.stream,
+        patches=patches,
     )
 
 
@@ -171,7 +224,13 @@ def obstacle_frame(
         floor, top = msg.maps.obstacle.jacobian(), msg.maps.robot.jacobian()
     markers = MarkerCorners.to_markers(msg.markers, msg.markers_at_border)
     det = detector.from_blobs(
-        msg.to_blobs(), floor=floor, top=top, stamp_s=msg.stamp_ns / 1e9, markers=markers
+        msg.to_blobs(),
+        floor=floor,
+        top=top,
+        stamp_s=msg.stamp_ns / 1e9,
+        markers=markers,
+        patches=msg.blob_patches(),
+        frame_shape=(msg.rows, msg.cols),
     )
     return ObstacleFrame(
         seq=msg.seq,

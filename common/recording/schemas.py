@@ -19,6 +19,8 @@ from ovis.common.messages import (
     Frame,
     Message,
     ObstacleFrame,
+    RobotCommand,
+    RobotDrive,
     StreamHealth,
     TruthFrame,
 )
@@ -34,6 +36,8 @@ BUS_TYPES: dict[str, Any] = {
     "truth": TruthFrame,
     "health": StreamHealth,
     "calibration": CalibrationUpdate,
+    "cmd": RobotCommand,
+    "drive": RobotDrive,
 }
 
 

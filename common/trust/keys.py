@@ -3,8 +3,9 @@
 Ed25519 library reads (``openssl pkey -pubin -in calibrator.pub -text``).
 
 Where they are: ``[trust] keys_dir`` (default ``<state_dir>/keys``) holds
-``<role>.key`` and ``<role>.pub``; ``[trust] calibrator_public``, ``pose_public`` and
-``fusion_public`` name a public key copied from another host instead (docs/trust.md).
+``<role>.key`` and ``<role>.pub``; ``[trust] calibrator_public``, ``pose_public``,
+``fusion_public`` and ``planner_public`` name a public key copied from another host
+instead (docs/trust.md).
 """
 
 from __future__ import annotations
@@ -38,8 +39,9 @@ __all__ = [
 ]
 
 #: The stages whose word counts: the calibrator (calibrations), the pose stage
-#: (obstacles, robots, the stream's health) and fusion (the several cameras' world).
-ROLES = ("calibrator", "pose", "fusion")
+#: (obstacles, robots, the stream's health), fusion (the several cameras' world) and
+#: the planner (the robots' velocity commands).
+ROLES = ("calibrator", "pose", "fusion", "planner")
 #: Seconds between two reads of a public key file that is missing or bad.
 RETRY_S = 1.0
 
@@ -61,7 +63,12 @@ def private_key_path(cfg: OvisConfig, role: str) -> Path:
 def public_key_path(cfg: OvisConfig, role: str) -> Path:
     """The public key of ``role`` that this configuration trusts."""
     t = cfg.trust
-    named = {"calibrator": t.calibrator_public, "pose": t.pose_public, "fusion": t.fusion_public}
+    named = {
+        "calibrator": t.calibrator_public,
+        "pose": t.pose_public,
+        "fusion": t.fusion_public,
+        "planner": t.planner_public,
+    }
     return Path(named[role]) if named[role] else keys_dir(cfg) / f"{role}.pub"
 
 

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ovis.common.vision.preprocess import ImageError
+from ovis.common.vision.frames import ImageError
 
 __all__ = ["read_image", "to_uint8"]
 

@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ovis.common.vision.preprocess import ImageError
+from ovis.common.vision.frames import ImageError
 
 __all__ = ["Borders", "Components", "filter_components", "label_components"]
 
@@ -108,6 +108,10 @@ class Components:
         Every border chain of the image (outer borders, hole borders, left-out specks).
     border : (n,) int64 array
         Index in ``borders`` of each component's outer border.
+    filled : (n, 3) float64 array
+        Area, centroid row and column of each component with its holes filled (the
+        region inside its outer border): a solid's silhouette whatever holes a marker
+        or noise leaves in it.
     """
 
     shape: tuple[int, int]
@@ -124,6 +128,7 @@ class Components:
     mu_rc: FloatArray
     borders: Borders
     border: IntArray
+    filled: FloatArray
 
     @property
     def outer(self) -> list[Chain]:
@@ -233,6 +238,7 @@ def _empty(shape: tuple[int, ...]) -> Components:
         count=0,
         borders=Borders(np.zeros((0, 2), np.int32), none_i, none_i, none_i, none_i),
         border=none_i,
+        filled=np.zeros((0, 3)),
         **dict.fromkeys(("area_px", "row", "col", "mu_rr", "mu_cc", "mu_rc"), none_f),
         **dict.fromkeys(("top", "left", "height", "width"), none_i),
     )
@@ -247,7 +253,7 @@ def label_components(
     ----------
     binary : (H, W) uint8 or bool array
         Object pixels are the non-zero ones (the output of
-        :func:`ovis.common.vision.preprocess.binarize`).
+        :func:`ovis.common.vision.threshold.binarize`).
     min_area_px : float
         Components with fewer pixels are left out (specks below any size filter).
 
@@ -269,18 +275,21 @@ def label_components(
     raw = _border_sums(b)
     outer = b.parent < 0
     holes = np.flatnonzero(~outer)
+    solid = raw[:3].copy() if holes.size else raw[:3]  # Σ1, Σcol, Σrow inside outer borders
     for s in raw if holes.size else ():  # a component's sums: outer border + hole borders
         s += np.bincount(b.parent[holes], weights=s[holes], minlength=s.size)
     first = b.points[b.start]
     border = np.flatnonzero(outer)
     border = border[np.lexsort((first[border, 0], first[border, 1]))]  # raster order
-    raw = raw[:, border]
+    raw, solid = raw[:, border], solid[:, border]
     if min_area_px > 0:
         big = raw[0] >= min_area_px
-        raw, border = raw[:, big], border[big]
+        raw, solid, border = raw[:, big], solid[:, big], border[big]
     top, left, bottom, right = _boxes(b, border)
     area, s_c, s_r, s_cc, s_rr, s_cr = _about(raw, top.astype(np.float64), left.astype(np.float64))
     mean_c, mean_r = s_c / area, s_r / area
+    whole = solid[0]
+    filled = np.column_stack([whole, solid[2] / whole, solid[1] / whole])
     return Components(
         shape=(int(image.shape[0]), int(image.shape[1])),
         count=int(border.size),
@@ -296,6 +305,7 @@ def label_components(
         mu_rc=s_cr / area - mean_c * mean_r,
         borders=b,
         border=border,
+        filled=filled,
     )
 
 
@@ -403,4 +413,5 @@ def filter_components(components: Components, keep_mask: NDArray[np.bool_]) -> C
         mu_rc=c.mu_rc[keep],
         borders=c.borders,
         border=c.border[keep],
+        filled=c.filled[keep],
     )

@@ -68,7 +68,8 @@ def marker_detector(
     name: str, side_px: tuple[float, float] | None = None, image_side: int = 0
 ) -> cv2.aruco.ArucoDetector:
     """An ``ArucoDetector`` for a dictionary of :data:`MARKER_DICTIONARIES`, with
-    corners refined on the marker's edges and one adaptive-threshold window (one per settings,
+    corners refined on the marker's edges and the adaptive-threshold windows of
+    :data:`_THRESHOLD_WINDOWS` (one per settings,
     reused). ``side_px`` = the (smallest, largest) marker side expected, in pixels, in
     an image whose larger side is ``image_side``: outlines far outside it are not
     examined (most of the detector's time goes to examining candidates)."""
@@ -76,7 +77,8 @@ def marker_detector(
     # corners from lines fitted to the marker's edges: several times steadier than
     # OpenCV's corner sub-pixel search on blurred, noisy frames (see docs/robots.md)
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_CONTOUR
-    params.adaptiveThreshWinSizeMin = params.adaptiveThreshWinSizeMax = _THRESHOLD_WINDOW
+    params.adaptiveThreshWinSizeMin, params.adaptiveThreshWinSizeMax = _THRESHOLD_WINDOWS
+    params.adaptiveThreshWinSizeStep = _THRESHOLD_WINDOWS[1] - _THRESHOLD_WINDOWS[0]
     if side_px is not None and image_side > 0:
         lo, hi = side_px
         params.minMarkerPerimeterRate = 4.0 * _SIZE_SLACK[0] * lo / image_side
@@ -99,8 +101,11 @@ def _cells(dictionary: str) -> int:
     return int(_dictionary(dictionary).markerSize) + 2
 
 
-#: Adaptive-threshold window (px) of the marker detector.
-_THRESHOLD_WINDOW = 15
+#: Adaptive-threshold windows (px) of the marker detector: a marker whose dark square
+#: is about as wide as the window (a small one seen obliquely) loses its black border
+#: in that window's threshold (the local mean is dark there too); the next window,
+#: wider, sees the white around it (OpenCV merges the candidates of every window).
+_THRESHOLD_WINDOWS = (15, 23)
 #: Marker outlines between these multiples of the expected sides are examined.
 _SIZE_SLACK = (0.6, 1.5)
 

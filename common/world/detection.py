@@ -12,6 +12,7 @@ shapes comes from second moments carried onto the floor.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Annotated, Literal, NamedTuple
 
 import cv2
@@ -22,13 +23,21 @@ from numpy.typing import NDArray
 from ovis.common.camera.plane_table import PlaneTables
 from ovis.common.camera.projection import PixelJacobian, pixel_footprint_cm2, pixel_jacobian
 from ovis.common.config import CameraModel, ImageParams, PinholeParams, PoseConfig
+from ovis.common.vision.contrast import NEUTRAL, ObjectWindow
+from ovis.common.vision.frames import ImageError, as_gray
 from ovis.common.vision.labeling import filter_components, label_components
 from ovis.common.vision.markers import Markers
 from ovis.common.vision.objects import background
+from ovis.common.vision.outline import BlobPatches, Patch, object_mask
 from ovis.common.vision.perimeter import perimeter
-from ovis.common.vision.preprocess import ImageError, as_gray, smooth
-from ovis.common.vision.segmentation import ObjectWindow, segment
+from ovis.common.vision.segmentation import background_image, read_roi, segment_gray
 from ovis.common.vision.shape import compactness, orientation
+from ovis.common.world.heights import (
+    SolidTracker,
+    heights_unavailable,
+    measurable,
+    robot_row,
+)
 from ovis.common.world.marker_search import (
     marker_search_image,
     marker_side_px,
@@ -54,6 +63,8 @@ __all__ = [
     "median_and_binary",
     "plane_maps",
     "size_filter_px",
+    "size_plane_cm",
+    "solid_pixels",
     "world_shape",
 ]
 
@@ -62,11 +73,17 @@ ROUND_ELONGATION = 1.15
 
 #: ``DetectedObject.kind`` by "is the robot".
 _KINDS = np.array(["obstacle", "robot"], dtype=object)
+#: ``DetectedObject.z_source`` (heights measured) by "its height is measured".
+_Z_SOURCE = np.array(["configured", "one camera"], dtype=object)
+#: ``DetectedObject.z_unmeasured`` by why: declared, pending, not measurable.
+_WHY = np.array(["declared", "pending", "not measurable"], dtype=object)
 
 
+#: The largest magnitude a number of a detection may have (decoding refuses larger ones).
+LARGEST = 1e12
 #: A finite number (decoding refuses NaN and ±inf).
-Finite = Annotated[float, msgspec.Meta(ge=-1e12, le=1e12)]
-NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=1e12)]
+Finite = Annotated[float, msgspec.Meta(ge=-LARGEST, le=LARGEST)]
+NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=LARGEST)]
 
 
 class DetectedObject(msgspec.Struct):
@@ -98,6 +115,30 @@ class DetectedObject(msgspec.Struct):
     #: capture times; false in its first frame (they are then 0, not a measurement) and
     #: for frames without capture times (taken to be 1 s apart: a guess, not a measurement)
     velocity_measured: bool = False
+    #: where ``z_cm`` comes from: "configured" (its class's height, ``[pose]``), "marker"
+    #: (a marked robot's ``marker_height_cm``), "one camera" (measured from this camera's
+    #: view of its silhouette), "cameras" (triangulated from several, by fusion)
+    z_source: Literal["configured", "marker", "one camera", "cameras"] = "configured"
+    #: the measured height's uncertainty (1σ, cm); None when not measured
+    z_sigma_cm: NonNegative | None = None
+    #: with heights measured, why ``z_cm`` is the configured one: "declared" (the class's
+    #: height is declared, ``pose.declared_heights``), "not measurable" (too uncertain
+    #: here: near the camera's nadir, walls too thin or hidden), "pending" (its fit is
+    #: still to come; ``x_cm``, ``y_cm`` are then a rough footprint from its outline's
+    #: side facing the camera's foot, or its centroid on its class's plane where no side
+    #: faces it)
+    z_unmeasured: Literal["", "declared", "not measurable", "pending"] = ""
+    #: covariance of (x_cm, y_cm, z_cm), cm², row by row (9 numbers), from the fit of its
+    #: silhouette (heights measured); None otherwise
+    covariance_cm2: Annotated[list[Finite], msgspec.Meta(min_length=9, max_length=9)] | None = None
+    #: the solid's fitted shape (heights measured): "cylinder", "box", "prism3", "prism5",
+    #: "prism6"; "" when not fitted
+    shape: Literal["", "cylinder", "box", "prism3", "prism5", "prism6"] = ""
+    #: the height this camera's fit found where it is "not measurable" by it alone (its
+    #: σ, ``covariance_cm2``'s last, over ``pose.height_sigma_max_cm``): ``z_cm`` is then
+    #: the configured one, and fusion weighs this one with other cameras' by the
+    #: covariance (:mod:`ovis.common.fusion.merge`); None otherwise
+    z_fit_cm: Finite | None = None
 
 
 class PlannerEntry(msgspec.Struct):
@@ -134,6 +175,10 @@ class Blobs(NamedTuple):
     mu_rr: NDArray[np.float64]
     mu_cc: NDArray[np.float64]
     mu_rc: NDArray[np.float64]
+    #: (n, 4) top, left, height, width of each blob's bounding box (px), when known
+    box: NDArray[np.int64] | None = None
+    #: (n, 3) area (px²), centroid row and column of each blob with its holes filled
+    filled: NDArray[np.float64] | None = None
 
 
 def find_blobs(
@@ -157,8 +202,8 @@ def binarize_frame(
 ) -> NDArray[np.uint8]:
     """The paper's median step and binarization of a frame of the calibration's size
     (``window``: the local-contrast window carried between frames,
-    :class:`~ovis.common.vision.segmentation.ObjectWindow`)."""
-    return segment(smooth(_frame_gray(image, camera), params.median), params, window)
+    :class:`~ovis.common.vision.contrast.ObjectWindow`)."""
+    return segment_gray(_frame_gray(image, camera), params, window)
 
 
 def median_and_binary(
@@ -172,8 +217,23 @@ def median_and_binary(
     it."""
     gray = _frame_gray(image, camera)
     median3 = cv2.medianBlur(gray, 3)
-    smoothed = smooth(gray, params.median, median3=median3)
-    return gray, median3, segment(smoothed, params, window)
+    return gray, median3, segment_gray(gray, params, window, median3=median3)
+
+
+def solid_pixels(
+    gray: NDArray[np.uint8],
+    background: NDArray[np.uint8],
+    params: ImageParams,
+    spots: NDArray[np.uint8] | None,
+) -> NDArray[np.uint8]:
+    """Object pixels of a frame when heights are measured: at least ``threshold − 128``
+    brighter than the empty floor (:func:`~ovis.common.vision.outline.object_mask`, the
+    mask the fitted outlines come from), within the region of interest."""
+    diff = np.subtract(gray, background, dtype=np.int16)
+    mask = object_mask(diff, float(params.threshold - NEUTRAL), spots)
+    if params.roi:
+        mask &= (read_roi(params, gray.shape) > 0).astype(np.uint8)
+    return mask
 
 
 def _frame_gray(image: NDArray[np.uint8], camera: CameraModel) -> NDArray[np.uint8]:
@@ -185,6 +245,13 @@ def _frame_gray(image: NDArray[np.uint8], camera: CameraModel) -> NDArray[np.uin
             f"is for {camera.cols}x{camera.rows}; calibrate on a frame of this camera"
         )
     return gray
+
+
+def size_plane_cm(pose: PoseConfig) -> float:
+    """The plane the size filter measures areas on: the obstacles' top plane with
+    configured heights, the floor with measured ones (a solid's silhouette carried onto
+    the floor covers at least its footprint, whatever its height)."""
+    return 0.0 if pose.heights == "measured" else float(pose.obstacle_height_cm)
 
 
 def size_filter_px(params: ImageParams, camera: CameraModel, plane_cm: float) -> float:
@@ -220,8 +287,10 @@ def measure_blobs_and_maps(
     *,
     min_area_px: float = 0.0,
     tables: PlaneTables | None = None,
+    size_plane_cm: float | None = None,
 ) -> tuple[Blobs, list[PixelJacobian]]:
-    """:func:`measure_blobs` (size filter on ``planes_cm[0]``, never the background:
+    """:func:`measure_blobs` (size filter on ``size_plane_cm``, by default
+    ``planes_cm[0]``, never the background:
     :func:`~ovis.common.vision.objects.background`), and the pixel → plane map
     at every kept blob on each of ``planes_cm``, all from one back-projection (the size
     filter needs the first anyway; the pose wants the obstacle and the robot plane)."""
@@ -229,8 +298,14 @@ def measure_blobs_and_maps(
     behind = background(comp)
     if behind.any():
         comp = filter_components(comp, ~behind)
-    maps = plane_maps(comp.row, comp.col, camera, planes_cm, tables)
-    footprint = maps[0].area_cm2
+    size_plane = planes_cm[0] if size_plane_cm is None else size_plane_cm
+    extra = size_plane not in planes_cm
+    maps = plane_maps(
+        comp.row, comp.col, camera, (*planes_cm, size_plane) if extra else planes_cm, tables
+    )
+    footprint = maps[planes_cm.index(size_plane) if not extra else -1].area_cm2
+    if extra:
+        maps = maps[:-1]
     keep = (footprint > 0) & (comp.area_px * footprint >= params.size_filter_cm2)
     if params.max_size_cm2 is not None:
         keep &= comp.area_px * footprint <= params.max_size_cm2
@@ -245,6 +320,8 @@ def measure_blobs_and_maps(
         comp.mu_rr,
         comp.mu_cc,
         comp.mu_rc,
+        np.column_stack([comp.top, comp.left, comp.height, comp.width]),
+        comp.filled,
     )
     return blobs, [PixelJacobian(*(f[keep] for f in m)) for m in maps]
 
@@ -287,6 +364,17 @@ def world_shape(
     return area_cm2, np.where(heading == -90.0, 90.0, heading), elongation
 
 
+def _unseen(marked: _MarkedFrame, pose: PoseConfig) -> list[int]:
+    """The id of the one configured marked robot no blob stands for this frame (its
+    marker hidden or unreadable), as a list; empty when every robot has its blob or
+    several have none (then which box is which cannot be told). That robot is then the
+    solid nearest the configured robot size and height (:func:`robot_row`), as an
+    unmarked robot is."""
+    seen = {r.id for r, k in zip(marked.robots, marked.rep, strict=True) if k >= 0}
+    missing = [r.id for r in pose.robots if r.id not in seen]
+    return missing if len(missing) == 1 else []
+
+
 class _MarkedFrame(NamedTuple):
     """Marked robots of one frame and their blobs: ``owner`` (n,) index into ``robots``
     (−1: nobody's), ``rep`` the blob standing for each robot (−1: none), ``keep`` the
@@ -302,6 +390,19 @@ class _MarkedFrame(NamedTuple):
     @classmethod
     def none(cls, n: int) -> _MarkedFrame:
         return cls([], [], np.full(n, -1, dtype=np.int64), [], np.ones(n, dtype=bool), 0)
+
+    def in_rows(self, rows: NDArray[np.int64], has: list[bool], n: int) -> _MarkedFrame:
+        """The same robots with their blobs at ``rows`` of ``n`` rows (the robots that
+        have a blob, ``has``, in order); every row is reported."""
+        owner = np.full(n, -1, dtype=np.int64)
+        rep = [-1] * len(self.robots)
+        it = iter(rows.tolist())
+        for k, h in enumerate(has):
+            if h:
+                rep[k] = next(it)
+                owner[rep[k]] = k
+        keep = np.ones(n, dtype=bool)
+        return _MarkedFrame(self.robots, self.unknown, owner, rep, keep, self.at_border)
 
     def fill(
         self,
@@ -322,6 +423,44 @@ class _MarkedFrame(NamedTuple):
                 vel[k] = robot.vx_cm_s, robot.vy_cm_s
 
 
+def _then(first: NDArray, more: NDArray) -> NDArray:
+    """``first``'s rows, then ``more``'s (most frames have none: ``first`` itself)."""
+    return np.concatenate([first, more]) if len(more) else first
+
+
+def _column(values: list[object]) -> NDArray[np.object_]:
+    """A 1-D object array of ``values`` (numpy would make lists of equal length a 2-D
+    array)."""
+    out = np.empty(len(values), dtype=object)
+    out[:] = values
+    return out
+
+
+class _Rows(NamedTuple):
+    """A frame's objects as columns, one row each, before identities: image
+    measurements, footprint centre, height, size, heading (deg, NaN: none), which is a
+    robot and which to report, the marked robots' frame (its indices into the rows),
+    the unmarked robot's row (−1: none) and, with measured heights, the height's
+    columns (``z_source`` … ``shape``, in :class:`DetectedObject`'s order)."""
+
+    row: NDArray[np.float64]
+    col: NDArray[np.float64]
+    area_px: NDArray[np.float64]
+    perimeter_px: NDArray[np.float64]
+    compactness: NDArray[np.float64]
+    xy: NDArray[np.float64]
+    z: NDArray[np.float64]
+    radius: NDArray[np.float64]
+    area_cm2: NDArray[np.float64]
+    heading: NDArray[np.float64]
+    elongation: NDArray[np.float64]
+    is_robot: NDArray[np.bool_]
+    ok: NDArray[np.bool_]
+    marked: _MarkedFrame
+    robot: int
+    extra: dict[str, NDArray[np.object_]] | None
+
+
 def _first_robot_planner(plans: list[RobotPlan]) -> list[PlannerEntry]:
     """The legacy planner list: the first robot's obstacles, when it has a goal."""
     if not plans:
@@ -336,8 +475,18 @@ def _first_robot_planner(plans: list[RobotPlan]) -> list[PlannerEntry]:
 class Detector:
     """Frame → :class:`Detection` with a calibration, keeping obstacle ids across frames."""
 
-    def __init__(self, camera: CameraModel, image: ImageParams, pose: PoseConfig) -> None:
+    def __init__(
+        self,
+        camera: CameraModel,
+        image: ImageParams,
+        pose: PoseConfig,
+        *,
+        background_fits: bool = False,
+    ) -> None:
         self.camera = camera
+        #: measured heights: fit the solids on a thread of their own, never making a
+        #: frame wait for a fit (a live stage; :class:`SolidTracker`)
+        self.background_fits = background_fits
         self.image = image
         self.pose = pose
         self.tracker = Tracker(pose.track_gate_cm)
@@ -347,9 +496,40 @@ class Detector:
         self.tables = PlaneTables()
         self.window = ObjectWindow()  # the local-contrast window, settled over the frames
         self._last_stamp: float | None = None
-        self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
+        self.solids: SolidTracker | None = None
+        self._setup_heights()
+        self.min_area_px = size_filter_px(image, camera, size_plane_cm(pose))
         self.marker_side_px = marker_side_px(pose, camera)
         self.top_side_cm = top_side_cm(pose, camera)
+
+    def _setup_heights(self) -> None:
+        """Measured heights' solid tracker (raises ValueError when they cannot be
+        measured with this calibration's image settings)."""
+        if self.pose.heights != "measured":
+            self.close()
+            return
+        why = heights_unavailable(self.image)
+        if why is not None:
+            raise ValueError(why)
+        if self.solids is None:
+            self.solids = SolidTracker(
+                self.camera, self.image, self.pose, self.tables, background=self.background_fits
+            )
+        else:
+            self.solids.reconfigure(self.camera, self.image, self.pose)
+
+    def close(self) -> None:
+        """Stop measuring heights (the solid tracker's fitting thread, if any)."""
+        if self.solids is not None:
+            self.solids.close()
+        self.solids = None
+
+    def prepare(self) -> None:
+        """Make the pixel → plane tables the frames will need now (at start, on a new
+        calibration): with measured heights, the floor's (every outline is carried onto
+        it), so that the first frame does not pay for it."""
+        if self.solids is not None:
+            self.tables.prepare(self.camera, [0.0], wait=True)
 
     def recalibrate(self, camera: CameraModel, image: ImageParams, pose: PoseConfig) -> None:
         """Use a new calibration; obstacle and robot identities are kept, except that an
@@ -361,7 +541,8 @@ class Detector:
         self.robots.reconfigure(pose)
         self.unmarked.pose = pose
         self.window = ObjectWindow()
-        self.min_area_px = size_filter_px(image, camera, pose.obstacle_height_cm)
+        self._setup_heights()
+        self.min_area_px = size_filter_px(image, camera, size_plane_cm(pose))
         self.marker_side_px = marker_side_px(pose, camera)
         self.top_side_cm = top_side_cm(pose, camera)
 
@@ -372,34 +553,49 @@ class Detector:
         goal_xy: tuple[float, float] | None = None,
         goal_angle_deg: float | None = None,
         stamp_s: float | None = None,
+        fit_all: bool = False,
     ) -> Detection:
         """Find the robot and obstacles; planner inputs when a goal is known.
 
         The goal defaults to the calibration's ``pose.goal_cm``/``goal_angle_deg``.
         ``stamp_s`` is the frame's capture time (s); without it frames are taken to be
         the paper's Δt = 1 s apart (and no velocity is flagged measured). Obstacle
-        velocities are in cm/s.
+        velocities are in cm/s. ``fit_all``: with measured heights, fit every blob that
+        needs it in this frame (a single frame, offline), not ``pose.fits_per_frame``.
         """
         gray = median3 = None
         if self.pose.robots:
             gray, median3, binary = median_and_binary(frame, self.image, self.camera, self.window)
+            if self.solids is not None:
+                binary = self._solid_pixels(gray)
+        elif self.solids is not None:
+            gray = _frame_gray(frame, self.camera)
+            binary = self._solid_pixels(gray)
         else:
             binary = binarize_frame(frame, self.image, self.camera, self.window)
+        # measured heights without marked robots need the class planes only for blobs
+        # waiting for their fit (worked out then, :meth:`_solid_rows`)
         planes = (self.pose.obstacle_height_cm, self.pose.robot_height_cm)
-        blobs, (floor, top) = measure_blobs_and_maps(
+        blobs, maps = measure_blobs_and_maps(
             binary,
             self.image,
             self.camera,
-            planes,
+            planes if self._class_planes() else (),
             min_area_px=self.min_area_px,
             tables=self.tables,
+            size_plane_cm=size_plane_cm(self.pose),
         )
+        floor, top = maps if maps else (None, None)
+        patches = None
+        if self.solids is not None and gray is not None:
+            patches = self._patches(gray, blobs)
         markers = None
-        if gray is not None and median3 is not None:
+        if self.pose.robots and gray is not None and median3 is not None:
             at_blobs = (self.top_side_cm, top.area_cm2)
             side_px = self.marker_side_px
             image = marker_search_image(gray, median3, self.pose, side_px)
-            markers = markers_around(image, blobs, self.pose, side_px, at_blobs)
+            solids = self.solids is not None
+            markers = markers_around(image, blobs, self.pose, side_px, at_blobs, solids)
         return self.from_blobs(
             blobs,
             floor=floor,
@@ -408,7 +604,23 @@ class Detector:
             goal_angle_deg=goal_angle_deg,
             stamp_s=stamp_s,
             markers=markers,
+            patches=patches,
+            fit_all=fit_all,
         )
+
+    def _solid_pixels(self, gray: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        """Object pixels for measured heights (:func:`solid_pixels`)."""
+        assert self.solids is not None
+        background = background_image(self.image, gray.shape)
+        self.solids.use_background(background)
+        return solid_pixels(gray, background, self.image, self.solids.spots)
+
+    def _patches(self, gray: NDArray[np.uint8], blobs: Blobs) -> BlobPatches:
+        """Each blob's patch of the frame less the empty floor (cut when asked for)."""
+        assert self.solids is not None and blobs.box is not None
+        background = background_image(self.image, gray.shape)
+        self.solids.use_background(background)
+        return BlobPatches(gray, background, blobs.box)
 
     def from_blobs(
         self,
@@ -420,6 +632,9 @@ class Detector:
         goal_angle_deg: float | None = None,
         stamp_s: float | None = None,
         markers: Markers | None = None,
+        patches: Sequence[Patch] | None = None,
+        fit_all: bool = False,
+        frame_shape: tuple[int, int] | None = None,
     ) -> Detection:
         """The pose half of :meth:`detect`, from already measured blobs.
 
@@ -427,23 +642,47 @@ class Detector:
         obstacle plane and on the robot's top plane when already known
         (:func:`measure_blobs_and_maps`); else they are back-projected here. ``markers``
         are the frame's decoded markers (used when ``pose.robots`` is configured).
+        ``patches``: each blob's patch of the frame less the empty floor (measured
+        heights; without them no blob is fitted). ``frame_shape``: the frame's (rows,
+        cols) where the patches come from another process (the pose stage): the empty
+        floor's bright spots are then found here as :meth:`detect` finds them, so that the
+        outlines fitted are the ones it fits (a floor mark is no edge).
         """
         cam, pose = self.camera, self.pose
         comp = blobs
         n = comp.area_px.size
-        if floor is None or top is None:
+        if (floor is None or top is None) and self._class_planes():
             planes = (pose.obstacle_height_cm, pose.robot_height_cm)
             floor, top = plane_maps(comp.row, comp.col, cam, planes, self.tables)
         now = stamp_s if stamp_s is not None else (self._last_stamp or 0.0) + 1.0
         dt = now - self._last_stamp if self._last_stamp is not None else 1.0
         self._last_stamp = now
         marked = _MarkedFrame.none(n)
-        robot = -1  # the unmarked robot's blob
         if pose.robots:
             marked = self._marked(markers or Markers.none(), top, now)
+        if self.solids is not None:
+            if patches is not None and frame_shape is not None:
+                self.solids.use_background(background_image(self.image, frame_shape))
+            rows = self._solid_rows(blobs, floor, top, marked, patches, fit_all)
+        else:
+            rows = self._blob_rows(blobs, floor, top, marked)
+        return self._report(rows, now, dt, stamp_s, goal_xy, goal_angle_deg)
+
+    def _class_planes(self) -> bool:
+        """Whether each frame needs its blobs on their classes' planes (configured
+        heights, marked robots); else only a blob waiting for its fit does."""
+        return self.solids is None or bool(self.pose.robots)
+
+    def _blob_rows(
+        self, blobs: Blobs, floor: PixelJacobian, top: PixelJacobian, marked: _MarkedFrame
+    ) -> _Rows:
+        """One row per blob, each on its class's top plane (configured heights)."""
+        pose, n = self.pose, blobs.area_px.size
+        robot = -1  # the unmarked robot's blob
+        if pose.robots:
             is_robot = marked.owner >= 0
         else:
-            robot = pick_robot(blobs.compactness, comp.area_px * top.area_cm2, pose)
+            robot = pick_robot(blobs.compactness, blobs.area_px * top.area_cm2, pose)
             is_robot = np.zeros(n, dtype=bool)
             if robot >= 0:
                 is_robot[robot] = True
@@ -453,23 +692,151 @@ class Detector:
             pairs = zip(floor, top, strict=True)
             j = PixelJacobian(*(np.where(is_robot, t, f) for f, t in pairs))
         area_cm2, heading, elongation = world_shape(blobs, j)
-        radius = np.sqrt(area_cm2 / np.pi)
-        ok = j.valid & marked.keep
+        xy = np.empty((n, 2))
+        xy[:, 0], xy[:, 1] = j.x_cm, j.y_cm
+        return _Rows(
+            blobs.row,
+            blobs.col,
+            blobs.area_px,
+            blobs.perimeter_px,
+            blobs.compactness,
+            xy,
+            z,
+            np.sqrt(area_cm2 / np.pi),
+            area_cm2,
+            heading,
+            elongation,
+            is_robot,
+            j.valid & marked.keep,
+            marked,
+            robot,
+            None,
+        )
+
+    def _solid_rows(
+        self,
+        blobs: Blobs,
+        floor: PixelJacobian | None,
+        top: PixelJacobian | None,
+        marked: _MarkedFrame,
+        patches: Sequence[Patch] | None,
+        fit_all: bool,
+    ) -> _Rows:
+        """One row per solid (measured heights, :mod:`ovis.common.world.heights`), then
+        one per marked robot's blob (on its marker's plane, as configured). ``floor``,
+        ``top``: the blobs on the obstacles' and the robot's plane, None where not worked
+        out (no marked robots: then the obstacles' when a blob waits for its fit)."""
+        assert self.solids is not None
+        pose = self.pose
+        filled = blobs.filled
+        if filled is None:
+            filled = np.column_stack([blobs.area_px, blobs.row, blobs.col])
+
+        def obstacle_plane() -> PixelJacobian:
+            if floor is not None:
+                return floor
+            planes = (pose.obstacle_height_cm,)
+            return plane_maps(blobs.row, blobs.col, self.camera, planes, self.tables)[0]
+
+        skip = marked.owner >= 0
+        found = self.solids.update(filled, patches, obstacle_plane, skip, fit_all=fit_all)
+        m = found.blob.size
+        reps = [k for k in marked.rep if k >= 0]
+        blob = np.concatenate([found.blob, np.array(reps, dtype=np.int64)])
+        n = blob.size
+        robot = robot_row(found, pose) if not pose.robots or _unseen(marked, pose) else -1
+        is_robot = np.zeros(n, dtype=bool)
+        is_robot[m:] = True
+        if robot >= 0:
+            is_robot[robot] = True
+        # the marked robots' rows as configured heights put them (their filter moves them)
+        rep = np.array(reps, dtype=np.int64)
+        top_area = top_heading = top_elong = np.zeros(0)
+        top_xy, top_ok = np.zeros((0, 2)), np.zeros(0, dtype=bool)
+        if rep.size:
+            assert top is not None  # marked robots: worked out
+            top_area, top_heading, top_elong = (a[rep] for a in world_shape(blobs, top))
+            top_xy, top_ok = np.column_stack([top.x_cm[rep], top.y_cm[rep]]), top.valid[rep]
+        xy = _then(found.xy, top_xy)
+        length, width = found.size[:, 0], found.size[:, 1]
+        elongation = np.where(
+            (found.shape == "box") & (width > 0), length / np.where(width > 0, width, 1.0), 1.0
+        )
+        ok = _then(np.ones(m, dtype=bool), top_ok)
+        class_height = np.where(is_robot, pose.robot_height_cm, pose.obstacle_height_cm)
+        declared = np.where(
+            is_robot, "robot" in pose.declared_heights, "obstacle" in pose.declared_heights
+        )
+        known = _then(measurable(found, pose), np.zeros(rep.size, dtype=bool))
+        use = known & ~declared
+        h = _then(found.height, np.full(rep.size, np.nan))
+        sigma = _then(found.height_sigma, np.full(rep.size, np.nan))
+        pending = _then(found.pending, np.zeros(rep.size, dtype=bool))
+        why = _WHY[np.where(declared, 0, np.where(pending, 1, 2))]
+        cov = _then(found.covariance, np.full((rep.size, 3, 3), np.nan))
+        # a height the outline leaves all but free has a variance no message can carry
+        # (nor any use has): no covariance then, as for a solid not fitted
+        fitted = (np.abs(cov) <= LARGEST).all(axis=(1, 2))  # NaN compares false
+        shape = _then(found.shape, np.full(rep.size, "", dtype=object))
+        weak = fitted & ~use & ~declared & ~pending & np.isfinite(h)
+        extra = {
+            "z_source": _Z_SOURCE[use.astype(np.int64)],
+            "z_sigma_cm": np.where(use, sigma, None),
+            "z_unmeasured": np.where(use, "", why),
+            "covariance_cm2": _column(
+                [c.ravel().tolist() if f else None for c, f in zip(cov, fitted, strict=True)]
+            ),
+            "shape": shape.astype(object),
+            "z_fit_cm": np.where(weak, h, None),
+        }
+        return _Rows(
+            _then(found.row, blobs.row[rep]),
+            _then(found.col, blobs.col[rep]),
+            blobs.area_px[blob],
+            blobs.perimeter_px[blob],
+            blobs.compactness[blob],
+            xy,
+            np.where(use, h, class_height),
+            _then(found.radius, np.sqrt(top_area / np.pi)),
+            _then(found.area_cm2, top_area),
+            _then(found.yaw_deg, top_heading),
+            _then(elongation, top_elong),
+            is_robot,
+            ok,
+            marked.in_rows(m + np.arange(rep.size), [k >= 0 for k in marked.rep], n),
+            robot,
+            extra,
+        )
+
+    def _report(
+        self,
+        rows: _Rows,
+        now: float,
+        dt: float,
+        stamp_s: float | None,
+        goal_xy: tuple[float, float] | None,
+        goal_angle_deg: float | None,
+    ) -> Detection:
+        """Identities, velocities, the robots' poses and the planner's inputs of a frame's
+        rows (objects), and the detection."""
+        pose, marked, robot = self.pose, rows.marked, rows.robot
+        is_robot, ok, xy, z = rows.is_robot, rows.ok, rows.xy, rows.z.copy()
+        n = is_robot.size
         obstacle = ok & ~is_robot
         ids = np.full(n, ROBOT_ID, dtype=np.int64)
         vel = np.zeros((n, 2))
-        xy = np.empty((n, 2))
-        xy[:, 0], xy[:, 1] = j.x_cm, j.y_cm
         track = self.tracker.track(xy[obstacle])
         ids[obstacle] = track.ids
         measured = np.zeros(n, dtype=bool)
         if dt > 0:
             vel[obstacle], measured[obstacle] = track.step / dt, track.tracked
-        shown = heading.astype(object)
-        shown[elongation < ROUND_ELONGATION] = None
+        shown = rows.heading.astype(object)
+        shown[(rows.elongation < ROUND_ELONGATION) | np.isnan(rows.heading)] = None
         resolved = np.zeros(n, dtype=bool)
         if pose.robots:  # each robot's blob where its marker and filter put it
             marked.fill(ids, xy, z, shown, vel, resolved, measured)
+            if robot >= 0:  # the one robot whose marker is not seen: by its size
+                ids[robot] = _unseen(marked, pose)[0]
         elif robot >= 0 and ok[robot]:  # the unmarked robot: heading oriented, velocity
             x, y = xy[robot].tolist()
             motion = self.unmarked.update(x, y, shown[robot], now)
@@ -487,24 +854,41 @@ class Detector:
         columns = {
             "id": ids,
             "kind": _KINDS[is_robot.astype(np.int64)],
-            "row": comp.row,
-            "col": comp.col,
-            "area_px": comp.area_px,
-            "perimeter_px": blobs.perimeter_px,
-            "compactness": blobs.compactness,
+            "row": rows.row,
+            "col": rows.col,
+            "area_px": rows.area_px,
+            "perimeter_px": rows.perimeter_px,
+            "compactness": rows.compactness,
             "x_cm": xy[:, 0],
             "y_cm": xy[:, 1],
             "z_cm": z,
-            "radius_cm": radius,
-            "area_cm2": area_cm2,
+            "radius_cm": rows.radius,
+            "area_cm2": rows.area_cm2,
             "heading_deg": shown,
-            "elongation": elongation,
+            "elongation": rows.elongation,
             "vx_cm_s": vel[:, 0],
             "vy_cm_s": vel[:, 1],
             "heading_resolved": resolved,
             "velocity_measured": measured,
         }
-        fields = DetectedObject.__struct_fields__  # positional: in field order
+        fields = list(DetectedObject.__struct_fields__[: len(columns)])
+        if rows.extra is not None:
+            extra = dict(rows.extra)
+            if pose.robots:  # a marked robot's height is its marker's
+                owned = np.zeros(n, dtype=bool)
+                owned[[k for k in marked.rep if k >= 0]] = True
+                extra["z_source"] = np.where(owned, "marker", extra["z_source"])
+                for name in ("z_sigma_cm", "covariance_cm2", "z_fit_cm"):
+                    extra[name] = np.where(owned, None, extra[name])
+                extra["z_unmeasured"] = np.where(owned, "", extra["z_unmeasured"])
+            columns |= extra
+            fields += list(extra)
+        elif pose.robots:
+            owned = np.zeros(n, dtype=bool)
+            owned[[k for k in marked.rep if k >= 0]] = True
+            columns["z_source"] = np.where(owned, "marker", "configured").astype(object)
+            fields.append("z_source")
+        # positional, in field order (the extra columns follow the first ones in order)
         objects = list(map(DetectedObject, *(columns[f][out].tolist() for f in fields)))
         if not pose.robots:
             planner = self._plan(
@@ -512,12 +896,12 @@ class Detector:
                 is_robot[out],
                 xy[out, 0],
                 xy[out, 1],
-                radius[out],
+                rows.radius[out],
                 goal_xy,
                 goal_angle_deg,
             )
             return Detection(objects=objects, planner=planner)
-        obstacle_xyr = np.column_stack([xy[obstacle], radius[obstacle]])
+        obstacle_xyr = np.column_stack([xy[obstacle], rows.radius[obstacle]])
         plans = robot_plans(marked.robots, ids[obstacle], obstacle_xyr, pose)
         return Detection(
             objects=objects,

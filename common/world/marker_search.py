@@ -39,6 +39,8 @@ __all__ = [
 #: A blob filling more than this share of its second-moment ellipse (4π·√det Σ; a
 #: solid disk fills 1, a solid rectangle 0.95) has no hole, hence no marker.
 MAX_FILL = 0.85
+#: A blob whose holes cover this share of the smallest marker's square may carry one.
+MIN_HOLE_SHARE = 0.3
 #: Box half-size in standard deviations of the blob along its wider image axis, plus px.
 _BOX_SIGMAS = 2.4
 _BOX_PAD_PX = 6.0
@@ -93,28 +95,45 @@ def marker_boxes(
     mu_rc: NDArray[np.float64],
     side_px: tuple[float, float],
     top: tuple[float, NDArray[np.float64]] | None = None,
+    holes_px: NDArray[np.float64] | None = None,
+    extent: NDArray[np.int64] | None = None,
 ) -> list[tuple[int, int, int, int]]:
     """Boxes ``row0, row1, col0, col1`` around the blobs that may carry a marker.
 
     ``top``: :func:`top_side_cm` and each blob's pixel footprint on the robot plane
     (cm²), which give the largest marker's side at each blob (else the largest anywhere
-    in the frame, ``side_px[1]``)."""
+    in the frame, ``side_px[1]``). ``holes_px``: each blob's holes (its filled area less
+    its own, px²), when known: a blob whose holes are as large as :data:`MIN_HOLE_SHARE`
+    of the smallest marker may carry one whatever its fill (a solid seen from the side
+    shows its walls too, which fill its ellipse). ``extent``: each blob's bounding box
+    (top, left, height, width), when known: the box then reaches to it (walls seen from
+    the side move a solid's centroid off its top, where the marker is)."""
     # a frame's ten or so blobs in plain Python (array calls would cost more than the
     # work). fill < MAX_FILL  ⇔  area² < (MAX_FILL·4π)²·det Σ; and the blob's spread
     # along its wider image axis, _BOX_SIGMAS·√var, at least half the smallest marker side
     holed_below = (MAX_FILL * 4.0 * math.pi) ** 2
     least_var = (0.5 * side_px[0] / _BOX_SIGMAS) ** 2
     footprint = top[1].tolist() if top is not None else [0.0] * row.size
+    holes = holes_px.tolist() if holes_px is not None else [0.0] * row.size
+    least_hole = MIN_HOLE_SHARE * side_px[0] ** 2
     blobs = (row, col, area_px, mu_rr, mu_cc, mu_rc)
     boxes = []
-    for r, c, a, srr, scc, src, area in zip(*(b.tolist() for b in blobs), footprint, strict=True):
+    reach = extent.tolist() if extent is not None else [None] * row.size
+    rows = zip(*(b.tolist() for b in blobs), footprint, holes, reach, strict=True)
+    for r, c, a, srr, scc, src, area, hole, bbox in rows:
         var = srr if srr >= scc else scc
-        if not (a * a < holed_below * (srr * scc - src * src) and var >= least_var):
+        holed = a * a < holed_below * (srr * scc - src * src) or hole >= least_hole
+        if not (holed and var >= least_var):
             continue
         largest = top[0] / math.sqrt(area) if top is not None and area > 0 else side_px[1]
         # the marker is centred on its robot: a box round the largest marker (half its
         # diagonal, plus room for the refinement) is enough, whatever the robot's size
         h = min(_BOX_SIGMAS * math.sqrt(var), _MARKER_HALF * largest) + _BOX_PAD_PX
+        if bbox is not None:
+            t, lf, bh, bw = bbox
+            pad = int(_BOX_PAD_PX)
+            boxes.append((t - pad, t + bh + pad, lf - pad, lf + bw + pad))
+            continue
         boxes.append((int(r - h), int(r + h + 1), int(c - h), int(c + h + 1)))
     return boxes
 
@@ -156,14 +175,19 @@ def markers_around(
     pose: PoseConfig,
     side_px: tuple[float, float],
     top: tuple[float, NDArray[np.float64]] | None = None,
+    solids: bool = False,
 ) -> Markers:
     """The robots' markers in a frame's :func:`marker_search_image`, searched for only in
     :func:`marker_boxes` around ``blobs`` (a :class:`ovis.common.world.detection.Blobs`:
     row, col, area, perimeter, compactness, second moments). ``top``:
     :func:`top_side_cm` and each blob's pixel footprint on the robot plane (cm²), which
     size its box to the largest marker as seen at that blob instead of where the frame
-    magnifies most."""
-    boxes = marker_boxes(*blobs[:3], *blobs[5:], side_px, top)
+    magnifies most. ``solids`` (measured heights): blobs are solids with their walls,
+    their holes and bounding boxes say where a marker may be (:func:`marker_boxes`)."""
+    filled = getattr(blobs, "filled", None) if solids else None
+    holes = None if filled is None else filled[:, 0] - blobs[2]
+    extent = getattr(blobs, "box", None) if holes is not None else None
+    boxes = marker_boxes(*blobs[:3], *blobs[5:8], side_px, top, holes, extent)
     return search_markers(image, pose, side_px, boxes, median_done=True)
 
 
@@ -191,7 +215,7 @@ class BlobMarkers:
             return Markers.none()
         side_px, top_cm = self.sizes(version, camera, pose)
         top = None if top_area_cm2 is None else (top_cm, top_area_cm2)
-        return markers_around(image, blobs, pose, side_px, top)
+        return markers_around(image, blobs, pose, side_px, top, pose.heights == "measured")
 
     def search_image(
         self,

@@ -16,12 +16,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.config import ImageParams
+from ovis.common.vision.frames import as_gray
 from ovis.common.vision.labeling import filter_components, label_components
 from ovis.common.vision.objects import MIN_OBJECT_PX, background, smallest_object_px
 from ovis.common.vision.perimeter import perimeter
-from ovis.common.vision.preprocess import as_gray, smooth
 from ovis.common.vision.segmentation import segmentation
 from ovis.common.vision.shape import compactness
+from ovis.common.vision.smoothing import smooth
 
 __all__ = ["PixelDetection", "PixelObject", "detect_pixels"]
 

@@ -25,8 +25,6 @@ from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import linear_sum_assignment
-from scipy.spatial import cKDTree
 
 from ovis.common.config import PoseConfig
 
@@ -79,6 +77,8 @@ def gated_assignment(
         cost = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
         cost[~(cost <= gate)] = _OUT_OF_GATE  # (NaN too)
         return _optimal(cost)
+    from scipy.spatial import cKDTree  # on first use: most processes never match many
+
     tree = cKDTree(b)
     _, nearest = tree.query(a, distance_upper_bound=gate)
     rows = np.flatnonzero(nearest < len(b))  # tracks with a candidate (else: len(b))
@@ -107,6 +107,8 @@ def gated_assignment(
 def _optimal(cost: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """The optimal assignment of a cost matrix whose out-of-gate entries are
     ``_OUT_OF_GATE``, without those pairs."""
+    from scipy.optimize import linear_sum_assignment  # on first use (the import is slow)
+
     r, c = linear_sum_assignment(cost)
     ok = cost[r, c] < _OUT_OF_GATE
     return r[ok].astype(np.int64), c[ok].astype(np.int64)

@@ -48,6 +48,7 @@ from ovis.services.cli import (  # noqa: E402
     cameras,
     export,
     launcher,
+    navigate,
     offline,
     recording,
     view,
@@ -61,14 +62,15 @@ view.register(app)
 recording.register(app)
 camera.register(app)
 cameras.register(app)
+navigate.register(app)
 
 
 def main() -> None:
     """Console entry point: run the app and turn known failures into one-line errors."""
+    from ovis.common.calibration.errors import InfeasibleCalibrationError
     from ovis.common.calibration.file import CalibrationFileError
-    from ovis.common.calibration.problem import InfeasibleCalibrationError
     from ovis.common.config import ConfigError
-    from ovis.common.vision.preprocess import ImageError
+    from ovis.common.vision.frames import ImageError
     from ovis.services.bus import ZenohUnreachableError
     from ovis.services.memory import guard_memory
 

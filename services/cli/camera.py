@@ -117,7 +117,7 @@ def _stream_views(source: str, spec, max_views: int, max_frames: int, min_shift_
     from ovis.common.capture.sources import SourceError, open_source
     from ovis.common.config import load_config
     from ovis.common.vision.boards import find_board
-    from ovis.common.vision.preprocess import as_gray
+    from ovis.common.vision.frames import as_gray
 
     cfg = load_config()
     try:
@@ -250,7 +250,7 @@ def intrinsics(
         write_intrinsics(out, report.intrinsics(), note=note)
     if plot is not None:
         from ovis.common.analysis.coverage import plot_coverage
-        from ovis.common.vision.preprocess import as_gray
+        from ovis.common.vision.frames import as_gray
 
         used = set(report.views_used)
         corners = [f.view.image_xy for f in views[0] if f.name in used]
@@ -387,8 +387,8 @@ def calibrate_known_lens(
     from ovis.common.calibration.lens_check import BOARD_PX, CLICK_PX, distortion_problems
     from ovis.common.camera.intrinsics import IntrinsicsFileError, read_intrinsics
     from ovis.common.config import resolve_config
+    from ovis.common.vision.frames import as_gray
     from ovis.common.vision.imageio import read_image
-    from ovis.common.vision.preprocess import as_gray
     from ovis.services.cli.ui import emit_json
 
     placement = _board_placement(board, board_origin, board_row_end)
@@ -592,7 +592,7 @@ def with_image_flags(
     """ImageParams with `ovis detect`'s flags applied (sizes in cm²: with a calibration)."""
     import msgspec
 
-    from ovis.common.vision.preprocess import parse_threshold
+    from ovis.common.vision.threshold import parse_threshold
 
     fields: dict = {}
     if threshold is not None:

@@ -35,10 +35,7 @@ from ovis.services.cli.options import (
 
 __all__ = ["register"]
 
-STAGES = ("capture", "preprocess", "label", "pose", "calibrator", "fusion", "ros2")
-#: Stages of the frame path that `ovis up` keeps a spare process ready for: a killed one
-#: is replaced without an interpreter start (the cost: one idle process each).
-STANDBY = ("preprocess", "label", "pose")
+STAGES = ("capture", "preprocess", "label", "pose", "calibrator", "fusion", "ros2", "planner")
 #: What the router prints once it listens (`ovis up` waits for it in the router's log).
 LISTENING = "listening on"
 
@@ -116,18 +113,31 @@ def run(
         bool,
         typer.Option(hidden=True, help="Wait, imports done, for `ovis up` to activate it."),
     ] = False,
+    cameras: Annotated[
+        str | None,
+        typer.Option(
+            help="Cameras of [[cameras]] this process serves, e.g. cam00,cam01 (default: "
+            "[service] cameras, else all of them), each on its own topics; not for fusion "
+            "and ros2."
+        ),
+    ] = None,
 ) -> None:
     """Run one service in this process until Ctrl-C/SIGTERM.
 
     Stages can run on different machines: each connects to a Zenoh router
-    (`ovis router`) with --connect.
+    (`ovis router`) with --connect. With several cameras ([[cameras]]) a stage process
+    serves every one of them (or those of --cameras), each on its own topics and with
+    its own status, as each camera's own process would (docs/cameras.md).
     """
     import importlib
 
+    from ovis.common.pipeline.hosting import served_cameras
     from ovis.services.service import run as run_service
 
     if stage not in STAGES:
         raise UserError(f"unknown stage {stage!r}; choose one of {', '.join(STAGES)}")
+    if cameras is not None and stage in WHOLE_ARENA:
+        raise UserError(f"--cameras is for the stages of each camera, not {stage}")
     cfg = config_with_options(
         config,
         connect=connect,
@@ -137,12 +147,40 @@ def run(
         state_dir=state_dir,
         points=points,
         cpus=_cpus(cpus),
+        cameras=_camera_names(cameras),
     )
     arena_topics(cfg)
+    served = [] if stage in WHOLE_ARENA else served_cameras(cfg)
+    if served and source is not None:
+        raise UserError("--source is one camera's: with [[cameras]] each camera has its own")
     module = importlib.import_module(f"ovis.services.{stage}")
     if standby:
         os.environ["OVIS_STANDBY"] = "1"
-    run_service(stage, cfg, module.main)
+    warm = _warm_rays if stage in WHOLE_FRAME_TABLES else None
+    run_service(stage, cfg, module.main, served, warm)
+
+
+#: Stages that serve the whole arena, never one camera's frames (``--cameras`` refused).
+WHOLE_ARENA = ("fusion", "ros2", "planner")
+#: Stages that back-project every pixel of their camera's frame at start (plane tables):
+#: a spare makes the costly part ahead (``ovis.common.camera.plane_table.warm_rays``).
+WHOLE_FRAME_TABLES = ("label", "pose")
+
+
+def _warm_rays(cfg: Any) -> None:
+    from ovis.common.camera.plane_table import warm_rays
+
+    warm_rays(cfg.camera)
+
+
+def _camera_names(text: str | None) -> list[str] | None:
+    """``--cameras a,b`` as names (None: not given), or a usage error."""
+    if text is None:
+        return None
+    names = [part.strip() for part in text.split(",") if part.strip()]
+    if not names:
+        raise UserError("--cameras: give camera names, e.g. cam00,cam01")
+    return names
 
 
 def up(
@@ -219,6 +257,14 @@ def up(
             "and the fusion service, scored against the truth (docs/cameras.md).",
         ),
     ] = None,
+    layout: Annotated[
+        str | None,
+        typer.Option(
+            help="With --cameras: 'per-stage' (one process per stage serving every camera, "
+            "the default) or 'per-camera' (one process per stage per camera); [service] "
+            "layout.",
+        ),
+    ] = None,
     seed: Annotated[
         int | None, typer.Option(min=0, help="Simulated scene seed ([service] seed).")
     ] = None,
@@ -238,6 +284,23 @@ def up(
         ),
     ] = False,
     world: WorldOpt = None,
+    drive: Annotated[
+        bool,
+        typer.Option(
+            "--drive",
+            help="With --world physical: the robots drive to their goals among the "
+            "[navigation] case's moving obstacles, commanded by the planner service on "
+            "what ovis sees (docs/navigation.md); with --ros2 the commands go to cmd_vel too.",
+        ),
+    ] = False,
+    follow: Annotated[
+        str | None,
+        typer.Option(
+            help="With --drive: what the world's robots follow ([navigation] follow): "
+            "'ovis', the planner's signed commands, or 'cmd_vel', the TwistStamped it "
+            "publishes on ROS 2 (no proof of origin: docs/navigation.md)."
+        ),
+    ] = None,
 ) -> None:
     """Start a router and all five services as separate processes, show what is
     detected live, and print a summary at the end.
@@ -268,7 +331,15 @@ def up(
         check_endpoint(listen)  # one system per run
         return up_cameras(cameras, config=config, listen=listen, duration=duration, json=json,
                           seed=seed, fps=fps, max_restarts=max_restarts, pin=pin,
-                          world=world)  # fmt: skip
+                          world=world, layout=layout)  # fmt: skip
+    if layout is not None:
+        raise UserError("--layout lays out several cameras: give --cameras too")
+    if drive and world != "physical":
+        raise UserError("--drive drives the physical world's robots: give --world physical")
+    if follow is not None and not drive:
+        raise UserError("--follow says what the driven robots follow: give --drive")
+    if follow not in (None, "ovis", "cmd_vel"):
+        raise UserError(f"--follow {follow!r}: give 'ovis' or 'cmd_vel'")
     from ovis.services.cli.physical import live_physical, world_options
 
     cfg = config_with_options(
@@ -282,6 +353,22 @@ def up(
         source_topic=topic,
         **world_options(config, world),
     )
+    if drive:  # before the calibration is made: it carries the robots' goals
+        from ovis.common.navigation.scenarios import live_drive_config
+        from ovis.services.cli.physical import physical_camera
+
+        if config is None:  # the preset's tripod camera finds the robots' markers too
+            cfg = physical_camera("overhead", cfg)  # rarely; straight down it does
+        try:
+            cfg = live_drive_config(cfg)
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+        follows = follow or cfg.navigation.follow
+        # the world following cmd_vel follows the planner's: it must publish them
+        nav = msgspec.structs.replace(
+            cfg.navigation, follow=follows, cmd_vel=ros2 or follows == "cmd_vel"
+        )
+        cfg = msgspec.structs.replace(cfg, navigation=nav)
     physical = live_physical(cfg, calibration)  # exit 2 when it cannot run here
     topics = arena_topics(cfg)
     cpus = _cpus(pin) or []
@@ -318,9 +405,10 @@ def up(
     # The services share the router's machine: they talk to each other directly.
     services_cfg = startup.with_keys(startup.services_config(cfg, calib))
     services_cfg = msgspec.structs.replace(services_cfg, zenoh=local_peers(cfg.zenoh))
+
     cfg = msgspec.structs.replace(cfg, trust=services_cfg.trust)  # its live view verifies too
     cfg_path.write_text(dump_toml(services_cfg))
-    from ovis.services.supervisor import Supervisor
+    from ovis.services.supervisor import STANDBY, Supervisor
 
     fleet = Supervisor(log_dir, max_restarts=max_restarts)
     stop = stop_on_signals()
@@ -345,8 +433,13 @@ def up(
     if view:
         from ovis.services.cli.view import DEFAULT_LISTEN
 
-        view_args = ["view", "--connect", listen, "--arena", topics.arena,
-                     "--trust", cfg.trust.keys_dir]  # fmt: skip
+        # the configuration `ovis up` runs with (its [navigation] timeouts judge the
+        # robots' drives on the page, its Zenoh settings reach the router), as a client
+        # of the router: not a peer the capture would send frames to directly
+        view_cfg = log_dir / "view.toml"
+        view_cfg.write_text(dump_toml(cfg))
+        view_args = ["view", "--config", str(view_cfg), "--connect", listen,
+                     "--arena", topics.arena, "--trust", cfg.trust.keys_dir]  # fmt: skip
         fleet.start("view", [*view_args, *off_path_option(cpus)])
         where = os.environ.get("OVIS_VIEW_LISTEN", DEFAULT_LISTEN)
         print(f"ovis up: live view on http://{where}/ (log: {log_dir / 'view.log'})", file=out)
@@ -364,12 +457,16 @@ def up(
     if ros2:
         fleet.start("ros2", ["run", "ros2", "--config", str(cfg_path), *off_path_option(cpus)])
         downstream = (*downstream, "ros2")
+    if drive:
+        fleet.start("planner", ["run", "planner", "--config", str(cfg_path),
+                                *off_path_option(cpus)])  # fmt: skip
+        downstream = (*downstream, "planner")
     if record is not None:
         fleet.start("recorder", ["record", "--connect", listen, "--arena", topics.arena,
                                  "--out", str(record)])  # fmt: skip
         downstream = (*downstream, "recorder")
     summary = _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir,
-                   duration=duration, live=live, json=json,
+                   duration=duration, live=live, json=json, drive=drive,
                    first_frame_s=PHYSICAL_OPEN_S if physical else 0.0)  # fmt: skip
     if json:
         sys.stdout.write(msgspec.json.encode(summary).decode() + "\n")
@@ -428,22 +525,28 @@ def _wait_first_frame(fleet, score, limit_s: float, stop) -> None:
 
 
 def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, duration, live, json,
-         first_frame_s: float = 0.0):  # fmt: skip
+         first_frame_s: float = 0.0, drive: bool = False):  # fmt: skip
     """Run the started system until ``stop`` or ``duration``: the capture once the other
     stages listen (``duration`` counted from its first frame when ``first_frame_s``
     says how long that may take), the live view, the supervision; then stop it and sum
-    up (only this run's processes and frames)."""
-    from ovis.common.analysis.live import heights_basis, with_verdict
+    up (only this run's processes and frames; ``drive``: with the driven robots' last
+    reports)."""
+    from ovis.common.analysis.live import heights_basis, navigation_run, with_verdict
     from ovis.common.config import ZenohConfig
     from ovis.services.bus import open_session
     from ovis.services.cli.watching import LiveView
+    from ovis.services.cpu import CpuWindow
 
     live_view = LiveView(topics, cfg, accept=fleet.owns)
+    drives: dict = {}
     started = time.monotonic()
     statuses: dict = {}
+    cpu = CpuWindow(fleet.pids)
     try:
         with open_session(ZenohConfig(connect=[listen])) as session:
             live_view.attach(session)
+            if drive:
+                session.declare_subscriber(topics.drives_all, lambda s: _keep_drive(drives, s))
             # Frames only once every stage listens: none is captured and then missed.
             waiting = _wait_listening(fleet, session, topics, downstream, stop)
             if waiting and not stop.is_set():
@@ -462,9 +565,10 @@ def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, durati
                 stop,
                 until=(time.monotonic() + duration) if duration is not None else None,
                 live=live and not json,
-                supervise=fleet.supervise,
+                supervise=lambda: _read_cpu(cpu, live_view.score.frames, fleet.supervise()),
                 quiet=json,
             )
+            cpu.read(live_view.score.frames)
             stop_polling()
             # the frames processed, then the capture's count: never more processed than captured
             live_view.score.close()
@@ -480,8 +584,37 @@ def _run(fleet, topics, cfg, listen, downstream, stop, start, log_dir, *, durati
         fleet.totals(),
         streams=fleet.streams("capture"),
     )
-    summary = msgspec.structs.replace(summary, heights=heights_basis(cfg.pose))
+    summary = msgspec.structs.replace(
+        summary,
+        heights=heights_basis(cfg.pose),
+        cpu=cpu.summary() if cpu.opened else None,
+        navigation=navigation_run(drives) if drive else None,
+    )
     return with_verdict(summary, statuses.get("capture"), fleet.failures(codes))
+
+
+def _keep_drive(drives: dict, sample: Any) -> None:
+    """Keep each robot's newest drive report (the world's, unsigned: what it says about
+    the run is shown, never acted on)."""
+    from ovis.common.messages import MessageError, RobotDrive, decode
+
+    try:
+        report = decode(sample.payload.to_bytes(), RobotDrive)
+    except MessageError:
+        return
+    drives[report.robot_id] = report
+
+
+#: The processes' CPU time is counted from this long after the first obstacle frame (the
+#: stages' first frames, first calls and first messages, are the start-up's).
+CPU_AFTER_S = 1.0
+
+
+def _read_cpu(cpu, frames: int, news: list[str]) -> list[str]:
+    """At each tick of the live view, the CPU window's (:data:`CPU_AFTER_S` after the
+    first frame); ``news`` passed through."""
+    cpu.tick(frames, after_s=CPU_AFTER_S)
+    return news
 
 
 def _poll_counters(fleet, session, topics, period_s: float = 1.0) -> Callable[[], None]:
@@ -631,6 +764,10 @@ def recalibrate(
             "a DIPE above 3 px or a calibration that sees nothing is still refused.",
         ),
     ] = False,
+    camera: Annotated[
+        str | None,
+        typer.Option(help="One camera of several ([[cameras]]): its calibrator is asked."),
+    ] = None,
 ) -> None:
     """Ask the calibrator (a Zenoh query) to recalibrate on the latest frame, or --frame.
 
@@ -650,6 +787,11 @@ def recalibrate(
 
     cfg = config_with_options(config, connect=connect, arena=arena)
     topics = arena_topics(cfg)
+    if camera is not None:
+        try:
+            topics = topics.of_camera(camera)
+        except ValueError as exc:
+            raise UserError(f"--camera: {exc}") from None
     request = encode(CalibrateRequest(frame_seq=frame, seed=seed, cancel=cancel, force=force))
     with client_session(cfg.zenoh, connect_timeout, stop) as session:
         replies = (
@@ -705,15 +847,13 @@ def status(
     ends it at any moment (exit code 130)."""
     stop = stop_on_signals()  # first: nothing below may block before it is in place
     from ovis.services.bus import client_session, interruptible
-    from ovis.services.cli.watching import collect_status, status_table
+    from ovis.services.cli.watching import arena_status, status_table
 
     cfg = config_with_options(config, connect=connect, arena=arena)
     topics = arena_topics(cfg)
     with client_session(cfg.zenoh, timeout, stop) as session:
         report = (
-            None
-            if session is None
-            else interruptible(stop, lambda: collect_status(session, topics))
+            None if session is None else interruptible(stop, lambda: arena_status(session, topics))
         )
     if report is None:
         raise UserError("interrupted before the services answered", 130)

@@ -1,9 +1,12 @@
 """``ovis up --cameras 2x2``: the simulated camera grid end to end (issue 19,
-docs/cameras.md). A router, one capture → preprocess → label → pose chain per camera
-(separate processes, each on its camera's topics ``ovis/<arena>/cam/<name>/…`` and with
-its own camera model), and the fusion service; the supervisor restarts what dies. The
-summary scores the world against the simulated truth: only world frames with the fusion
-key's proof of origin; the others are counted and said (docs/trust.md)."""
+docs/cameras.md). A router, the capture → preprocess → label → pose stages of every
+camera (each camera on its own topics ``ovis/<arena>/cam/<name>/…`` and with its own
+camera model) and the fusion service; the supervisor restarts what dies. The
+processes are laid out as ``[service] layout`` (``--layout``) says: "per-stage", one
+process per stage serving every camera (issue 38), or "per-camera", one process per
+stage per camera. The summary scores the world against the simulated truth: only world
+frames with the fusion key's proof of origin; the others are counted and said
+(docs/trust.md)."""
 
 from __future__ import annotations
 
@@ -11,23 +14,25 @@ import contextlib
 import signal
 import sys
 import tempfile
-import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
 import msgspec
 
 from ovis.services.cli.errors import UserError
+from ovis.services.cpu import READ_EVERY_S, CpuWindow
+from ovis.services.stopping import stop_on
 
-__all__ = ["CHAIN", "chain_cores", "up_cameras"]
+__all__ = ["CHAIN", "Process", "chain_cores", "plan", "stage_cores", "up_cameras"]
 
 #: the stages of one camera's chain, started downstream first
 CHAIN = ("pose", "label", "preprocess", "capture")
 ROBOTS, OBSTACLES = 4, 10  # the issue's scene
 #: seconds the cameras may take to prerender their period before the run goes on anyway
 PRERENDER_S = 180.0
-#: seconds the processes (four per camera) get to stop cleanly, on a loaded host too
+#: seconds the processes get to stop cleanly, on a loaded host too
 STOP_S = 15.0
 #: seconds after every camera runs that are the start-up (each chain's first frames,
 #: first calls and first messages on each route, come while the last cameras start):
@@ -35,14 +40,23 @@ STOP_S = 15.0
 STARTUP_SETTLE_S = 1.0
 
 
-def chain_cores(allowed: list[int], cameras: int, pin: str) -> list[list[int]]:
-    """Cores of each camera's chain: ``auto`` puts each chain whole on one core, the
-    chains dealt round the cores this process may use (a chain's stages hand frames to
-    each other: on one core each wakes where the previous one ran; separate chains do
-    not wait on each other, so they share out the cores); ``none``: any core; core
-    numbers: every chain on those."""
-    from ovis.services.placement import pick_cpus
+@dataclass(frozen=True)
+class Process:
+    """One stage process of the run: the supervisor's name for it, its stage, the
+    cameras it serves and its cores ([]: any)."""
 
+    name: str
+    stage: str
+    cameras: tuple[str, ...]
+    cores: tuple[int, ...]
+
+
+def chain_cores(allowed: list[int], cameras: int, pin: str) -> list[list[int]]:
+    """Cores of each camera's chain (per-camera layout): ``auto`` puts each chain whole
+    on one core, the chains dealt round the cores this process may use (a chain's
+    stages hand frames to each other: on one core each wakes where the previous one
+    ran; separate chains do not wait on each other, so they share out the cores);
+    ``none``: any core; core numbers: every chain on those."""
     spec = pin.strip().lower()
     if spec == "none":
         return [[] for _ in range(cameras)]
@@ -50,11 +64,65 @@ def chain_cores(allowed: list[int], cameras: int, pin: str) -> list[list[int]]:
         if len(allowed) < 2:
             return [[] for _ in range(cameras)]
         return [[allowed[k % len(allowed)]] for k in range(cameras)]
+    return [_cores(spec) for _ in range(cameras)]
+
+
+def stage_cores(allowed: list[int], pin: str) -> dict[str, list[int]]:
+    """Cores of each stage process (per-stage layout): ``auto`` puts label, the costliest
+    stage, alone on the last core and the others (capture, preprocess, pose, fusion) on
+    the one before, so that the cameras' frames pipeline across the two (label works on
+    one camera's frame while the next camera's is preprocessed and the previous one's
+    pose found); ``none``: any core; core numbers: every stage on those."""
+    spec = pin.strip().lower()
+    stages = [*CHAIN, "fusion"]
+    if spec == "none" or (spec == "auto" and len(allowed) < 2):
+        return {stage: [] for stage in stages}
+    if spec == "auto":
+        import os  # EXPERIMENT (not to commit): per-stage placement by env
+
+        if os.environ.get("OVIS_STAGE_CORES"):
+            got = dict(kv.split("=") for kv in os.environ["OVIS_STAGE_CORES"].split(";"))
+            return {st: [int(c) for c in got[st].split(",") if c] for st in stages}
+        return {stage: [allowed[-1 if stage == "label" else -2]] for stage in stages}
+    return dict.fromkeys(stages, _cores(spec))
+
+
+def _cores(spec: str) -> list[int]:
+    from ovis.services.placement import pick_cpus
+
     try:
-        cores = pick_cpus(spec)
+        return pick_cpus(spec)
     except ValueError as exc:
         raise UserError(str(exc), 2) from None
-    return [cores for _ in range(cameras)]
+
+
+def plan(names: list[str], layout: str, pin: str, allowed: list[int]) -> list[Process]:
+    """The stage processes of the run, downstream first (the captures last), and where
+    each runs; fusion comes first."""
+    if layout == "per-stage":
+        cores = stage_cores(allowed, pin)
+        return [Process("fusion", "fusion", tuple(names), tuple(cores["fusion"]))] + [
+            Process(stage, stage, tuple(names), tuple(cores[stage])) for stage in CHAIN
+        ]
+    from ovis.services.placement import pick_cpus
+
+    fusion = Process("fusion", "fusion", tuple(names), tuple(pick_cpus(pin)))  # auto: last
+    chains = chain_cores(allowed, len(names), pin)
+    return [fusion] + [
+        Process(f"{name}-{stage}", stage, (name,), tuple(where))
+        for stage in CHAIN
+        for name, where in zip(names, chains, strict=True)
+    ]
+
+
+def _where(processes: list[Process], layout: str) -> str:
+    """Where the processes run, said at start."""
+    if layout == "per-stage":
+        shown = [(p.stage, p.cores) for p in processes]
+    else:  # a camera's chain shares its cores
+        shown = [(p.cameras[0], p.cores) for p in processes if p.stage == "capture"]
+        shown.append(("fusion", processes[0].cores))
+    return ", ".join(f"{n} on {','.join(map(str, c)) or 'any'}" for n, c in shown)
 
 
 def _configs(
@@ -62,10 +130,10 @@ def _configs(
     base: Any,
     log_dir: Path,
     calibrated: dict[str, tuple[Any, str]] | None = None,
-) -> tuple[dict[str, Path], Path]:
-    """Write each camera's chain configuration and the fusion's; their paths. Each chain
-    works with its camera's known simulated model, or (the physical world) with the
-    camera ``calibrated`` gives it and that camera's empty floor as its background."""
+) -> tuple[Path, list[str]]:
+    """Write the arena's configuration (every camera of the grid in ``[[cameras]]``, its
+    source and its known simulated model); its path and the cameras' names. Each stage
+    process takes its cameras' part of it (``ovis run STAGE --cameras …``)."""
     from ovis.common.config import CameraSpec, dump_toml
     from ovis.common.sim.gridview import grid_specs
     from ovis.services.bus import local_peers
@@ -73,23 +141,21 @@ def _configs(
     nx, ny = grid
     specs = grid_specs(nx, ny, base, base.service.seed)
     shared = msgspec.structs.replace(base, zenoh=local_peers(base.zenoh))
-    chains, cameras = {}, []
+    cameras = []
     for spec in specs:
-        service = msgspec.structs.replace(
-            shared.service, camera_name=spec.name, source=f"grid:{nx}x{ny}:{spec.name}"
-        )
-        camera, image = spec.camera, shared.image
+        # each camera works with its known simulated model, or (the physical world) with
+        # the camera ``calibrated`` gives it and that camera's empty floor as background
+        camera, background = spec.camera, None
         if calibrated is not None:
             camera, background = calibrated[spec.name]
-            image = msgspec.structs.replace(image, background=background)
-        cfg = msgspec.structs.replace(shared, camera=camera, image=image, service=service)
-        chains[spec.name] = log_dir / f"{spec.name}.toml"
-        chains[spec.name].write_text(dump_toml(msgspec.to_builtins(cfg)))
-        cameras.append(CameraSpec(name=spec.name, source=service.source, camera=camera))
-    fusion = msgspec.structs.replace(shared, cameras=cameras)
-    fusion_path = log_dir / "fusion.toml"
-    fusion_path.write_text(dump_toml(msgspec.to_builtins(fusion)))
-    return chains, fusion_path
+        source = f"grid:{nx}x{ny}:{spec.name}"
+        cameras.append(
+            CameraSpec(name=spec.name, source=source, camera=camera, background=background)
+        )
+    arena = msgspec.structs.replace(shared, cameras=cameras)
+    path = log_dir / "arena.toml"
+    path.write_text(dump_toml(msgspec.to_builtins(arena)))
+    return path, [s.name for s in specs]
 
 
 def up_cameras(
@@ -104,6 +170,7 @@ def up_cameras(
     max_restarts: int,
     pin: str,
     world: str | None = None,
+    layout: str | None = None,
 ) -> None:
     """Run the simulated ``grid_text`` (e.g. "2x2") camera grid end to end (module
     docstring) until ``duration`` s of frames or Ctrl-C, and print the summary; with
@@ -117,13 +184,17 @@ def up_cameras(
     from ovis.services.cli.cameras import parse_grid
     from ovis.services.cli.physical import require_physical, world_options
     from ovis.services.cli.startup import with_keys
-    from ovis.services.placement import pick_cpus
     from ovis.services.supervisor import Supervisor
 
     grid = parse_grid(grid_text)
     try:
         base = with_options(
-            config, connect=[listen], seed=seed, fps=fps, **world_options(config, world)
+            config,
+            connect=[listen],
+            seed=seed,
+            fps=fps,
+            layout=layout,
+            **world_options(config, world),
         )
         physical = base.simulator.world == "physical"
         if physical:
@@ -131,58 +202,61 @@ def up_cameras(
         base = with_keys(marked_scene(base, ROBOTS, OBSTACLES))
         topics = Topics(base.service.arena)
         log_dir = Path(tempfile.mkdtemp(prefix="ovis-up-cameras-"))
-        chains, fusion_cfg = _configs(grid, base, log_dir)
+        arena_cfg, names = _configs(grid, base, log_dir)
     except (ValueError, ConfigError) as exc:
         raise UserError(str(exc)) from None
-    names = list(chains)
-    cores = chain_cores(sorted(os.sched_getaffinity(0)), len(names), pin)
-    fusion_on = pick_cpus(pin)  # auto: the last core, as one camera's stages
+    layout = base.service.layout
+    processes = plan(names, layout, pin, sorted(os.sched_getaffinity(0)))
     out = sys.stderr if json else sys.stdout
-    placed = ", ".join(
-        f"{n} on {','.join(map(str, c)) or 'any'}"
-        for n, c in [*zip(names, cores, strict=True), ("fusion", fusion_on)]
-    )
     print(
         f"ovis up: {grid_text} cameras over arena {topics.arena} (seed {base.service.seed}), "
-        f"router {listen}; chains: {placed}; logs in {log_dir}",
+        f"router {listen}; {layout} layout, {len(processes)} stage processes: "
+        f"{_where(processes, layout)}; logs in {log_dir}",
         file=out,
         flush=True,
     )
     fleet = Supervisor(log_dir, max_restarts=max_restarts)
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
-    calibrated = _prerender(chains, grid, max(1, len(os.sched_getaffinity(0))), out, stop)
+    stop = stop_on(signal.SIGTERM, signal.SIGINT)
+    workers = max(1, len(os.sched_getaffinity(0)))
+    calibrated = _prerender(arena_cfg, names, grid, workers, out, stop)
     if physical and not stop.is_set():
-        chains, fusion_cfg = _configs(grid, base, log_dir, calibrated)
+        arena_cfg, names = _configs(grid, base, log_dir, calibrated)
         print(f"ovis up: the physical world (seed {base.service.seed}): each camera "
               "calibrated on the floor marks it sees, segmented against its empty floor",
               file=out)  # fmt: skip
     fleet.start("router", ["router", "--listen", listen])
     time.sleep(0.5)
-    fusion_cpus = ["--cpus", ",".join(map(str, fusion_on)) or "none"]
-    fleet.start("fusion", ["run", "fusion", "--config", str(fusion_cfg), *fusion_cpus])
 
-    def start(name: str, stage: str, where: list[int]) -> None:
-        cpus = ["--cpus", ",".join(map(str, where)) or "none"]
-        fleet.start(f"{name}-{stage}", ["run", stage, "--config", str(chains[name]), *cpus])
+    from ovis.services.placement import off_path_cpus
+    from ovis.services.supervisor import STANDBY
 
-    for name, where in zip(names, cores, strict=True):
-        for stage in CHAIN[:-1]:
-            start(name, stage, where)
+    def start(p: Process) -> None:
+        args = ["run", p.stage, "--config", str(arena_cfg)]
+        if p.stage != "fusion":
+            args += ["--cameras", ",".join(p.cameras)]
+        # one process per stage: a spare each for the frame path's is few (per camera,
+        # twelve idle interpreters would be kept)
+        spare = layout == "per-stage" and p.stage in STANDBY
+        fleet.start(p.name, [*args, "--cpus", ",".join(map(str, p.cores)) or "none"],
+                    standby=spare, spare_cpus=off_path_cpus(list(p.cores)))  # fmt: skip
+
+    captures = [p for p in processes if p.stage == "capture"]
+    for p in processes:
+        if p.stage != "capture":
+            start(p)
     from ovis.common.config import ZenohConfig
     from ovis.services.bus import local_peers, open_session
 
-    run, started = _Run(names, grid, base, topics), time.monotonic()
+    run, started = _Run(names, grid, base, topics, processes), time.monotonic()
     try:
         # a loopback peer, as the services: the summary's messages come straight from
         # their stages, not through the router (which then relays nothing on this host)
         with open_session(local_peers(ZenohConfig(connect=[listen]))) as session:
             run.attach(session)
-            # the cameras once every chain and fusion listen: no frame is lost at start
+            # the cameras once every stage and fusion listen: no frame is lost at start
             late = _wait_alive(fleet, session, topics, names, stop)
-            for name, where in zip(names, cores, strict=True):
-                start(name, "capture", where)
+            for p in captures:
+                start(p)
             if late and not stop.is_set():
                 print(f"ovis up: started the cameras though {', '.join(sorted(late))} did "
                       f"not listen yet (see {log_dir})", file=sys.stderr)  # fmt: skip
@@ -194,17 +268,23 @@ def up_cameras(
             until = f"for {duration:g} s" if duration is not None else "until Ctrl-C"
             print(f"ovis up: all {len(names)} cameras running; scoring the world {until} "
                   f"after {STARTUP_SETTLE_S:g} s of start-up", file=out, flush=True)  # fmt: skip
+            cpu = CpuWindow(fleet.pids)
             while not stop.is_set():
                 for news in fleet.supervise():
                     print(f"ovis up: {news}", file=sys.stderr)
                 if line := run.unproven.line():
                     print(f"ovis up: {line}", file=sys.stderr, flush=True)
+                if cpu.opened is None and time.monotonic() >= began:
+                    cpu.open(run.world_frames)
+                    run.cpu = cpu
+                cpu.read(run.world_frames, every_s=READ_EVERY_S)
                 if duration is not None and time.monotonic() - began >= duration:
+                    cpu.read(run.world_frames)
                     break
-                stop.wait(0.5)
+                stop.wait(0.1)  # the supervisor's tick: a dead stage restarts this soon
             # the captures stop first; what is in flight reaches the world before the count
-            for name in names:
-                proc = fleet.children[f"{name}-capture"].proc
+            for p in captures:
+                proc = fleet.children[p.name].proc
                 if proc is not None and proc.poll() is None:
                     proc.send_signal(signal.SIGTERM)
             time.sleep(1.0)
@@ -234,13 +314,21 @@ class _Run:
     camera's frames captured (its truth messages, one per frame its capture published)
     and processed (its pose's obstacle frames), whatever restarts meanwhile."""
 
-    def __init__(self, names: list[str], grid: tuple[int, int], base: Any, topics: Any) -> None:
+    def __init__(
+        self,
+        names: list[str],
+        grid: tuple[int, int],
+        base: Any,
+        topics: Any,
+        processes: list[Process],
+    ) -> None:
         from ovis.common.analysis.multicam import WorldWatch
         from ovis.common.sim.gridview import grid_specs
         from ovis.services.cli.watching import UnprovenCount
         from ovis.services.trust import verifier_for
 
         self.names, self.topics, self.base = names, topics, base
+        self.processes = processes
         nx, ny = grid
         specs = grid_specs(nx, ny, base, base.service.seed)
         self.grid = f"{nx}x{ny}"
@@ -257,6 +345,8 @@ class _Run:
         # world frames without the fusion key's proof: never scored, counted and said
         self.verifier = verifier_for(base, "fusion")
         self.unproven = UnprovenCount("the fusion service")
+        self.world_frames = 0  # proven world frames received
+        self.cpu: CpuWindow | None = None  # the processes' CPU while every camera runs
 
     def attach(self, session: Any) -> None:
         from ovis.common.messages import (
@@ -275,6 +365,7 @@ class _Run:
                 return
             with contextlib.suppress(MessageError):
                 self.watch.add_world(decode(payload, WorldFrame), now)
+                self.world_frames += 1
 
         # Zenoh calls one subscriber's callback at a time: the counts need no lock. Each
         # camera's truth holds the whole floor: it is read whole once per stamp; of the
@@ -323,13 +414,21 @@ class _Run:
                 fused=fused.get(name, 0),
                 late=late.get(name, 0),
                 dropped=max(0, captured - fused.get(name, 0)),
-                restarts=sum(v for k, v in restarts.items() if k.startswith(f"{name}-")),
+                # restarts of the processes that serve it (in the per-stage layout, each
+                # stage's one process serves every camera)
+                restarts=sum(
+                    restarts.get(p.name, 0)
+                    for p in self.processes
+                    if p.stage != "fusion" and name in p.cameras
+                ),
             )
             early_fused = fused_ever.get(name, 0) - fused.get(name, 0)
             startup[name] = {"captured": early, "dropped": max(0, early - early_fused)}
         return {
             "grid": self.grid,
             "seed": self.base.service.seed,
+            "layout": self.base.service.layout,
+            "processes": len(self.processes) + 1,  # the stages, fusion and the router
             "elapsed_s": round(elapsed_s, 2),
             "cameras": msgspec.to_builtins(cameras),
             # the first STARTUP_SETTLE_S after every camera ran (chains warming up)
@@ -353,6 +452,9 @@ class _Run:
                     "max": score.height_error_cm_max,
                 },
                 "heights": heights_basis(self.base.pose),
+                # by what each fused height rests on ("cameras": two or more cameras'
+                # fits merged): [count, mean, max] cm
+                "height_error_by_source_cm": score.height_error_by_source_cm,
                 "latency_ms": latency,
                 # world frames refused for want of the fusion key's proof, and the last why
                 "unproven": self.unproven.n,
@@ -366,11 +468,14 @@ class _Run:
             },
             "restarts": {"fusion": restarts.get("fusion", 0)},
             "gave_up": fleet.gave_up(),
+            # the CPU time of the run's processes per world frame received, from /proc,
+            # from the end of the start-up until the cameras stop; ovis up's own apart
+            "cpu": msgspec.to_builtins(self.cpu.summary()) if self.cpu is not None else None,
         }
 
 
 def _wait_alive(fleet: Any, session: Any, topics: Any, names: list[str], stop: Any) -> set[str]:
-    """Wait until fusion and every chain's downstream stages listen (or 30 s)."""
+    """Wait until fusion and every camera's downstream stages listen (or 30 s)."""
     from ovis.services.cli.options import STARTUP_S
     from ovis.services.cli.watching import alive_services
 
@@ -396,9 +501,10 @@ def _render_period(
     written beside its configuration: (the camera, the floor's path)."""
     from ovis.common.capture.sources import grid_cache_dir
     from ovis.common.config import load_config
+    from ovis.common.pipeline.hosting import camera_config
     from ovis.common.sim.gridview import GridCamera
 
-    cfg = load_config(Path(config_path))
+    cfg = camera_config(load_config(Path(config_path)), name)
     if cfg.simulator.world != "physical":
         GridCamera(cfg, *grid, name, cfg.service.seed).render_period(None, grid_cache_dir())
         return None
@@ -417,7 +523,7 @@ def _render_period(
 
 
 def _prerender(
-    chains: dict[str, Path], grid: tuple[int, int], workers: int, out: Any, stop: Any
+    arena: Path, names: list[str], grid: tuple[int, int], workers: int, out: Any, stop: Any
 ) -> dict[str, tuple[Any, str]] | None:
     """Render (or find in the cache) every camera's period before any camera runs, on
     ``workers`` processes, saying how far it is: a camera that started while others
@@ -431,8 +537,8 @@ def _prerender(
 
     began = time.monotonic()
     ctx = multiprocessing.get_context("spawn")  # no fork of this process's threads
-    with ProcessPoolExecutor(max_workers=min(workers, len(chains)), mp_context=ctx) as pool:
-        jobs = [pool.submit(_render_period, str(path), grid, n) for n, path in chains.items()]
+    with ProcessPoolExecutor(max_workers=min(workers, len(names)), mp_context=ctx) as pool:
+        jobs = [pool.submit(_render_period, str(arena), grid, n) for n in names]
         while not stop.is_set():
             done = sum(j.done() for j in jobs)
             if done == len(jobs):
@@ -449,7 +555,7 @@ def _prerender(
                 raise UserError(f"rendering the simulated cameras failed: {job.exception()}")
         if stop.is_set():
             return None
-        made = {name: job.result() for name, job in zip(chains, jobs, strict=True)}
+        made = {name: job.result() for name, job in zip(names, jobs, strict=True)}
     if any(v is None for v in made.values()):
         return None
     return {
@@ -517,8 +623,17 @@ def _print_summary(summary: dict[str, Any]) -> None:
             f"height error mean {dz['mean']:.3f} cm, max {dz['max']:.3f} cm (heights "
             f"{escape(w['heights'])})"
         )
+        for source, (n, mean, top) in w["height_error_by_source_cm"].items():
+            con.print(f"  {escape(source)}: {n:.0f} heights, error mean {mean:.3f} cm, "
+                      f"max {top:.3f} cm")  # fmt: skip
     if w["unproven"]:
         con.print(
             f"[red]refused {w['unproven']} world frame(s) without the fusion service's proof "
             f"of origin (last: {escape(w['unproven_why'])})[/]"
         )
+    if (cpu := summary["cpu"]) and cpu["ms_per_frame"] is not None:
+        from ovis.common.analysis.live import CpuUse
+        from ovis.services.cli.watching import format_cpu
+
+        used = format_cpu(msgspec.convert(cpu, CpuUse))
+        con.print(f"CPU per world frame, {summary['processes']} processes: {used}")

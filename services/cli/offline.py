@@ -104,6 +104,7 @@ def simulate(
         emit_json(info)
         return
     con = console()
+    con.soft_wrap = True  # paths and the next command whole, to be copied (not cut at 80)
     con.print(
         f"wrote {frames} frame(s) of the {cfg.preset} arena "
         f"({cfg.camera.cols}x{cfg.camera.rows}, seed {seed}) to {out}"
@@ -464,15 +465,34 @@ def detect(
             "(the paper's Δt = 1 s).",
         ),
     ] = None,
+    heights: Annotated[
+        str | None,
+        typer.Option(
+            help="'measured': each solid's footprint and height fitted to its silhouette "
+            "(needs --background, the empty floor); 'configured': every top face at its "
+            "class's height. Default: the calibration's [pose] heights."
+        ),
+    ] = None,
+    height: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Declare a height: robot=CM or obstacle=CM (that class's height, not "
+            "measured), marker:ID=CM (the robot carrying marker ID); repeat for several."
+        ),
+    ] = None,
 ) -> None:
     """Find the robot and the obstacles in frames; compute the planner's inputs.
 
     Prints, per object, its id, kind, pixel centroid, area, perimeter (Koplowitz–
-    Bruckstein), compactness, world position and radius; per obstacle, the distance
-    |O − R| − r_O and the signed angle from the goal direction (CCW positive).
+    Bruckstein), compactness, world position, height (and where it comes from) and
+    radius; per obstacle, the distance |O − R| − r_O and the signed angle from the goal
+    direction (CCW positive). With measured heights X, Y is where each solid stands
+    (its footprint's centre); with configured ones, its blob's centroid on its class's
+    top plane.
     """
     from ovis.common.calibration.file import load_calibration
     from ovis.common.world.detection import Detector
+    from ovis.common.world.heights import with_heights
     from ovis.services.cli.camera import detect_without_calibration, with_image_flags
     from ovis.services.cli.reports import print_detection
 
@@ -489,16 +509,26 @@ def detect(
         detect_without_calibration(images, flags, json=json, overlay=overlay)
         return
     calib = load_calibration(calibration)
-    calib = msgspec.structs.replace(calib, image=with_image_flags(calib.image, **flags))
+    try:
+        pose = with_heights(calib.pose, heights, height or [])
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    image = with_image_flags(calib.image, **flags)
+    calib = msgspec.structs.replace(calib, image=image, pose=pose)
     goal_xy = _numbers(goal, 2, "--goal") if goal is not None else None
     if goal_angle is not None and not np.isfinite(goal_angle):
         raise UserError("--goal-angle must be a finite number of degrees")
-    detector = Detector(calib.camera, calib.image, calib.pose)
+    try:
+        detector = Detector(calib.camera, calib.image, calib.pose)
+    except ValueError as exc:
+        raise UserError(f"{exc}; give it with --background") from None
     rate, rate_from = _frame_rate(images, fps)
     results = []
     for i, path in enumerate(images):
         frame = read_image(path)
-        det = detector.detect(frame, goal_xy=goal_xy, goal_angle_deg=goal_angle, stamp_s=i / rate)
+        det = detector.detect(
+            frame, goal_xy=goal_xy, goal_angle_deg=goal_angle, stamp_s=i / rate, fit_all=True
+        )
         results.append((path, frame, det))
         if overlay is not None:
             from ovis.common.analysis.plots import draw_detections, save_png
@@ -515,7 +545,7 @@ def detect(
         emit_json(payload[0] if len(payload) == 1 else payload)
         return
     for path, _, det in results:
-        print_detection(path, det)
+        print_detection(path, det, calib.pose.heights)
     if len(images) > 1:
         console().print(f"frames 1/{rate:g} s apart ({rate_from}): velocities in cm/s over them")
 

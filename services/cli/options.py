@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 import signal
-import threading
 import time
 from pathlib import Path
 from typing import Annotated, Any
@@ -15,6 +14,7 @@ from typing import Annotated, Any
 import typer
 
 from ovis.services.cli.errors import UserError
+from ovis.services.stopping import Stop, stop_on
 
 __all__ = [
     "CONNECT_S",
@@ -152,12 +152,9 @@ def arena_topics(cfg):
         raise UserError(str(exc)) from None
 
 
-def stop_on_signals() -> threading.Event:
+def stop_on_signals() -> Stop:
     """An event that Ctrl-C or SIGTERM sets: the command then stops cleanly."""
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    return stop
+    return stop_on(signal.SIGTERM, signal.SIGINT)
 
 
 def time_left(timeout_s: float) -> float:

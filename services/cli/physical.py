@@ -184,6 +184,7 @@ def _say_written(out: Path, cfg: Any, frames: int, seed: int, info: Any) -> None
     from ovis.services.cli.ui import console
 
     con = console()
+    con.soft_wrap = True  # paths and the next command whole, to be copied (not cut at 80)
     cam = cfg.camera
     con.print(
         f"wrote {frames} frame(s) of the physical world ({cam.cols}x{cam.rows}, seed {seed}, "

@@ -323,9 +323,10 @@ def replay(
     only: Annotated[
         list[str] | None,
         typer.Option(
-            help="Replay only what this stage publishes (repeatable): capture (frames and "
-            "ground truth: the live pipeline processes the recorded images), preprocess, "
-            "label, pose, calibrator."
+            help="Replay only what this stage publishes (repeatable): capture (frames, "
+            "ground truth and the physical world's drive reports: the live pipeline "
+            "processes the recorded images), preprocess, label, pose, calibrator, planner "
+            "(the robots' commands; a robot refuses them: a recording keeps no proof)."
         ),
     ] = None,
     arena: Annotated[

@@ -180,10 +180,22 @@ def _unmarked_motion(robot) -> str:
     return f"heading {heading}, velocity {velocity_text(robot)} cm/s"
 
 
-def print_detection(path: Path, det) -> None:
+def _height_text(o) -> str:
+    """An object's height and where it comes from."""
+    if o.z_source == "one camera" and o.z_sigma_cm is not None:
+        return f"{o.z_cm:.2f}±{o.z_sigma_cm:.2f}"
+    why = {
+        "declared": "declared",
+        "not measurable": "cfg: not measurable",
+        "pending": "cfg: pending",
+    }
+    return f"{o.z_cm:.2f} {why.get(o.z_unmeasured, 'marker' if o.z_source == 'marker' else 'cfg')}"
+
+
+def print_detection(path: Path, det, heights: str = "configured") -> None:
     con = console()
     columns = ("id", "kind", "row", "col", "area px", "perim px", "compact.")
-    world = ("X cm", "Y cm", "r cm", "v cm/s")
+    world = ("X cm", "Y cm", "Z cm", "r cm", "v cm/s")
     t = table(f"{path}: {len(det.objects)} object(s)", (*columns, *world))
     for o in det.objects:
         t.add_row(
@@ -196,10 +208,22 @@ def print_detection(path: Path, det) -> None:
             f"{o.compactness:.3f}",
             f"{o.x_cm:.2f}",
             f"{o.y_cm:.2f}",
+            _height_text(o),
             f"{o.radius_cm:.2f}",
             velocity_text(o),
         )
     con.print(t)
+    if heights == "measured":
+        con.print(
+            "X, Y: where each object stands (its footprint's centre); Z: its top's height, "
+            "measured ± 1σ, or configured (cfg) where it is declared, not measurable here "
+            "or still to be fitted"
+        )
+    else:
+        con.print(
+            "X, Y: each blob's centroid carried onto its class's top plane at Z (configured "
+            "heights: right for objects that tall)"
+        )
     robot = next((o for o in det.objects if o.kind == "robot"), None)
     if robot is not None and not det.robots:  # the unmarked robot
         con.print(f"robot {robot.id}: {_unmarked_motion(robot)}")

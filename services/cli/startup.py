@@ -180,8 +180,8 @@ def services_config(cfg: Any, calib: Any) -> Any:
 
 
 def with_keys(cfg: Any) -> Any:
-    """The keys of the calibrator, the pose stage and fusion made (or, from an earlier run,
-    loaded) in the state folder's ``keys/`` before anything starts, and the services'
+    """The keys of the calibrator, the pose stage, fusion and the planner made (or, from an
+    earlier run, loaded) in the state folder's ``keys/`` before anything starts, and the services'
     configuration naming that folder (absolute): every process it starts signs or
     verifies with them, none takes a key from the bus. A folder that cannot be written
     stops the start (exit 2)."""
@@ -189,7 +189,12 @@ def with_keys(cfg: Any) -> Any:
 
     folder = keys_dir(cfg).resolve()
     trust = msgspec.structs.replace(
-        cfg.trust, keys_dir=str(folder), calibrator_public="", pose_public="", fusion_public=""
+        cfg.trust,
+        keys_dir=str(folder),
+        calibrator_public="",
+        pose_public="",
+        fusion_public="",
+        planner_public="",
     )
     try:
         for role in ROLES:

@@ -94,7 +94,7 @@ def calibrate_with_progress(frame, points, cfg, *, source: str, show: bool = Tru
     """Run the GA calibration, with a progress bar showing the best DIPE so far."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from ovis.common.calibration.problem import calibrate as run_calibration
+    from ovis.common.calibration.calibrate import calibrate as run_calibration
 
     if not show:
         return run_calibration(frame, points, cfg, source=source)[0]

@@ -5,14 +5,14 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import msgspec
 import numpy as np
 import zenoh
 
-from ovis.common.analysis.live import LiveScore, RunSummary
+from ovis.common.analysis.live import CpuUse, LiveScore, RunSummary
 from ovis.common.messages import (
     MessageError,
     ObstacleFrame,
@@ -23,15 +23,19 @@ from ovis.common.messages import (
     decode,
 )
 from ovis.common.pipeline.totals import claimed_once
-from ovis.common.view.health import listed
+from ovis.common.view.health import STAGES, listed
 from ovis.services.cli.ui import table, velocity_text
+from ovis.services.stopping import Stopping
 from ovis.services.trust import every_reply, unproven, verifier_for
 
 __all__ = [
     "LiveView",
     "RunSummary",
     "UnprovenCount",
+    "arena_status",
+    "camera_statuses",
     "collect_status",
+    "format_cpu",
     "format_gaps",
     "format_health",
     "format_obstacles",
@@ -108,11 +112,13 @@ class UnprovenCount:
 
 
 class ServiceReport(msgspec.Struct):
-    """One service in `ovis status`: alive per liveliness, and its last status."""
+    """One service in `ovis status`: alive per liveliness, and its last status; of one
+    camera of several (``camera``), or of the arena."""
 
     service: str
     alive: bool
     status: ServiceStatus | None = None
+    camera: str | None = None
 
 
 def alive_services(session: zenoh.Session, topics: Topics, timeout: float = 1.5) -> set[str]:
@@ -122,6 +128,20 @@ def alive_services(session: zenoh.Session, topics: Topics, timeout: float = 1.5)
         if reply.ok is not None:
             alive.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
     return alive
+
+
+def _status_replies(
+    session: zenoh.Session, key: str, timeout: float
+) -> Iterator[tuple[str, ServiceStatus]]:
+    """Every status reply to a query of ``key`` (each queryable's answer), with the key
+    it answered on; one that does not decode is skipped."""
+    for reply in every_reply(session, key, timeout=timeout):
+        if reply.ok is None:
+            continue
+        try:
+            yield str(reply.ok.key_expr), decode(reply.ok.payload.to_bytes(), ServiceStatus)
+        except MessageError:
+            continue
 
 
 def query_statuses(
@@ -136,13 +156,7 @@ def query_statuses(
     (:func:`~ovis.common.pipeline.totals.claimed_once`: a client answering in a
     service's name cannot raise them, nor hide a failing stage behind an "ok")."""
     statuses: dict[str, ServiceStatus] = {}
-    for reply in every_reply(session, topics.status_all, timeout=timeout):
-        if reply.ok is None:
-            continue
-        try:
-            st = decode(reply.ok.payload.to_bytes(), ServiceStatus)
-        except MessageError:
-            continue
+    for _key, st in _status_replies(session, topics.status_all, timeout):
         if accept is None or accept(st):
             seen = statuses.get(st.service)
             statuses[st.service] = st if seen is None else claimed_once(seen, st)
@@ -162,6 +176,50 @@ def collect_status(
     return [ServiceReport(n, n in alive, statuses.get(n) if n in alive else None) for n in names]
 
 
+def _camera_of(key: str) -> str:
+    """The camera of a key ``ovis/<arena>/cam/<camera>/…``."""
+    return key.split("/")[3]
+
+
+def camera_statuses(
+    session: zenoh.Session, topics: Topics, timeout: float = 1.5
+) -> list[ServiceReport]:
+    """Every camera's services (``ovis/<arena>/cam/<camera>/…``), camera by camera: the
+    stages always (one missing is not running), then every other one alive or answering;
+    the same rules as :func:`collect_status`, whichever process serves the camera."""
+    cams = f"ovis/{topics.arena}/cam/*"
+    alive: dict[str, set[str]] = {}
+    for reply in session.liveliness().get(f"{cams}/alive/*", timeout=timeout):
+        if reply.ok is not None:
+            key = str(reply.ok.key_expr)
+            alive.setdefault(_camera_of(key), set()).add(key.rsplit("/", 1)[-1])
+    statuses: dict[str, dict[str, ServiceStatus]] = {}
+    for key, st in _status_replies(session, f"{cams}/status/*", timeout):
+        mine = statuses.setdefault(_camera_of(key), {})
+        seen = mine.get(st.service)
+        mine[st.service] = st if seen is None else claimed_once(seen, st)
+    reports = []
+    for camera in sorted(set(alive) | set(statuses)):
+        up, said = alive.get(camera, set()), statuses.get(camera, {})
+        reports += [
+            ServiceReport(n, n in up, said.get(n) if n in up else None, camera)
+            for n in listed(up, said)
+        ]
+    return reports
+
+
+def arena_status(
+    session: zenoh.Session, topics: Topics, timeout: float = 1.5
+) -> list[ServiceReport]:
+    """`ovis status`: the arena's services and every camera's (several cameras: the
+    arena's own stages are listed only when one of them runs)."""
+    root = collect_status(session, topics, timeout)
+    cameras = camera_statuses(session, topics, timeout)
+    if cameras and not any(r.alive or r.status for r in root if r.service in STAGES):
+        root = [r for r in root if r.service not in STAGES]
+    return root + cameras
+
+
 def format_shm(s: ServiceStatus) -> str:
     """A service's shared memory as table markup: messages written into its pool, and
     those sent as plain bytes because the pool was full ("N pool full"; "-": no pool)."""
@@ -175,23 +233,26 @@ def status_table(report: list[ServiceReport], topics: Topics):
     columns = ("service", "alive", "state", "fps", "in", "out", "dropped", "errors", "calib")
     shm = any(r.status is not None and r.status.shm_pool_bytes for r in report)
     extra = ("shm",) if shm else ()  # only where shared memory is in use
+    cameras = any(r.camera for r in report)
+    first = ("camera",) if cameras else ()  # several cameras: whose service each row is
     t = table(
         f"ovis services of arena {topics.arena}",
-        (*columns, "pid@host", *extra),
-        left={"service", "alive", "state", "errors", "calib", "pid@host", *extra},
+        (*first, *columns, "pid@host", *extra),
+        left={*first, "service", "alive", "state", "errors", "calib", "pid@host", *extra},
     )
     for r in report:
         s = r.status
+        name = (r.camera or "-", r.service) if cameras else (r.service,)
         if s is None:
             alive = "yes" if r.alive else "[red]NO[/]"
-            t.add_row(r.service, alive, *["-"] * (len(columns) - 1 + len(extra)))
+            t.add_row(*name, alive, *["-"] * (len(columns) - 1 + len(extra)))
             continue
         errors = ", ".join(f"{k} {v}" for k, v in s.errors.items()) or "0"
         state = s.state
         if s.state != "ok":  # any other state is not ok (waiting, source lost, …)
             state = f"[red]{s.state}[/]" + (f": {s.reason}" if s.reason else "")
         t.add_row(
-            r.service,
+            *name,
             "yes",
             state,
             f"{s.fps:.1f}",
@@ -237,12 +298,16 @@ class LiveView:
         if problem := unproven(self.verifier, sample, payload):
             self.unproven.add(problem)  # never scored, never shown
             return
-        with contextlib.suppress(MessageError):
-            self.score.add_obstacles(decode(payload, ObstacleFrame), now)
+        try:
+            msg = decode(payload, ObstacleFrame)
+        except MessageError as exc:  # counted and said in the summary, never scored
+            self.score.refuse(str(exc))
+            return
+        self.score.add_obstacles(msg, now)
 
     def run(
         self,
-        stop: threading.Event,
+        stop: Stopping,
         *,
         until: float | None,
         live: bool,
@@ -302,10 +367,17 @@ def summary_table(s: RunSummary):
         "latency capture → obstacles p50 / p99",
         f"{fmt(s.latency_ms_p50, 'ms')} / {fmt(s.latency_ms_p99, 'ms')}",
     )
+    if s.fits_pending_s is not None:
+        t.add_row(
+            "objects waiting for their fits",
+            f"until {s.fits_pending_s:.1f} s; latency after: "
+            f"{fmt(s.latency_after_fits_ms_p50, 'ms')} / {fmt(s.latency_after_fits_ms_p99, 'ms')}",
+        )
     if s.truth_frames:  # no truth lines for data that has no truth
         t.add_row(
             "objects matched to truth",
-            f"{s.objects_matched} ({s.objects_missed} missed, {s.objects_spurious} spurious)",
+            f"{s.objects_matched} ({s.objects_missed} missed, {s.objects_spurious} spurious, "
+            f"{s.objects_wrong_kind} of the wrong kind)",
         )
         error = (
             f"{fmt(s.position_error_cm_mean, 'cm', 3)} / {fmt(s.position_error_cm_max, 'cm', 3)}"
@@ -319,17 +391,59 @@ def summary_table(s: RunSummary):
         if s.heights:
             height += f"\nheights {escape(s.heights)}"
         t.add_row("height error mean / max (abs.)", height)
+        for name, b in s.by_height.items():
+            t.add_row(
+                f"  heights {escape(name)}",
+                f"{b.objects} objects: position {b.position_error_cm_mean:.3f} / "
+                f"{b.position_error_cm_max:.3f} cm, height {b.height_error_cm_mean:.3f} / "
+                f"{b.height_error_cm_max:.3f} cm, {b.wrong_kind} of the wrong kind",
+            )
     t.add_row("calibration version", str(s.calibration_version))
     t.add_row("dropped frames", ", ".join(f"{k} {v}" for k, v in s.dropped.items()) or "0")
     errs = "; ".join(f"{k}: {v}" for k, v in s.errors.items())
     t.add_row("errors", errs or "0")
+    if s.frames_refused:
+        t.add_row(
+            "obstacle frames refused",
+            f"[red]{s.frames_refused} (not decoded: {escape(s.refused_because)})[/]",
+        )
     t.add_row("restarts", ", ".join(f"{k} {v}" for k, v in s.restarts.items()) or "0")
     health = "\n".join(f"[red]{k} {v}[/]" for k, v in s.health.items())
     t.add_row("health", health or ("ok" if s.frames_processed else "[red]no frame processed[/]"))
     t.add_row("source lost", format_gaps(s))
+    if s.cpu is not None and s.cpu.ms_per_frame is not None:
+        t.add_row("CPU per frame (all processes)", format_cpu(s.cpu))
+    if s.navigation is not None:
+        for r in s.navigation.robots:
+            goal = (
+                f"goal reached in {r.time_s:.1f} s"
+                if r.goal_reached
+                else "[red]goal not reached[/]"
+            )
+            contacts = f"[red]{r.collisions} collision(s)[/]" if r.collisions else "no collision"
+            closest = "-" if r.min_clearance_cm is None else f"{r.min_clearance_cm:.1f} cm"
+            source = "ROS 2 cmd_vel" if r.follows == "cmd_vel" else "ovis's signed"
+            clamped = f" ({r.clamped} clamped to its limits)" if r.clamped else ""
+            t.add_row(
+                f"robot {r.id} drive",
+                f"{goal}, {contacts}, closest approach {closest}; {r.commands} "
+                f"{source} commands followed{clamped}, {r.refused} refused",
+            )
+        if not s.navigation.robots:
+            t.add_row("robots driven", "[red]no drive report came[/]")
     if s.exit_code:
         t.add_row("exit code", f"[red]{s.exit_code}: {s.reason}[/]")
     return t
+
+
+def format_cpu(cpu: CpuUse) -> str:
+    """The run's CPU time per frame: all its processes, each, and `ovis up`'s own."""
+    each = ", ".join(f"{k} {v:.2f}" for k, v in cpu.by_process_ms.items() if v)
+    own = cpu.own_ms_per_frame or 0.0
+    return (
+        f"{cpu.ms_per_frame:.2f} ms ({each}); ovis up's own {own:.2f} ms; over "
+        f"{cpu.frames} frames in {cpu.window_s:.1f} s"
+    )
 
 
 def format_gaps(s: RunSummary, shown: int = 5) -> str:

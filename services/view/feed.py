@@ -1,6 +1,7 @@
 """The view's side of the bus: what it knows of each arena, kept up to date by Zenoh
-callbacks (liveliness, obstacles, stream health, calibration; frames, binary frames
-and blobs only while a browser watches the arena), and the recalibration query.
+callbacks (liveliness, obstacles, stream health, calibration, the robots' commands and
+drive reports; frames, binary frames and blobs only while a browser watches the
+arena), and the recalibration query.
 
 Callbacks only validate and store the newest items (bounded), never encode or draw:
 that is done by the server at the browser's rate. A message that fails validation is
@@ -33,6 +34,8 @@ from ovis.common.messages import (
     MessageError,
     ObstacleFrame,
     ReplayMark,
+    RobotCommand,
+    RobotDrive,
     ServiceStatus,
     StreamHealth,
     Topics,
@@ -42,6 +45,7 @@ from ovis.common.messages import (
 from ovis.common.pipeline.following import newer
 from ovis.common.pipeline.limits import Input, oversized
 from ovis.common.pipeline.totals import claimed_once
+from ovis.common.view.driving import Drives, RobotShown, robot_poses
 from ovis.common.view.freshness import (
     Freshness,
     Seen,
@@ -92,6 +96,7 @@ class ArenaFeed:
         self.session = session
         self.pose = verifier_for(config, "pose")
         self.calibrator = verifier_for(config, "calibrator")
+        self.planner = verifier_for(config, "planner")
         self.topics = Topics(arena)
         self.arena = arena
         self.lock = threading.Lock()
@@ -112,6 +117,9 @@ class ArenaFeed:
         self.footprint: list[tuple[float, float]] = []
         self.obstacles: collections.OrderedDict[int, dict[str, Any]] = collections.OrderedDict()
         self.obstacle_messages = 0
+        #: the robots' newest commands and recent drive reports (issue 37, item 7)
+        self.drives = Drives(config.navigation)
+        self.drive_messages = 0
         self.frames: collections.OrderedDict[int, Item] = collections.OrderedDict()
         self.binaries: collections.OrderedDict[int, Item] = collections.OrderedDict()
         self.blobs: collections.OrderedDict[int, Item] = collections.OrderedDict()
@@ -126,6 +134,8 @@ class ArenaFeed:
             session.declare_subscriber(t.obstacles, self._on_obstacles),
             session.declare_subscriber(t.health, self._on_health),
             session.declare_subscriber(t.calibration, self._on_calibration),
+            session.declare_subscriber(t.commands_all, self._on_command),
+            session.declare_subscriber(t.drives_all, self._on_drive),
             session.liveliness().declare_subscriber(t.alive_all, self._on_alive, history=True),
         ]
 
@@ -217,6 +227,50 @@ class ArenaFeed:
             self.seen["obstacles"] = seen
             if seen.replay is None:  # a replay's stamps are not now's: no latency
                 self.latency.add((seen.received_ns - msg.stamp_ns) / 1e6)
+
+    def _robot_message(self, sample: zenoh.Sample, tp: Any) -> tuple[Any, ReplayMark | None]:
+        """A robot's command (``tp`` RobotCommand: only with the planner's proof, or
+        replayed) or drive report, validated, and its replay mark; None (counted) when
+        refused."""
+        what = "cmd" if tp is RobotCommand else "drive"
+        payload = self.take(sample.payload, "small", what)
+        if payload is None:
+            return None, None
+        replay = self._mark(sample)
+        if tp is RobotCommand and replay is None:
+            problem = unproven(self.planner, sample, payload)
+            if problem is not None:
+                self.refuse_unproven(what, problem)
+                return None, None
+        try:
+            return decode(payload, tp), replay
+        except MessageError as exc:
+            self.refuse(what, exc)
+            return None, None
+
+    def _on_command(self, sample: zenoh.Sample) -> None:
+        msg, replay = self._robot_message(sample, RobotCommand)
+        if msg is not None:
+            with self.lock:
+                self.drives.command(msg, time.monotonic(), replay)
+                self.drive_messages += 1
+
+    def _on_drive(self, sample: zenoh.Sample) -> None:
+        msg, _replay = self._robot_message(sample, RobotDrive)
+        if msg is not None:
+            with self.lock:
+                self.drives.drive(msg)
+                self.drive_messages += 1
+
+    def robots_shown(self) -> tuple[int, list[RobotShown]]:
+        """How many commands and drive reports arrived, and each driven robot as the map
+        draws it now (:mod:`ovis.common.view.driving`)."""
+        with self.lock:
+            kept = list(self.obstacles.items())
+            frames = {int(m.get("stamp_ns", -1)): seq for seq, m in kept}
+            poses = {seq: robot_poses(m) for seq, m in kept}
+            shown = self.drives.shown(time.time_ns(), time.monotonic(), frames, poses)
+            return self.drive_messages, shown
 
     def _on_health(self, sample: zenoh.Sample) -> None:
         payload = self.take(sample.payload, "small", "health")

@@ -162,6 +162,7 @@ class ViewServer:
         self.last_result: dict[str, dict[str, Any]] = {}
         self._shown: dict[str, dict[str, int]] = {}
         self._counts: dict[str, int] = {}
+        self._drive_counts: dict[str, int] = {}
         self._tasks: set[asyncio.Task[None]] = set()
 
     # --- app --------------------------------------------------------------------------
@@ -201,10 +202,12 @@ class ViewServer:
         for arena in self.bus.arenas():
             feed = self.bus.feed(arena)
             count, latest = self._latest(feed)
+            _drives, robots = feed.robots_shown()
             out[arena] = {
                 "health": msgspec.to_builtins(feed.health()),
                 "obstacle_messages": count,
                 "obstacles": latest,
+                "robots": msgspec.to_builtins(robots),
             }
         return JSONResponse({"arenas": out, "viewers": len(self.viewers)})
 
@@ -371,6 +374,7 @@ class ViewServer:
         viewer.offer("hello", self._hello(viewer))
         self._shown.pop(arena, None)
         self._counts.pop(arena, None)
+        self._drive_counts.pop(arena, None)
         self._push_health(arena, [viewer])
 
     # --- recalibration ------------------------------------------------------------------
@@ -540,8 +544,18 @@ class ViewServer:
                     "obstacles",
                     _text("obstacles", arena=arena, received=count, message=latest),
                 )
+            self._push_robots(feed, health_due)
             if health_due:
                 self._push_health(arena, viewers)
+
+    def _push_robots(self, feed: ArenaFeed, due: bool) -> None:
+        """The driven robots' goals, commands and world trails: on every new command or
+        drive report, and with the health (a command turns stale with no new message)."""
+        count, robots = feed.robots_shown()
+        if robots and (due or count != self._drive_counts.get(feed.arena)):
+            self._drive_counts[feed.arena] = count
+            text = _text("robots", arena=feed.arena, received=count, robots=robots)
+            self._broadcast(feed.arena, "robots", text)
 
 
 def _client(connection: Request | WebSocket) -> str:

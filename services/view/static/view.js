@@ -14,6 +14,7 @@ const view = {
   footprint: [], bounds: null, trails: new Map(), selected: "", lastMessage: null,
   alive: new Set(), received: 0, health: null, connected: false, lastHealthAt: 0,
   healthPeriod: 0.5, fresh: {}, kind: "camera", gridStep: null, pictureLog: [],
+  drive: null,
 };
 window.ovisView = view;
 
@@ -69,6 +70,7 @@ function onText(text) {
     case "hello": onHello(msg); break;
     case "health": onHealth(msg); break;
     case "obstacles": onObstacles(msg); break;
+    case "robots": onRobots(msg); break;
     case "recalibration": onRecalibration(msg); break;
     case "auth":
       if (!msg.ok) { sessionStorage.removeItem("ovis-token"); showError(`operator token: ${msg.message}`); }
@@ -93,8 +95,9 @@ function onHello(msg) {
 
 function resetArena() {
   view.footprint = []; view.bounds = null; view.trails.clear(); view.lastMessage = null;
-  view.received = 0; view.fresh = {}; view.gridStep = null; view.pictureLog = [];
-  for (const id of ["grid-layer", "footprint-layer", "planner-layer", "trail-layer", "object-layer", "scale-layer"]) $(id).replaceChildren();
+  view.received = 0; view.fresh = {}; view.gridStep = null; view.pictureLog = []; view.drive = null;
+  for (const id of ["grid-layer", "footprint-layer", "planner-layer", "trail-layer", "drive-layer", "object-layer", "scale-layer"]) $(id).replaceChildren();
+  $("drive-info").replaceChildren();
   $("picture").hidden = true; $("picture-info").textContent = "no picture yet";
   showFreshness();
 }
@@ -240,8 +243,10 @@ function drawMap(m) {
   }
   const trails = [];
   for (const [key, pts] of view.trails) {
-    trails.push(el("polyline", { class: "trail", "data-robot": key,
-      points: pts.map(([x, y]) => `${x},${-y}`).join(" ") }));
+    const line = el("polyline", { class: "trail ovis", "data-robot": key, "data-source": "ovis",
+      "data-points": pts.length, points: pts.map(([x, y]) => `${x},${-y}`).join(" ") });
+    line.append(el("title", {}, `trail of ${key}: its positions as measured by ovis (the pose stage)`));
+    trails.push(line);
   }
   $("trail-layer").replaceChildren(...trails);
   // objects
@@ -345,6 +350,106 @@ function onObstacles(msg) {
   setCount("count-messages", msg.received);
   view.lastMessage = msg.message;
   drawMap(msg.message);
+}
+
+// --- driven robots: goal, command, the world's trail -----------------------------
+function onRobots(msg) {
+  if (msg.arena !== view.arena) return;
+  view.drive = { robots: msg.robots, at: performance.now() };
+  for (const r of msg.robots) {
+    if (r.goal_cm) view.bounds = grow(view.bounds, r.goal_cm[0], r.goal_cm[1], 10);
+    for (const [x, y] of r.trail_cm) view.bounds = grow(view.bounds, x, y, 5);
+  }
+  applyBounds();
+  drawDrive();
+}
+
+// A command as it is now: the server's judgement, its seconds grown by the time since;
+// past either of the robots' limits it is stale here too (the server may be silent).
+function commandNow(c, dt) {
+  const since = c.since_s + dt, age = c.age_s + dt;
+  let state = c.state, reason = c.reason;
+  if (state !== "stale" && since > c.command_timeout_s) {
+    state = "stale"; reason = `no newer command for ${since.toFixed(2)} s: over the robots' watchdog of ${c.command_timeout_s} s`;
+  } else if (state !== "stale" && age > c.max_frame_age_s) {
+    state = "stale"; reason = `made from a frame ${age.toFixed(2)} s old: over the robots' limit of ${c.max_frame_age_s} s`;
+  }
+  return { ...c, since_s: since, age_s: age, state, reason };
+}
+
+// Where the command would take the robot in one second (a differential drive: forwards
+// v, turning at ω), from the pose it was drawn at.
+function commandPath(c) {
+  let [x, y, h] = c.at; h = (h * Math.PI) / 180;
+  const pts = [[x, y]], n = 12, dt = 1 / n, w = (c.omega_deg_s * Math.PI) / 180;
+  for (let i = 0; i < n; i++) {
+    x += c.v_cm_s * dt * Math.cos(h); y += c.v_cm_s * dt * Math.sin(h); h += w * dt;
+    pts.push([x, y]);
+  }
+  return pts;
+}
+
+function commandText(c) {
+  const sign = (v) => (v >= 0 ? "+" : "");
+  const frame = c.frame_seq != null ? `frame ${c.frame_seq}` : `the frame captured at ${utc(c.frame_stamp_ns)}`;
+  const what = `v ${fmt(c.v_cm_s)} cm/s, ω ${sign(c.omega_deg_s)}${fmt(c.omega_deg_s)} °/s (floor frame, ω counter-clockwise) from ${frame}, ${ageText(c.age_s)} old`;
+  if (c.state === "stale") return `STALE command ${c.seq}: ${what}; ${c.reason}`;
+  if (c.state === "stop") return `command ${c.seq}: STOP (${c.reason}); ${what}`;
+  return `command ${c.seq}: ${what}` + (c.replay ? ` (replay of ${c.replay})` : "");
+}
+
+function drawDrive() {
+  const layer = $("drive-layer"), info = $("drive-info");
+  if (!view.drive) { layer.replaceChildren(); info.replaceChildren(); return; }
+  const dt = (performance.now() - view.drive.at) / 1000;
+  const items = [], lines = [];
+  for (const r of view.drive.robots) {
+    const line = document.createElement("li");
+    line.dataset.robotId = r.id;
+    const parts = [];
+    if (r.trail_cm.length) {
+      const t = el("polyline", { class: "trail world", "data-robot-id": r.id, "data-source": "world",
+        "data-points": r.trail_cm.length, points: r.trail_cm.map(([x, y]) => `${x},${-y}`).join(" ") });
+      t.append(el("title", {}, `R${r.id} trail: ${r.trail_from}`));
+      items.push(t);
+      parts.push(`trail (dashed): ${r.trail_from}` + (r.goal_reached ? "; goal reached" : "") +
+        (r.collisions ? `; ${r.collisions} collision${r.collisions === 1 ? "" : "s"}` : ""));
+    }
+    if (r.goal_cm) {
+      const [gx, gy] = r.goal_cm;
+      const g = el("g", { class: "goal", "data-robot-id": r.id, "data-x-cm": gx.toFixed(2), "data-y-cm": gy.toFixed(2) });
+      g.append(el("title", {}, `goal of R${r.id} at (${fmt(gx)}, ${fmt(gy)}) cm: ${r.goal_from}`));
+      g.append(el("circle", { cx: gx, cy: -gy, r: 4 }));
+      g.append(el("line", { x1: gx - 5, x2: gx + 5, y1: -gy, y2: -gy }));
+      g.append(el("line", { x1: gx, x2: gx, y1: -gy - 5, y2: -gy + 5 }));
+      g.append(el("text", { x: gx + 5, y: -gy - 2 }, `goal R${r.id}`));
+      items.push(g);
+      parts.push(`goal (${fmt(gx)}, ${fmt(gy)}) cm, ${r.goal_from}`);
+    }
+    if (r.command) {
+      const c = commandNow(r.command, dt);
+      const text = commandText(c);
+      line.dataset.commandState = c.state;
+      if (c.at) {
+        const g = el("g", { class: "command", "data-robot-id": r.id, "data-state": c.state, "data-seq": c.seq,
+          "data-v-cm-s": c.v_cm_s.toFixed(3), "data-omega-deg-s": c.omega_deg_s.toFixed(3),
+          "data-frame-seq": c.frame_seq ?? "", "data-age-s": c.age_s.toFixed(3) });
+        g.append(el("title", {}, `${text}; drawn from ${c.at_from}; the line: where it would drive the robot in 1 s`));
+        const path = el("polyline", { points: commandPath(c).map(([x, y]) => `${x},${-y}`).join(" ") });
+        if (c.state !== "stale") path.setAttribute("marker-end", "url(#command-arrow)");
+        g.append(path);
+        const label = c.state === "stale" ? "stale command"
+          : c.state === "stop" ? "stop" : `${fmt(c.v_cm_s)} cm/s ${c.omega_deg_s >= 0 ? "+" : ""}${fmt(c.omega_deg_s, 0)} °/s`;
+        g.append(el("text", { x: c.at[0] + 4, y: -c.at[1] + 5 }, label));
+        items.push(g);
+      }
+      parts.push(text + (c.at ? ` (arrow: the next 1 s of it, from ${c.at_from})` : ""));
+    }
+    line.textContent = `R${r.id}: ${parts.join(" · ")}`;
+    lines.push(line);
+  }
+  layer.replaceChildren(...items);
+  info.replaceChildren(...lines);
 }
 
 // --- health ----------------------------------------------------------------------
@@ -496,6 +601,7 @@ function everySecond() {
     unknown(`the view server has sent nothing for ${Math.round(quiet)} s: nothing shown is current`);
   }
   showFreshness();
+  if (view.drive) drawDrive();
 }
 
 // --- recalibration ---------------------------------------------------------------
@@ -556,4 +662,5 @@ $("show-binary").addEventListener("change", (e) => {
 $("arena-select").addEventListener("change", (e) => send({ type: "select", arena: e.target.value }));
 $("robot-select").addEventListener("change", (e) => selectRobot(e.target.value));
 setInterval(everySecond, 1000);
+setInterval(() => { if (view.drive) drawDrive(); }, 250); // a command turns stale on time
 connect();

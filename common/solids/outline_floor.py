@@ -1,0 +1,47 @@
+"""A blob's sub-pixel outline carried onto the floor: each edge point back-projected onto
+Z = 0, its normal carried through the pixel → floor Jacobian J (a normal m in the image
+is ``J⁻ᵀ·m`` on the floor), and the pixels per cm across the outline there
+(``1 / |Jᵀ·n|``: a floor distance d along the floor normal n is ``d / |Jᵀ·n|`` pixels
+across the image outline), so that residuals measured on the floor count in pixels."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ovis.common.camera.plane_table import PlaneTables
+from ovis.common.camera.projection import pixel_jacobian
+from ovis.common.config import CameraModel
+from ovis.common.solids.fit import FloorOutline
+
+__all__ = ["floor_outline"]
+
+FloatArray = NDArray[np.float64]
+
+
+def floor_outline(
+    edges: FloatArray,
+    normals: FloatArray,
+    camera: CameraModel,
+    tables: PlaneTables | None = None,
+) -> FloorOutline:
+    """Edge points (n, 2) frame (col, row) and their image normals (col, row) on the
+    floor (read from the camera's floor table when ``tables`` are given); points the
+    camera cannot carry onto the floor are left out."""
+    if tables is not None:
+        j = tables.jacobian(edges[:, 1], edges[:, 0], camera, 0.0)
+    else:
+        j = pixel_jacobian(edges[:, 1], edges[:, 0], camera, 0.0)
+    jac = np.empty((len(edges), 2, 2))  # (x, y) by (col, row)
+    jac[:, 0, 0], jac[:, 0, 1] = j.dx_dcol, j.dx_drow
+    jac[:, 1, 0], jac[:, 1, 1] = j.dy_dcol, j.dy_drow
+    det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
+    # a point with no image normal (a flat profile) has no direction to carry across
+    ok = j.valid & (np.abs(det) > 1e-12) & (np.hypot(normals[:, 0], normals[:, 1]) > 1e-12)
+    jac, normals = jac[ok], normals[ok]
+    inv_t = np.linalg.inv(jac).transpose(0, 2, 1)
+    n = np.einsum("nij,nj->ni", inv_t, normals)
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    across = np.linalg.norm(np.einsum("nji,nj->ni", jac, n), axis=1)
+    points = np.column_stack([j.x_cm[ok], j.y_cm[ok]])
+    return FloorOutline(points, n, 1.0 / across)

@@ -1,0 +1,257 @@
+"""A solid's silhouette on the floor, seen through the camera's centre.
+
+An upright prism of footprint F and height h seen by a camera whose centre C stands
+``H`` above the floor at the foot ``f``: the top face, back-projected through C onto the
+floor (Z = 0), is F scaled by ``S = H / (H − h)`` about f, and the silhouette, carried
+onto the floor the same way, is the convex hull of F and of that scaled copy (a
+projection keeps convex hulls; lens distortion is undone by the back-projection of each
+pixel). Its near side is the foot of the walls (the footprint's edge), its far side the
+top face's far edge: how far the far side reaches is the height.
+
+The hull has a closed form. An edge of F lies on it when the foot is outside that edge's
+line (the edge faces the camera's foot), else the same edge of the scaled copy does;
+where the two meet, a radial edge (a vertical edge of the prism) joins them. So each
+polygon of k corners gives k edges and k radial slots (empty ones collapse onto a hull
+corner), the same count for every parameter vector: a batch of silhouettes is a few
+array operations. A cylinder's silhouette is the hull of two disks (exact signed
+distance, :func:`capsule_distance`).
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ovis.common.camera.projection import camera_centre_cm, project
+from ovis.common.config import CameraModel
+from ovis.common.solids.shapes import footprint_polygon
+
+__all__ = [
+    "MAX_HEIGHT_SHARE",
+    "Viewpoint",
+    "capsule_distance",
+    "hull_edges",
+    "image_moments",
+    "signed_distance",
+    "top_distance",
+    "top_near_edges",
+    "top_scale",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Heights are kept below this share of the camera's height (a top at the camera's
+#: height would be scaled without bound).
+MAX_HEIGHT_SHARE = 0.9
+
+
+class Viewpoint(NamedTuple):
+    """Where the camera's centre stands: its foot on the floor (cm) and its height."""
+
+    foot: FloatArray
+    height_cm: float
+
+    @classmethod
+    def of(cls, camera: CameraModel) -> Viewpoint:
+        x, y, z = camera_centre_cm(camera)
+        return cls(np.array([x, y], dtype=np.float64), float(z))
+
+
+def top_scale(h: FloatArray, view: Viewpoint) -> FloatArray:
+    """``S = H / (H − h)``: how much larger the top face's back-projection is."""
+    H = view.height_cm
+    return H / (H - np.minimum(h, MAX_HEIGHT_SHARE * H))
+
+
+@functools.lru_cache(maxsize=16)
+def _next(k: int, step: int = 1) -> NDArray[np.int64]:
+    """Each of k polygon vertices' ``step``-th next index (made once per k: it is asked
+    for at every residual evaluation of a fit)."""
+    out = (np.arange(k) + step) % k
+    out.flags.writeable = False
+    return out
+
+
+def hull_edges(
+    footprint: FloatArray, scale: FloatArray, view: Viewpoint
+) -> tuple[FloatArray, FloatArray]:
+    """The silhouette's boundary as directed edges (start, end), each (..., 2k, 2), going
+    counter-clockwise: for footprints (..., k, 2) and top scales (...)."""
+    f = view.foot
+    k = footprint.shape[-2]
+    nxt, prv = _next(k), _next(k, -1)
+    top = f + scale[..., None, None] * (footprint - f)
+    ahead = footprint[..., nxt, :]
+    e = ahead - footprint
+    # the foot outside an edge's line (outward normal (ey, −ex)): the edge faces it
+    near = e[..., 1] * (f[0] - footprint[..., 0]) - e[..., 0] * (f[1] - footprint[..., 1]) > 0
+    n3 = near[..., None]
+    start = np.where(n3, footprint, top)
+    end = np.where(n3, ahead, top[..., nxt, :])
+    prev = near[..., prv][..., None]
+    up = prev & ~n3  # near → far: from the footprint's corner up to the top's
+    down = ~prev & n3
+    r_start = np.where(down, top, footprint)  # no radial edge: a hull corner, twice
+    r_start = np.where(up | down | n3, r_start, top)
+    r_end = np.where(up, top, np.where(down, footprint, r_start))
+    return (
+        np.concatenate([start, r_start], axis=-2),
+        np.concatenate([end, r_end], axis=-2),
+    )
+
+
+def _segments_distance(q: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
+    """Signed distance of points q (N, 2) to convex polygons given by their directed
+    counter-clockwise edges a → b (..., m, 2), negative inside: the largest signed
+    distance to an edge's line (exact inside and beside an edge; beyond a corner, the
+    distance to the nearer of its two lines). Result (..., N)."""
+    e = b - a
+    length = np.sqrt((e * e).sum(-1))
+    real = length > 1e-12
+    nx = np.where(real, e[..., 1] / np.where(real, length, 1.0), 0.0)
+    ny = np.where(real, -e[..., 0] / np.where(real, length, 1.0), 0.0)
+    c = nx * a[..., 0] + ny * a[..., 1]
+    c = np.where(real, c, np.inf)  # an empty edge never counts
+    d = q[:, 0, None] * nx[..., None, :] + q[:, 1, None] * ny[..., None, :] - c[..., None, :]
+    return d.max(-1)
+
+
+def capsule_distance(
+    q: FloatArray, c1: FloatArray, r1: FloatArray, c2: FloatArray, r2: FloatArray
+) -> FloatArray:
+    """Signed distance of points q (N, 2) to the hulls of two disks (c1, r1), (c2, r2),
+    batched over (...,): the silhouette of a cylinder. Result (..., N)."""
+    d = c2 - c1
+    length = np.hypot(d[..., 0], d[..., 1])
+    safe = np.maximum(length, 1e-12)
+    u = d / safe[..., None]
+    px = q[:, 0] - c1[..., 0, None]
+    py = q[:, 1] - c1[..., 1, None]
+    along = px * u[..., 0, None] + py * u[..., 1, None]
+    across = np.abs(-px * u[..., 1, None] + py * u[..., 0, None])
+    b = np.clip((r1 - r2) / safe, -1.0, 1.0)[..., None]
+    a = np.sqrt(1.0 - b * b)
+    k = -b * across + a * along
+    side = across * a + along * b - r1[..., None]
+    near_end = np.hypot(across, along) - r1[..., None]
+    far_end = np.hypot(across, along - length[..., None]) - r2[..., None]
+    out = np.where(k < 0.0, near_end, np.where(k > a * length[..., None], far_end, side))
+    nested = (length <= np.abs(r2 - r1))[..., None]  # one disk holds the other
+    if not nested.any():
+        return out
+    outer_c = np.where((r2 >= r1)[..., None], c2, c1)
+    outer_r = np.maximum(r1, r2)[..., None]
+    big = np.hypot(q[:, 0] - outer_c[..., 0, None], q[:, 1] - outer_c[..., 1, None]) - outer_r
+    return np.where(nested, big, out)
+
+
+def signed_distance(shape: str, theta: FloatArray, q: FloatArray, view: Viewpoint) -> FloatArray:
+    """Signed distance (cm, negative inside) of floor points q (N, 2) to the silhouettes
+    of parameter vectors ``theta`` (..., P) of one shape. Result (..., N)."""
+    theta = np.asarray(theta, dtype=np.float64)
+    scale = top_scale(theta[..., -1], view)
+    if shape == "cylinder":
+        c1 = theta[..., 0:2]
+        c2 = view.foot + scale[..., None] * (c1 - view.foot)
+        return capsule_distance(q, c1, theta[..., 2], c2, scale * theta[..., 2])
+    a, b = hull_edges(footprint_polygon(shape, theta), scale, view)
+    return _segments_distance(q, a, b)
+
+
+def top_distance(shape: str, theta: FloatArray, q: FloatArray, view: Viewpoint) -> FloatArray:
+    """Signed distance (cm) of floor points q (N, 2) to the top faces' outlines carried
+    onto the floor (the footprint scaled by S about the camera's foot), batched over
+    ``theta`` (..., P). Result (..., N)."""
+    theta = np.asarray(theta, dtype=np.float64)
+    scale = top_scale(theta[..., -1], view)
+    if shape == "cylinder":
+        c = view.foot + scale[..., None] * (theta[..., 0:2] - view.foot)
+        r = scale * theta[..., 2]
+        return np.hypot(q[:, 0] - c[..., 0, None], q[:, 1] - c[..., 1, None]) - r[..., None]
+    top = view.foot + scale[..., None, None] * (footprint_polygon(shape, theta) - view.foot)
+    ahead = top[..., _next(top.shape[-2]), :]
+    return _segments_distance(q, top, ahead)
+
+
+def top_near_edges(
+    shape: str,
+    theta: FloatArray,
+    view: Viewpoint,
+    camera: CameraModel,
+    spacing_px: float = 1.0,
+    min_wall_px: float = 0.0,
+) -> tuple[FloatArray, FloatArray]:
+    """Points (n, 2) (col, row) on the top face's edges that face the camera's foot (its
+    edges inside the silhouette, against the walls below them), every ``spacing_px`` in
+    the frame, and their image normals pointing away from the top face; only where the
+    wall below is at least ``min_wall_px`` tall in the frame (else the top's edge and
+    the wall's foot are one blurred edge)."""
+    theta = np.asarray(theta, dtype=np.float64)
+    h = float(theta[-1])
+    poly = footprint_polygon(shape, theta)
+    ahead = poly[_next(len(poly))]
+    e = ahead - poly
+    f = view.foot
+    near = e[:, 1] * (f[0] - poly[:, 0]) - e[:, 0] * (f[1] - poly[:, 1]) > 0
+    if not near.any():
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    a, b = poly[near], ahead[near]
+    pa, pb = (
+        project(a[:, 0], a[:, 1], np.full(len(a), h), camera),
+        project(b[:, 0], b[:, 1], np.full(len(b), h), camera),
+    )
+    length = np.hypot(pb.col - pa.col, pb.row - pa.row)
+    pts, nrm = [], []
+    centre = project(theta[0], theta[1], h, camera)
+    for k in range(len(a)):
+        m = max(int(length[k] / spacing_px), 1)
+        s = (np.arange(m) + 0.5) / m
+        xy = a[k] + s[:, None] * (b[k] - a[k])
+        p = project(xy[:, 0], xy[:, 1], np.full(m, h), camera)
+        foot = project(xy[:, 0], xy[:, 1], np.zeros(m), camera)
+        tall = np.hypot(p.col - foot.col, p.row - foot.row) >= min_wall_px
+        if not tall.any():
+            continue
+        d = np.array([pb.col[k] - pa.col[k], pb.row[k] - pa.row[k]])
+        n = np.array([d[1], -d[0]]) / max(float(np.hypot(*d)), 1e-9)
+        away = np.array([np.mean(p.col) - float(centre.col), np.mean(p.row) - float(centre.row)])
+        if n @ away < 0:
+            n = -n
+        pts.append(np.column_stack([p.col, p.row])[tall])
+        nrm.append(np.repeat(n[None], int(tall.sum()), axis=0))
+    if not pts:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    return np.vstack(pts), np.vstack(nrm)
+
+
+def image_moments(
+    shape: str,
+    theta: FloatArray,
+    view: Viewpoint,
+    camera: CameraModel,
+    *,
+    steps: int = 1,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Area (px²) and centroid (row, col) of each silhouette (..., P) in the camera's
+    frame: its hull edges cut into ``steps`` pieces each and projected (straight lines
+    on the floor bend a little under lens distortion), by the shoelace formula."""
+    theta = np.asarray(theta, dtype=np.float64)
+    a, b = hull_edges(footprint_polygon(shape, theta), top_scale(theta[..., -1], view), view)
+    if steps > 1:
+        s = np.arange(steps + 1) / steps
+        pts = a[..., None, :] + s[:, None] * (b - a)[..., None, :]  # (..., m, steps+1, 2)
+    else:
+        pts = np.stack([a, b], axis=-2)
+    p = project(pts[..., 0], pts[..., 1], np.zeros(pts.shape[:-1]), camera)
+    r, c = p.row, p.col
+    r0, c0 = r[..., :-1], c[..., :-1]
+    r1, c1 = r[..., 1:], c[..., 1:]
+    cross = c0 * r1 - c1 * r0
+    axes = tuple(range(-(cross.ndim - theta.ndim + 1), 0))
+    area2 = cross.sum(axis=axes)
+    row = ((r0 + r1) * cross).sum(axis=axes) / (3.0 * area2)
+    col = ((c0 + c1) * cross).sum(axis=axes) / (3.0 * area2)
+    return np.abs(0.5 * area2), row, col

@@ -1,0 +1,511 @@
+"""A blob's outline to sub-pixel precision, from the frame less the empty floor.
+
+The label stage hands each blob on as a :class:`Patch`: the frame's difference from the
+empty floor (``D = frame − background``, grey levels, signed) around the blob. Solid
+objects are brighter than the floor they stand on; their shadows are darker and their
+walls may be barely brighter, so the object's pixels are those where the smoothed D is
+at least the threshold (:func:`patch_outline`), holes filled (a marker's cells, a floor
+mark the object hides).
+
+Sub-pixel edges (:func:`subpixel_edges`): along each outline pixel's outward normal, D
+is sampled from 4 px inside to 4 px outside and fitted, by least squares over a grid of
+positions, with one or two blurred steps (a Gaussian edge spread of ``blur_px``): the
+object against the floor, or a bright top face, then a dark wall, then the floor. The
+outer step is the silhouette's edge; two steps are taken only where they fit clearly
+better (a wall of its own level wide enough to be seen). Where one step is taken and a
+shelf follows it outside — D still a few levels above the floor past the step's blur (a
+wall too thin for two steps, lit only by the room) — the edge is where D falls to half
+the shelf's level. Points on bright spots of the empty floor (floor marks,
+:func:`background_spots`) are left out: there the object's edge is not against the
+floor. :func:`edges_along` finds an edge of either sign where one is expected inside an
+object (a top face against its wall).
+
+A blob may hold several objects whose silhouettes overlap in the image (a tall object in
+front of another): the union of convex silhouettes, cut where its outline turns inward
+(:func:`split_outline`, at pairs of deep convexity defects).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+from typing import NamedTuple, overload
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "BlobPatches",
+    "Outline",
+    "Patch",
+    "background_spots",
+    "blob_patches",
+    "chain_normals",
+    "edges_along",
+    "object_mask",
+    "patch_outline",
+    "split_outline",
+    "subpixel_edges",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Pixels of floor kept around a blob in its patch (the profiles reach 4 px out).
+PATCH_MARGIN_PX = 7
+#: Profile samples: from −PROFILE_REACH to +PROFILE_REACH px along the normal, this apart.
+PROFILE_REACH_PX = 4.0
+PROFILE_STEP_PX = 0.5
+#: Grid of step positions tried (px from the outline pixel) and its spacing.
+STEP_RANGE_PX = 3.0
+STEP_GRID_PX = 0.1
+#: Two-step models on every this-many-th grid position.
+TWO_STEP_EVERY = 3
+#: Chain points on each side whose positions give an outline pixel's normal.
+NORMAL_SPAN = 3
+#: Two steps are taken when their residual sum of squares is smaller than one step's by
+#: this many noise variances per sample; a wall step must be this many grey levels.
+TWO_STEP_GAIN = 12.0
+WALL_STEP = 2.0
+#: A shelf just outside a single step (a thin dark wall) is looked for from this far
+#: (px) past the step, is a wall when this many levels above the floor, whose level is
+#: the profile's last few samples'.
+SHELF_FROM_PX = 1.25
+SHELF_STEP = 3.0
+FLOOR_SAMPLES = 3
+#: An edge whose outer step is weaker than this (grey levels) is no edge.
+MIN_STEP = 3.0
+#: A bright spot of the empty floor: this many levels above its 15-px median.
+SPOT_LEVEL = 25
+#: Gaussian smoothing (px) of D before the object pixels are thresholded.
+SMOOTH_PX = 0.8
+
+
+class Patch(NamedTuple):
+    """``D`` (int16, frame − empty floor) of a blob's surroundings; its top-left pixel is
+    (``top``, ``left``) of the frame."""
+
+    top: int
+    left: int
+    diff: NDArray[np.int16]
+
+
+class Outline(NamedTuple):
+    """A blob's outline in frame pixels: the closed chain of its outer pixels (n, 2)
+    (col, row), the filled silhouette's area (px²) and centroid (row, col)."""
+
+    chain: NDArray[np.int32]
+    area_px: float
+    row: float
+    col: float
+
+
+def blob_patches(
+    gray: NDArray[np.uint8],
+    background: NDArray[np.uint8],
+    top: NDArray[np.int64],
+    left: NDArray[np.int64],
+    height: NDArray[np.int64],
+    width: NDArray[np.int64],
+    margin: int = PATCH_MARGIN_PX,
+) -> list[Patch]:
+    """Each blob's :class:`Patch`: the frame less the empty floor around its bounding
+    box (``top``, ``left``, ``height``, ``width``, px)."""
+    rows, cols = gray.shape
+    out = []
+    boxes = zip(top.tolist(), left.tolist(), height.tolist(), width.tolist(), strict=True)
+    for t, lf, h, w in boxes:
+        r0, c0 = max(0, t - margin), max(0, lf - margin)
+        r1, c1 = min(rows, t + h + margin), min(cols, lf + w + margin)
+        diff = np.subtract(gray[r0:r1, c0:c1], background[r0:r1, c0:c1], dtype=np.int16)
+        out.append(Patch(r0, c0, diff))
+    return out
+
+
+class BlobPatches(Sequence[Patch]):
+    """:func:`blob_patches` cut when first asked for, one blob at a time: most frames of
+    a tracked scene need none (its solids are followed from their centroids)."""
+
+    def __init__(
+        self,
+        gray: NDArray[np.uint8],
+        background: NDArray[np.uint8],
+        box: NDArray[np.int64],
+        margin: int = PATCH_MARGIN_PX,
+    ) -> None:
+        self._gray, self._background, self._margin = gray, background, margin
+        self._box = np.asarray(box, dtype=np.int64).reshape(-1, 4)
+        self._cut: dict[int, Patch] = {}
+
+    def __len__(self) -> int:
+        return len(self._box)
+
+    @overload
+    def __getitem__(self, i: int) -> Patch: ...
+    @overload
+    def __getitem__(self, i: slice) -> list[Patch]: ...
+    def __getitem__(self, i: int | slice) -> Patch | list[Patch]:
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        k = range(len(self))[i]  # IndexError as a list's
+        if k not in self._cut:
+            box = self._box[k : k + 1].T
+            self._cut[k] = blob_patches(self._gray, self._background, *box, self._margin)[0]
+        return self._cut[k]
+
+
+@functools.lru_cache(maxsize=4)
+def _spots(key: bytes, shape: tuple[int, int]) -> NDArray[np.uint8]:
+    background = np.frombuffer(key, dtype=np.uint8).reshape(shape)
+    med = cv2.medianBlur(background, 15)
+    lift = background.astype(np.int16) - med
+    spot = cv2.dilate((lift > SPOT_LEVEL).astype(np.uint8), np.ones((5, 5), np.uint8))
+    out = np.where(spot > 0, np.clip(lift, 1, 255), 0).astype(np.uint8)
+    out.flags.writeable = False  # shared by every caller (cached)
+    return out
+
+
+def background_spots(background: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """Where the empty floor has a bright spot (a floor mark) or is near one: how much
+    brighter it is there than the floor around it (at least 1), else 0."""
+    bg = np.ascontiguousarray(background)
+    return _spots(bg.tobytes(), bg.shape)
+
+
+def object_mask(
+    diff: NDArray[np.int16], level: float, spots: NDArray[np.uint8] | None = None
+) -> NDArray[np.uint8]:
+    """The object pixels of the frame less the empty floor (measured heights): D,
+    smoothed (Gaussian, :data:`SMOOTH_PX`), at least ``level``; on bright floor spots
+    (``spots``, of the same shape, :func:`background_spots`) a difference of at least
+    ``level`` either way (an object hiding a spot may be darker than it) that leaves the
+    pixel at least ``level`` brighter than the floor around the spot (a shadow on a
+    spot darkens it too, but not above the floor). The label stage's blobs and the
+    outlines fitted come from this one mask."""
+    d = cv2.GaussianBlur(diff.astype(np.float32), (0, 0), SMOOTH_PX)
+    mask = (d >= level).view(np.uint8)
+    if spots is not None:
+        at, lift = _spot_lift(spots)
+        here = d.ravel()[at]
+        hidden = (np.abs(here) >= level) & (here + lift >= level)
+        mask.ravel()[at[hidden]] = 1
+    return mask
+
+
+#: :func:`_spot_lift` of the last few whole spot images (by identity; they are read-only).
+_LIFTS: dict[int, tuple[NDArray[np.uint8], NDArray[np.intp], NDArray[np.float32]]] = {}
+
+
+def _spot_lift(spots: NDArray[np.uint8]) -> tuple[NDArray[np.intp], NDArray[np.float32]]:
+    """The flat indices of the spots' pixels and the smoothed spot level there (as
+    :func:`object_mask` smooths D). A whole image of :func:`background_spots` is worked
+    out once (every frame's mask uses it); a patch's slice of it each time (smoothed
+    within the slice, as the patch's D is)."""
+    hit = _LIFTS.get(id(spots))
+    if hit is not None and hit[0] is spots:
+        return hit[1], hit[2]
+    at = np.flatnonzero(spots)
+    if not at.size:
+        lift = np.zeros(0, dtype=np.float32)
+    else:
+        lift = cv2.GaussianBlur(spots.astype(np.float32), (0, 0), SMOOTH_PX).ravel()[at]
+    if not spots.flags.writeable and spots.base is None:
+        while len(_LIFTS) >= 4:
+            _LIFTS.pop(next(iter(_LIFTS)))
+        _LIFTS[id(spots)] = (spots, at, lift)
+    return at, lift
+
+
+def patch_outline(
+    patch: Patch,
+    level: float,
+    at: tuple[float, float] | None = None,
+    spots: NDArray[np.uint8] | None = None,
+) -> Outline | None:
+    """The outline of the object pixels of a patch (smoothed D ≥ ``level``), holes
+    filled: the component nearest ``at`` (frame row, col; default the patch's
+    centre); None when the patch has none. On the frame's bright floor spots
+    (``spots``, :func:`background_spots`) an object hiding a spot may be darker than
+    the spot: there any difference from the floor image counts."""
+    rows, cols = patch.diff.shape
+    here = None
+    if spots is not None:
+        here = spots[patch.top : patch.top + rows, patch.left : patch.left + cols]
+    mask = object_mask(patch.diff, level, here)
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return None
+    if at is None:
+        goal = (0.5 * (mask.shape[1] - 1), 0.5 * (mask.shape[0] - 1))
+    else:
+        goal = (at[1] - patch.left, at[0] - patch.top)
+    best, best_key = None, None
+    for c in contours:
+        if len(c) < 3:
+            continue
+        inside = cv2.pointPolygonTest(c, goal, True)
+        key = (0.0, -float(len(c))) if inside >= 0 else (1.0, -inside)
+        if best_key is None or key < best_key:
+            best, best_key = c, key
+    if best is None:
+        return None
+    m = cv2.moments(best)
+    if m["m00"] <= 0:
+        return None
+    chain = best[:, 0, :] + np.array([patch.left, patch.top], dtype=np.int32)
+    area = float(m["m00"])
+    return Outline(chain, area, m["m01"] / area + patch.top, m["m10"] / area + patch.left)
+
+
+def chain_normals(chain: NDArray[np.int32]) -> tuple[FloatArray, FloatArray]:
+    """Chain points (col, row) as floats and their outward unit normals (from the
+    chain's direction over ±:data:`NORMAL_SPAN` points)."""
+    p = chain.astype(np.float64)
+    at = np.arange(len(p))
+    k = NORMAL_SPAN
+    tangent = p[(at + k) % len(p)] - p[(at - k) % len(p)]
+    tangent /= np.maximum(np.hypot(tangent[:, 0], tangent[:, 1]), 1e-9)[:, None]
+    ahead = p[(at + 1) % len(p)]
+    twice_area = np.sum(p[:, 0] * ahead[:, 1] - ahead[:, 0] * p[:, 1])
+    sign = 1.0 if twice_area > 0 else -1.0
+    return p, sign * np.stack([tangent[:, 1], -tangent[:, 0]], 1)
+
+
+class _Steps(NamedTuple):
+    """The step models fitted to every profile: their positions, design matrices
+    ([1, outer step(, inner step)] over the samples) and pseudo-inverses."""
+
+    outer: FloatArray  # (K,) outer step positions (px along the normal)
+    design: FloatArray  # (K, T, c)
+    pinv: FloatArray  # (K, c, T)
+
+
+def _design(blur_px: float, positions: list[tuple[float, ...]], reach: float) -> _Steps:
+    from scipy.special import ndtr  # on first use: most processes never fit an edge
+
+    ts = np.arange(-reach, reach + 1e-9, PROFILE_STEP_PX)
+    cols = [np.ones((len(positions), ts.size))]
+    for j in range(len(positions[0])):
+        at = np.array([p[j] for p in positions])
+        cols.append(ndtr((at[:, None] - ts) / blur_px))
+    design = np.stack(cols, -1)
+    return _Steps(np.array([p[0] for p in positions]), design, np.linalg.pinv(design))
+
+
+@functools.lru_cache(maxsize=8)
+def _step_models(blur_px: float, reach: float = STEP_RANGE_PX) -> tuple[_Steps, _Steps, int]:
+    """One step at every position of the fine grid within ±``reach`` px; two steps
+    (outer, inner) on a coarser grid (every ``TWO_STEP_EVERY``-th fine position), and
+    that stride; profiles reach a pixel further."""
+    fine = np.arange(-reach, reach + 1e-9, STEP_GRID_PX)
+    sampled = reach + PROFILE_REACH_PX - STEP_RANGE_PX
+    one = _design(blur_px, [(b,) for b in fine], sampled)
+    coarse = fine[::TWO_STEP_EVERY]
+    pairs = [(b, a) for b in coarse for a in coarse if a < b - 1e-9]
+    two = _design(blur_px, pairs, sampled)
+    return one, two, TWO_STEP_EVERY
+
+
+def _fit_steps(prof: FloatArray, steps: _Steps) -> tuple[FloatArray, FloatArray]:
+    """Residual sums of squares (K, n) and coefficients (K, n, c) of every step model
+    (least squares by the pseudo-inverse; the residual by ``|p|² − (Bᵀp)·c``, B·B⁺ being
+    a projection)."""
+    coef = np.matmul(steps.pinv, prof.T)  # (K, c, n)
+    projected = np.matmul(steps.design.transpose(0, 2, 1), prof.T)  # (K, c, n)
+    ss = np.einsum("ij,ij->i", prof, prof)[None, :] - (coef * projected).sum(1)
+    return np.maximum(ss, 0.0), coef.transpose(0, 2, 1)
+
+
+def _profiles(
+    diff: NDArray[np.float32],
+    origin: tuple[int, int],
+    points: FloatArray,
+    normals: FloatArray,
+    reach: float = PROFILE_REACH_PX,
+) -> FloatArray:
+    """D sampled along each point's normal, from −reach to +reach (bilinear)."""
+    ts = np.arange(-reach, reach + 1e-9, PROFILE_STEP_PX)
+    local = points - np.array([origin[1], origin[0]], dtype=np.float64)
+    xs = (local[:, None, 0] + ts * normals[:, None, 0]).astype(np.float32)
+    ys = (local[:, None, 1] + ts * normals[:, None, 1]).astype(np.float32)
+    prof = cv2.remap(diff, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return prof.astype(np.float64)
+
+
+def _one_step(prof: FloatArray, steps: _Steps, either_sign: bool) -> tuple[FloatArray, FloatArray]:
+    """Each profile's best single step: its position (px along the normal, refined
+    between grid points) and residual sum of squares (inf: no step strong enough)."""
+    ss1, c1 = _fit_steps(prof, steps)
+    strong = np.abs(c1[..., 1]) if either_sign else c1[..., 1]
+    ss1 = np.where(strong > MIN_STEP, ss1, np.inf)
+    n = np.arange(len(prof))
+    k1 = ss1.argmin(0)
+    best1 = ss1[k1, n]
+    lo, hi = np.maximum(k1 - 1, 0), np.minimum(k1 + 1, len(steps.outer) - 1)
+    a, b, c = ss1[lo, n], best1, ss1[hi, n]
+    fine = np.isfinite(a) & np.isfinite(b) & np.isfinite(c) & (lo < k1) & (hi > k1)
+    a, b, c = np.where(fine, a, 0.0), np.where(fine, b, 0.0), np.where(fine, c, 0.0)
+    curve = a - 2.0 * b + c
+    shift = np.where(fine & (curve > 0), 0.5 * (a - c) / np.where(curve > 0, curve, 1.0), 0.0)
+    return steps.outer[k1] + np.clip(shift, -0.5, 0.5) * STEP_GRID_PX, best1
+
+
+def _off_spots(edge: FloatArray, spots: NDArray[np.uint8] | None) -> NDArray[np.bool_]:
+    if spots is None:
+        return np.ones(len(edge), dtype=bool)
+    r = np.clip(np.rint(edge[:, 1]).astype(np.int64), 0, spots.shape[0] - 1)
+    c = np.clip(np.rint(edge[:, 0]).astype(np.int64), 0, spots.shape[1] - 1)
+    return spots[r, c] == 0
+
+
+def subpixel_edges(
+    diff: NDArray[np.float32],
+    origin: tuple[int, int],
+    chain: NDArray[np.int32],
+    *,
+    blur_px: float,
+    noise: float,
+    spots: NDArray[np.uint8] | None = None,
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """Sub-pixel silhouette edge points (frame col, row), outward normals and which are
+    usable, one per chain point (see the module's docstring); ``diff`` is D around the
+    chain with its top-left pixel at ``origin`` (row, col) of the frame; ``spots`` (the
+    frame's :func:`background_spots`) drop points on bright floor."""
+    p, nrm = chain_normals(chain)
+    prof = _profiles(diff, origin, p, nrm)
+    one, two, _ = _step_models(float(blur_px))
+    at1, best1 = _one_step(prof, one, either_sign=False)
+    gain = TWO_STEP_GAIN * noise * noise
+    # two steps only where one leaves more than the gain they must bring
+    k2 = np.zeros(len(p), dtype=np.int64)
+    best2 = np.full(len(p), np.inf)
+    poor = np.flatnonzero(~(best1 <= gain))
+    if poor.size:
+        ss2, c2 = _fit_steps(prof[poor], two)
+        valid = (c2[..., 1] > WALL_STEP) & (np.abs(c2[..., 2]) > WALL_STEP)
+        ss2 = np.where(valid, ss2, np.inf)
+        k2[poor] = ss2.argmin(0)
+        best2[poor] = ss2[k2[poor], np.arange(poor.size)]
+    take_two = best2 < best1 - gain
+    at = np.where(take_two, two.outer[k2], _past_the_wall(prof, at1))
+    edge = p + at[:, None] * nrm
+    usable = np.isfinite(np.where(take_two, best2, best1)) & _off_spots(edge, spots)
+    return edge, nrm, usable
+
+
+def _past_the_wall(prof: FloatArray, inner: FloatArray) -> FloatArray:
+    """Each profile's silhouette edge given its one step at ``inner``: that step, unless
+    a shelf follows it — D still :data:`SHELF_STEP` above the floor just outside it (a
+    wall too thin for two steps to tell, lit only by the room, between a bright top and
+    the floor) — then where D falls to half the shelf's level past it."""
+    ts = np.arange(-PROFILE_REACH_PX, PROFILE_REACH_PX + 1e-9, PROFILE_STEP_PX)
+    floor = prof[:, -FLOOR_SAMPLES:].mean(1)
+    above = prof - floor[:, None]
+    past = ts[None, :] >= inner[:, None] + SHELF_FROM_PX
+    first = np.argmax(past, axis=1)
+    rows = np.arange(len(prof))
+    take = past.any(1) & (first + 1 < ts.size - FLOOR_SAMPLES)
+    nxt = np.minimum(first + 1, ts.size - 1)
+    level = np.where(take, (above[rows, first] + above[rows, nxt]) / 2.0, 0.0)
+    wall = take & (level >= SHELF_STEP)
+    below = (above < (level / 2.0)[:, None]) & (np.arange(ts.size) > first[:, None])
+    k = np.argmax(below, axis=1)
+    wall &= below[rows, k] & (k > 0)
+    a, b = above[rows, np.maximum(k - 1, 0)], above[rows, k]
+    frac = np.where(a > b, (a - level / 2.0) / np.where(a > b, a - b, 1.0), 0.5)
+    crossing = ts[np.maximum(k - 1, 0)] + np.clip(frac, 0.0, 1.0) * PROFILE_STEP_PX
+    return np.where(wall, crossing, inner)
+
+
+def edges_along(
+    diff: NDArray[np.float32],
+    origin: tuple[int, int],
+    points: FloatArray,
+    normals: FloatArray,
+    *,
+    blur_px: float,
+    reach_px: float = 2.0,
+    spots: NDArray[np.uint8] | None = None,
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """The edge of either sign nearest each of ``points`` (frame col, row) along its
+    ``normals`` (an edge expected there, inside an object: a top face against its
+    wall), within ``reach_px``; and which were found."""
+    if not len(points):
+        return np.zeros((0, 2)), np.zeros(0, dtype=bool)
+    one, _, _ = _step_models(float(blur_px), float(reach_px))
+    sampled = reach_px + PROFILE_REACH_PX - STEP_RANGE_PX
+    prof = _profiles(diff, origin, points, normals, sampled)
+    at, best = _one_step(prof, one, either_sign=True)
+    edge = points + at[:, None] * normals
+    return edge, np.isfinite(best) & (np.abs(at) <= reach_px) & _off_spots(edge, spots)
+
+
+#: A cut needs a convexity defect at least this deep (px) at one end and this at the other.
+DEFECT_DEEP_PX = 2.5
+DEFECT_PX = 1.0
+#: Pieces a blob is cut into at most.
+MAX_PIECES = 6
+
+
+def split_outline(
+    chain: NDArray[np.int32], spots: NDArray[np.uint8] | None = None
+) -> list[NDArray[np.int64]]:
+    """Index arrays into ``chain`` of the pieces of a blob holding several convex
+    silhouettes: cut between the pair of convexity defects (one deep) deepest at its
+    shallower end for the cut's length (two silhouettes crossing make two concave
+    corners; a pixel's dent beside one is not the other), again in each piece, until
+    none is left. Never at a defect on a bright floor
+    spot (``spots``): there the outline is uncertain."""
+    avoid = np.zeros(len(chain), dtype=bool)
+    if spots is not None:
+        r = np.clip(chain[:, 1], 0, spots.shape[0] - 1)
+        c = np.clip(chain[:, 0], 0, spots.shape[1] - 1)
+        avoid = spots[r, c] > 0
+    todo = [np.arange(len(chain))]
+    done: list[NDArray[np.int64]] = []
+    while todo:
+        idx = todo.pop()
+        full = len(done) + len(todo) + 1 >= MAX_PIECES
+        cut = None if full else _best_cut(chain[idx], avoid[idx])
+        if cut is None:
+            done.append(idx)
+            continue
+        i, j = cut
+        todo.append(idx[i : j + 1])
+        todo.append(np.concatenate([idx[j:], idx[: i + 1]]))
+    return done
+
+
+def _best_cut(points: NDArray[np.int32], avoid: NDArray[np.bool_]) -> tuple[int, int] | None:
+    """The chain indices (i < j) of the cut of :func:`split_outline`, or None."""
+    if len(points) < 12:
+        return None
+    pts = np.ascontiguousarray(points, dtype=np.int32).reshape(-1, 1, 2)
+    hull = np.sort(cv2.convexHull(pts, returnPoints=False).ravel())
+    if len(hull) < 4:
+        return None
+    try:
+        defects = cv2.convexityDefects(pts, hull.reshape(-1, 1).astype(np.int32))
+    except cv2.error:  # a self-touching chain
+        return None
+    if defects is None:
+        return None
+    defects = defects.reshape(-1, 4)
+    depth = defects[:, 3] / 256.0
+    keep = (depth >= DEFECT_PX) & ~avoid[defects[:, 2]]
+    far, depth = defects[keep, 2], depth[keep]
+    if len(far) < 2 or depth.max() < DEFECT_DEEP_PX:
+        return None
+    best = None
+    for a in range(len(far)):
+        for b in range(a + 1, len(far)):
+            if max(depth[a], depth[b]) < DEFECT_DEEP_PX:
+                continue
+            i, j = sorted((int(far[a]), int(far[b])))
+            if j - i < 4 or len(points) - (j - i) < 4:
+                continue
+            length = float(np.hypot(*(points[i] - points[j])))
+            score = -min(depth[a], depth[b]) / max(length, 1.0)  # deep at both ends, short
+            if best is None or score < best[0]:
+                best = (score, i, j)
+    return None if best is None else (best[1], best[2])

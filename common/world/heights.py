@@ -1,0 +1,969 @@
+"""Measured heights: each blob's solids fitted and followed from frame to frame.
+
+With ``[pose] heights = "measured"``, a blob's solids (shape, footprint, height:
+:func:`ovis.common.solids.fit.fit_blob`) are fitted to its sub-pixel outline
+(:mod:`ovis.common.vision.outline`, from its :class:`~ovis.common.vision.outline.Patch`
+of the frame less the empty floor). A solid's shape and height do not change, so the
+fit is not repeated every frame: :class:`SolidTracker` keeps each blob's fitted solids
+(a *group*) and finds the blob again in the next frame by its image centroid (within
+:data:`GATE_PX`, its area within :data:`AREA_RATIO`). Each frame then
+
+* a blob that holds one known solid gets its footprint from its centroid
+  (:mod:`ovis.common.solids.footprint`: the footprint centre whose silhouette's image
+  centroid is the blob's, less the offset the two had at the fit; the map kept from
+  one frame to the next while the solid stays within :data:`RELINEARISE_CM`);
+* a blob of several solids (overlapping in the image) gets their footprints from its
+  outline's pixel chain (:func:`~ovis.common.solids.fit.follow_union`: their centres
+  moved, shapes and heights kept, each edge offset as at the fit);
+* a new blob, or one whose area changed (solids met or parted in the image), is
+  fitted; the periodic refit of a known blob (every :data:`REFIT_FRAMES` frames, the
+  one fitted longest ago) averages its heights over its track (inverse-variance
+  weights). At most ``pose.fits_per_frame`` fits run
+  per frame (0: all); a blob that waits is said ``pending``, at the configured
+  height, its footprint rough (:func:`~ovis.common.solids.fit.rough_footprint`, from
+  its outline's pixel chain) or, where that cannot be had, its centroid on its class's
+  plane.
+
+A live stage (``background``) never waits for a fit: one blob at a time is fitted on a
+thread of its own while the frames go on (its blob said ``pending`` meanwhile), and the
+fitted group joins the others at the first frame after it is done, found again by its
+centroid as any group of the last frame is (a fit's cost is many frame periods' worth of
+the per-frame work, which is then only matching and following).
+
+Each solid's height counts as measured when its uncertainty (1σ, including what a bias
+of all its edges would do) is at most ``pose.height_sigma_max_cm``; else it is *not
+measurable* there (near the camera's nadir, or where the walls are too thin or hidden):
+its footprint still comes from the fit (its height held at the configured one, or
+lower where the frame shows the solid is lower: :meth:`SolidTracker._hold_height`), its
+reported height is the configured one. A fit that does not explain its outline (too
+many edge points off its silhouettes: :attr:`~ovis.common.solids.fit.Solid.explains`)
+is not measured either. Nor is a solid whose walls' foot is hidden behind another of its
+blob: only its top shows, and the outline's points where its silhouette meets the other's
+are no evidence of its height (:func:`~ovis.common.solids.fit.refit_with_tops`); it stays
+where the blob's joint fit put it (:func:`~ovis.common.solids.fit.feet_hidden`) while the
+others are fitted again with their top edges.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ovis.common.camera.plane_table import PlaneTables
+from ovis.common.camera.projection import PixelJacobian
+from ovis.common.config import CameraModel, ImageParams, PoseConfig
+from ovis.common.solids.fit import (
+    HEIGHT_STARTS,
+    ITERATIONS,
+    FloorOutline,
+    Solid,
+    feet_hidden,
+    fit_blob,
+    fit_piece,
+    follow_union,
+    held_height,
+    refit_with_tops,
+    robot_misfit,
+    rough_footprint,
+    union_offsets,
+)
+from ovis.common.solids.footprint import centroid_map, solve_centres
+from ovis.common.solids.outline_floor import floor_outline
+from ovis.common.solids.shapes import equal_area_radius, size_and_yaw
+from ovis.common.solids.silhouette import Viewpoint, signed_distance, top_near_edges
+from ovis.common.vision.contrast import NEUTRAL
+from ovis.common.vision.outline import (
+    Outline,
+    Patch,
+    background_spots,
+    chain_normals,
+    edges_along,
+    patch_outline,
+    split_outline,
+    subpixel_edges,
+)
+from ovis.common.world.pose import gated_assignment
+
+__all__ = [
+    "AREA_RATIO",
+    "GATE_PX",
+    "REFIT_FRAMES",
+    "RELINEARISE_CM",
+    "SolidObjects",
+    "SolidTracker",
+    "heights_unavailable",
+    "measurable",
+    "robot_row",
+    "with_heights",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: A blob is the same as last frame's when its centroid moved at most this far (px) …
+GATE_PX = 20.0
+#: … and its area changed by at most this factor.
+AREA_RATIO = 1.2
+#: A known solid is refitted every this many frames (the one fitted longest ago).
+REFIT_FRAMES = 60
+#: A solid's centroid map is worked out again when it moved this far (cm) from where it
+#: was worked out.
+RELINEARISE_CM = 2.0
+#: Chain points left out at each end of a cut outline's piece (the cut's corner).
+CUT_TRIM = 3
+#: How far (px) from where the fit puts it the top face's inner edge is looked for:
+#: widely first, then again closer after a refit.
+TOP_REACH_PX = (6.0, 1.5)
+#: The top face's inner edge is used only where the wall below it is this tall in the
+#: frame (px): a thinner wall blurs into one edge with the silhouette's.
+MIN_WALL_PX = 4.0
+#: The top face's inner edge is taken only this far (px) inside the silhouette.
+TOP_INSIDE_PX = 1.5
+#: Iterations of a known solid's refit (it starts where it was).
+WARM_ITERATIONS = 10
+#: An outline needs this many usable edge points to be fitted.
+MIN_EDGE_POINTS = 12
+#: Held at the configured height, a solid's walls are clearly tall enough for a look
+#: for its top's edge to be decisive where walls too thin to show stop below this share
+#: of that height (twice :data:`MIN_WALL_PX` tall, the walls growing with the height).
+CLEAR_WALLS_SHARE = 0.5
+#: How closely (cm) the tallest height whose walls are too thin to show is worked out.
+THIN_STEP_CM = 0.05
+
+
+def heights_unavailable(image: ImageParams) -> str | None:
+    """Why heights cannot be measured with these image settings, or None."""
+    if not image.background:
+        return (
+            "heights measured need an image of the empty floor ([image] background, "
+            "e.g. a frame taken before the objects are put down)"
+        )
+    if image.threshold_mode != "fixed" or image.polarity != "bright":
+        return (
+            'heights measured need [image] threshold_mode = "fixed" and polarity = '
+            '"bright" (objects brighter than the empty floor by threshold - 128)'
+        )
+    return None
+
+
+@dataclass
+class _Tracked:
+    """One fitted solid kept across frames: the last fit, its height averaged over the
+    fits (inverse-variance), where it stands now, and its centroid map."""
+
+    solid: Solid
+    h_weight: float
+    h_sum: float
+    h_floor: float  # the least systematic uncertainty of one fit (does not average out)
+    centre: FloatArray
+    bias: FloatArray = field(default_factory=lambda: np.zeros(2))
+    map_at: FloatArray | None = None
+    map_g: FloatArray | None = None
+    map_j: FloatArray | None = None
+    _report: tuple | None = None
+
+    @property
+    def height(self) -> float:
+        return self.h_sum / self.h_weight if self.h_weight > 0 else float(self.solid.theta[-1])
+
+    @property
+    def height_sigma(self) -> float:
+        if self.h_weight <= 0:
+            return math.inf
+        return max(math.sqrt(1.0 / self.h_weight), self.h_floor)
+
+    def theta(self) -> FloatArray:
+        t = self.solid.theta.copy()
+        t[0:2] = self.centre
+        t[-1] = self.height
+        return t
+
+    def report(self) -> tuple:
+        """What a frame reports of it besides where it stands (fixed from its fit on:
+        only its centre moves): height, its σ, covariance of (x, y, h), shape,
+        equal-area radius, footprint area, yaw (deg, NaN: none), (length, width)."""
+        if self._report is None:
+            theta = self.theta()
+            shape = self.solid.shape
+            radius = float(equal_area_radius(shape, theta))
+            length, width, yaw = size_and_yaw(shape, theta)
+            cov = self.solid.covariance
+            sigma = self.height_sigma
+            if cov.size:
+                pick = [0, 1, cov.shape[0] - 1]
+                c3 = cov[np.ix_(pick, pick)].copy()
+                c3[2, :2] *= sigma / max(math.sqrt(max(cov[-1, -1], 1e-18)), 1e-9)
+                c3[:2, 2] = c3[2, :2]
+                c3[2, 2] = sigma * sigma
+            else:
+                c3 = np.full((3, 3), math.nan)
+            self._report = (
+                self.height,
+                sigma,
+                c3,
+                shape,
+                radius,
+                math.pi * radius * radius,
+                math.nan if yaw is None else yaw,
+                (length, width),
+            )
+        return self._report
+
+
+@dataclass
+class _Group:
+    """The solids of one blob and where the blob was (filled area, centroid)."""
+
+    solids: list[_Tracked]
+    area: float
+    row: float
+    col: float
+    fitted: int  # the frame of the last fit
+    #: several solids: how far out their outline's pixel chain lies from each (px)
+    offsets: FloatArray | None = None
+
+
+def _sigma(solid: Solid) -> float:
+    """One fit's height uncertainty (1σ, cm) as :class:`_Tracked` counts it: its
+    covariance, at least its edge shift."""
+    var = float(solid.covariance[-1, -1]) if solid.covariance.size else math.inf
+    shift = abs(float(solid.edge_shift[-1])) if solid.edge_shift.size else math.inf
+    sd = math.sqrt(var) if math.isfinite(var) and var >= 0 else math.inf
+    return max(sd, shift) if math.isfinite(shift) else math.inf
+
+
+def _starts_of(group: _Group | None) -> list[Solid] | None:
+    """A group's solids where they stand now (a refit starts there), or None."""
+    if group is None:
+        return None
+    return [t.solid._replace(theta=t.theta()) for t in group.solids]
+
+
+class SolidObjects(NamedTuple):
+    """One frame's solids, one row per solid (a blob may hold several): the blob it
+    stands in, its footprint centre (cm), measured height and uncertainty (NaN: none),
+    covariance of (x, y, h) (cm²), shape name ("": pending), equal-area radius and
+    footprint area, yaw (deg, NaN: none), length and width, image centroid, and
+    whether it is still waiting for its fit."""
+
+    blob: NDArray[np.int64]
+    xy: FloatArray
+    height: FloatArray
+    height_sigma: FloatArray
+    covariance: FloatArray
+    shape: NDArray[np.object_]
+    radius: FloatArray
+    area_cm2: FloatArray
+    yaw_deg: FloatArray
+    size: FloatArray
+    row: FloatArray
+    col: FloatArray
+    pending: NDArray[np.bool_]
+
+
+@dataclass
+class _Job:
+    """A fit running on the fitting thread: the group it fits again (None: a new blob)
+    and the calibration it was started under."""
+
+    done: Future[_Group | None]
+    old: _Group | None
+    generation: int
+
+
+class SolidTracker:
+    """Blobs → solids with measured footprints and heights, kept from frame to frame
+    (module docstring). ``background``: fits run on a thread of their own, the frames
+    never wait for them (a live stage); ``fit_all`` (per frame): fit every blob that
+    needs it this frame, here."""
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        image: ImageParams,
+        pose: PoseConfig,
+        tables: PlaneTables | None = None,
+        *,
+        background: bool = False,
+    ) -> None:
+        self.groups: list[_Group] = []
+        self.tables = tables
+        self.frame = 0
+        self._generation = 0
+        self._job: _Job | None = None
+        self._pool = ThreadPoolExecutor(1, "solid-fit") if background else None
+        self.reconfigure(camera, image, pose)
+
+    def reconfigure(self, camera: CameraModel, image: ImageParams, pose: PoseConfig) -> None:
+        """A new calibration: the solids are fitted again (a fit running is dropped)."""
+        self.camera, self.image, self.pose = camera, image, pose
+        self.view = Viewpoint.of(camera)
+        self.level = float(image.threshold - NEUTRAL)
+        self.spots: NDArray[np.uint8] | None = None
+        self._background: NDArray[np.uint8] | None = None
+        self.groups = []
+        self._generation += 1
+        self._job = None
+
+    def use_background(self, background: NDArray[np.uint8]) -> None:
+        """The empty floor's image: its bright spots (floor marks) are no edges (worked
+        out once per image)."""
+        if background is not self._background:
+            self._background = background
+            self.spots = background_spots(background)
+
+    def _declared(self) -> float | None:
+        """The height every fit holds, when obstacles' heights are declared."""
+        if "obstacle" in self.pose.declared_heights:
+            return float(self.pose.obstacle_height_cm)
+        return None
+
+    # ------------------------------------------------------------------ fitting
+    def _outline_fit(
+        self,
+        patch: Patch,
+        at: tuple[float, float],
+        old: list[Solid] | None,
+        known: float | None = None,
+    ) -> tuple[list[Solid], Outline] | None:
+        """The solids of a blob's patch, fitted afresh or again from ``old``, and its
+        outline. ``known``: a single solid's height its track has measured (a refit):
+        a fit that pins the height is taken before one that leaves it free (which
+        explains the outline by sliding along the ambiguity: a turned robot's fresh fit
+        as a tall thin wall), and a fit that leaves it free is held there, not at the
+        configured height (the reported height is the track's: its footprint must be
+        where that height puts it)."""
+        outline = patch_outline(patch, self.level, at, self.spots)
+        if outline is None:
+            return None
+        diff = patch.diff.astype(np.float32)
+        edges, normals, usable = subpixel_edges(
+            diff,
+            (patch.top, patch.left),
+            outline.chain,
+            blur_px=self.image.edge_blur_px,
+            noise=self.image.noise_sigma,
+            spots=self.spots,
+        )
+        kept = np.flatnonzero(usable)
+        if kept.size < MIN_EDGE_POINTS:
+            return None
+        floor = floor_outline(edges[kept], normals[kept], self.camera, self.tables)
+        if len(floor.points) < MIN_EDGE_POINTS:
+            return None
+        height = self._declared()
+        fits = []
+        if old is not None:
+            fits.append(self._refined(old, floor, patch, diff, height, warm=True))
+        if old is None or len(old) == 1:
+            # a single solid's refit is also made afresh: a solid that turned since
+            # (a robot) leaves a warm start's yaw in the wrong valley
+            at_point = np.full(len(outline.chain), -1, dtype=np.int64)
+            at_point[kept] = np.arange(kept.size)
+            pieces = split_outline(outline.chain, self.spots)
+            cut = [p[CUT_TRIM:-CUT_TRIM] if len(pieces) > 1 else p for p in pieces]
+            mapped = [at_point[p][at_point[p] >= 0] for p in cut]
+            solids = fit_blob(floor, mapped, self.view, height=height)
+            found: list[FloorOutline | None] = [None] * len(solids)
+            if len(solids) == 1 and height is None:
+                one, edge = self._along_the_ambiguity(solids[0], floor, patch, diff)
+                if _sigma(one) <= self.pose.height_sigma_max_cm:  # an edge that pins it
+                    found[0] = edge
+                solids = [one]
+            fresh = self._refined(solids, floor, patch, diff, height, warm=False, tops=found)
+            if old is None or len(fresh) == 1:
+                fits.append(fresh)
+        limit = self.pose.height_sigma_max_cm
+
+        def free(f: list[Solid]) -> bool:
+            return known is not None and len(f) == 1 and _sigma(f[0]) > limit
+
+        best = min(fits, key=lambda f: (free(f), sum(s.rms_px for s in f)))
+        sigma = _sigma(best[0])
+        if height is None and len(best) == 1 and sigma > limit:
+            # not measurable: its footprint where the height it is held at puts it (its
+            # track's, else the configured one or lower where the frame shows it is
+            # lower), unless the outline rules that out (a free height runs off toward
+            # the camera)
+            one = best[0]
+            hold = known if known is not None else self._hold_height(one, floor, patch, diff)
+            if hold < float(self.pose.obstacle_height_cm) and known is None:
+                # lower than its walls show: fitted afresh at that height (a free fit
+                # that ran off toward the camera leaves its start in a wrong valley)
+                fresh = fit_piece(floor, self.view, [one.shape], height=hold)
+                one = fresh._replace(covariance=one.covariance, edge_shift=one.edge_shift)
+            best = [held_height(one, floor, self.view, hold, sigma)]
+        return best, outline
+
+    def _hold_height(
+        self, solid: Solid, floor: FloorOutline, patch: Patch, diff: NDArray[np.float32]
+    ) -> float:
+        """The height a solid whose height is not measurable is held at for its footprint:
+        the configured one, unless the frame shows the solid is lower — its walls, where it
+        stands, would be clearly tall enough for its top's edge to show at the configured
+        height (:meth:`_thin_up_to`, :data:`CLEAR_WALLS_SHARE`), and held at the configured
+        height that edge is looked for and not found. It is then no taller than walls too
+        thin to show, and is held halfway up to that (a low box seen side-on: held at the
+        configured height, its footprint slid toward the camera's foot by centimetres)."""
+        configured = float(self.pose.obstacle_height_cm)
+        thin = self._thin_up_to(solid, configured)
+        if thin > CLEAR_WALLS_SHARE * configured:  # its walls there not clearly tall
+            return configured
+        at = held_height(solid, floor, self.view, configured, math.inf)
+        found, looked = self._top_points(at, patch, diff, TOP_REACH_PX[0])
+        if not looked or found is not None:
+            return configured
+        return 0.5 * thin
+
+    def _thin_up_to(self, solid: Solid, up_to: float) -> float:
+        """The tallest height (cm, at most ``up_to``) at which the solid's walls, where it
+        stands, are too thin in the frame for its top's edge to be looked for
+        (:meth:`_top_points`), by bisection (the walls grow with the height)."""
+
+        def thin(h: float) -> bool:
+            theta = solid.theta.copy()
+            theta[-1] = h
+            points, _ = top_near_edges(
+                solid.shape, theta, self.view, self.camera, min_wall_px=MIN_WALL_PX
+            )
+            return len(points) < MIN_EDGE_POINTS // 2
+
+        if thin(up_to):
+            return up_to
+        lo, hi = 0.0, up_to
+        while hi - lo > THIN_STEP_CM:
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if thin(mid) else (lo, mid)
+        return lo
+
+    def _refined(
+        self,
+        solids: list[Solid],
+        floor: FloorOutline,
+        patch: Patch,
+        diff: NDArray[np.float32],
+        height: float | None,
+        *,
+        warm: bool,
+        tops: list[FloorOutline | None] | None = None,
+    ) -> list[Solid]:
+        """``solids`` fitted to the outline with their top faces' inner edges (a warm
+        start: one look, fewer iterations). A solid whose walls a fit made too thin to
+        look for that edge again (:data:`MIN_WALL_PX`) keeps the edge points an earlier
+        look found: not looking is no evidence that the edge is not there (else a low
+        solid's height, pinned by its top edge, runs off again with the outline alone).
+        ``tops``: points found before, per solid (along the ambiguity, where they made
+        the height measurable)."""
+        tops = [None] * len(solids) if tops is None else list(tops)
+        # a solid whose walls' foot is hidden behind another slides freely along the line
+        # of sight (onto the other, in one place with it): it stays where it was fitted
+        hidden = feet_hidden(solids, self.view)
+        for reach in TOP_REACH_PX[-1:] if warm else TOP_REACH_PX:
+            looks = [
+                (None, True) if behind else self._top_points(s, patch, diff, reach)
+                for s, behind in zip(solids, hidden, strict=True)
+            ]
+            tops = [
+                t if looked else before for (t, looked), before in zip(looks, tops, strict=True)
+            ]
+            iterations = WARM_ITERATIONS if warm else ITERATIONS
+            solids = refit_with_tops(
+                solids,
+                floor,
+                tops,
+                self.view,
+                height=height,
+                iterations=iterations,
+                held=hidden,
+            )
+        return solids
+
+    def _along_the_ambiguity(
+        self, solid: Solid, floor: FloorOutline, patch: Patch, diff: NDArray[np.float32]
+    ) -> tuple[Solid, FloorOutline | None]:
+        """Where the outline alone leaves the height free (not measurable: its σ over
+        ``pose.height_sigma_max_cm``; a box seen square-on shows four lines for six
+        unknowns, and a low one's wall is too thin for the inner edge to pull a far-off
+        start to it), the solid fitted at each of several heights and with its top face's
+        inner edge looked for where each puts it: the one whose predicted edge is found
+        most fully, then fits best; and the top edge's points found for it (None: no
+        search, or nothing found)."""
+        sigma = math.sqrt(max(float(solid.covariance[-1, -1]), 0.0))
+        if not sigma > self.pose.height_sigma_max_cm:
+            return solid, None
+        candidates = [solid] + [
+            fit_piece(floor, self.view, [solid.shape], height=h) for h in HEIGHT_STARTS
+        ]
+        best: tuple[float, Solid, FloorOutline] | None = None
+        for c in candidates:
+            start = c._replace(theta=c.theta.copy())
+            tops, share = self._top_points_found(start, patch, diff, TOP_REACH_PX[0])
+            if tops is None:  # no top edge where this height puts it: no evidence
+                continue
+            fitted = refit_with_tops([start], floor, [tops], self.view)[0]
+            score = (1.0 - share) + fitted.rms_px
+            if best is None or score < best[0]:
+                best = (score, fitted, tops)
+        return (solid, None) if best is None else (best[1], best[2])
+
+    def _top_points(
+        self, solid: Solid, patch: Patch, diff: NDArray[np.float32], reach: float
+    ) -> tuple[FloorOutline | None, bool]:
+        """:meth:`_top_points_found`'s points, and whether the solid's walls are tall
+        enough in the frame, along enough of its top's inner edge, for that edge to be
+        looked for at all (a low box seen side-on: its walls reach :data:`MIN_WALL_PX`
+        along too few pixels for a look to find the points a fit needs)."""
+        points, _ = top_near_edges(
+            solid.shape, solid.theta, self.view, self.camera, min_wall_px=MIN_WALL_PX
+        )
+        if len(points) < MIN_EDGE_POINTS // 2:
+            return None, False
+        return self._top_points_found(solid, patch, diff, reach)[0], True
+
+    def _top_points_found(
+        self, solid: Solid, patch: Patch, diff: NDArray[np.float32], reach: float
+    ) -> tuple[FloorOutline | None, float]:
+        """Where the solid's top face meets its walls inside its silhouette, found near
+        where the fit puts that edge, on the floor."""
+        points, normals = top_near_edges(
+            solid.shape, solid.theta, self.view, self.camera, min_wall_px=MIN_WALL_PX
+        )
+        if not len(points):
+            return None, 0.0
+        edges, found = edges_along(
+            diff,
+            (patch.top, patch.left),
+            points,
+            normals,
+            blur_px=self.image.edge_blur_px,
+            reach_px=reach,
+            spots=self.spots,
+        )
+        if found.sum() < MIN_EDGE_POINTS // 2:
+            return None, 0.0
+        floor = floor_outline(edges[found], normals[found], self.camera, self.tables)
+        # the top's inner edge lies inside the silhouette: an edge found at the silhouette
+        # (the walls' foot, strongest at a bright wall) is not it
+        inside = floor.px_per_cm * signed_distance(
+            solid.shape, solid.theta, floor.points, self.view
+        )
+        keep = inside < -TOP_INSIDE_PX
+        if keep.sum() < MIN_EDGE_POINTS // 2:
+            return None, 0.0
+        return floor.take(keep), float(keep.sum()) / len(points)
+
+    def _rough(self, patch: Patch, blob_filled: FloatArray) -> FloatArray | None:
+        """A blob still waiting for its fit: its footprint centre roughly, from its
+        outline's pixel chain (:func:`rough_footprint`), or None."""
+        outline = patch_outline(patch, self.level, (blob_filled[1], blob_filled[2]), self.spots)
+        if outline is None or len(outline.chain) < MIN_EDGE_POINTS:
+            return None
+        return rough_footprint(self._chain_floor(outline), self.view)
+
+    def _robot_misfit(self, patch: Patch, blob_filled: FloatArray) -> float:
+        """How far (rms px) a blob's outline's pixel chain is from the silhouette of the
+        configured unmarked robot (``robot_size_cm`` × ``robot_height_cm``) standing
+        where it fits best (:func:`~ovis.common.solids.fit.robot_misfit`); inf where
+        the blob has no outline."""
+        outline = patch_outline(patch, self.level, (blob_filled[1], blob_filled[2]), self.spots)
+        if outline is None or len(outline.chain) < MIN_EDGE_POINTS:
+            return math.inf
+        size = (max(self.pose.robot_size_cm), min(self.pose.robot_size_cm))
+        floor = self._chain_floor(outline)
+        return robot_misfit(floor, self.view, size, float(self.pose.robot_height_cm))
+
+    def _chain_floor(self, outline: Outline) -> FloorOutline:
+        """An outline's pixel chain itself on the floor (no sub-pixel edges)."""
+        points, normals = chain_normals(outline.chain)
+        return floor_outline(points, normals, self.camera, self.tables)
+
+    def _new_tracked(self, solid: Solid, before: _Tracked | None) -> _Tracked:
+        """A solid as fitted now, its height averaged with its earlier fits'."""
+        var = float(solid.covariance[-1, -1]) if solid.covariance.size else math.inf
+        w = 1.0 / var if math.isfinite(var) and var > 0 else 0.0
+        h = float(solid.theta[-1])
+        floor = abs(float(solid.edge_shift[-1])) if solid.edge_shift.size else math.inf
+        if not math.isfinite(floor) or not solid.explains:
+            # a fit that leaves this many edge points unexplained did not find what the
+            # outline is (two solids taken for one, a wrong shape): no height measured
+            floor = math.inf
+        w_sum, h_sum = w, w * h
+        if before is not None:
+            w_sum, h_sum = before.h_weight + w, before.h_sum + w * h
+            floor = min(before.h_floor, floor)
+        return _Tracked(solid, w_sum, h_sum, floor, solid.theta[:2].copy())
+
+    def _fit(self, patch: Patch, blob_filled: FloatArray, group: _Group | None) -> _Group | None:
+        """Fit (or fit again) one blob; its group with the offsets of its solids' image
+        centroids from the blob's and their centroid maps worked out."""
+        return self._fit_from(patch, blob_filled, group, _starts_of(group), self.frame)
+
+    def _fit_from(
+        self,
+        patch: Patch,
+        blob_filled: FloatArray,
+        group: _Group | None,
+        old: list[Solid] | None,
+        frame: int,
+    ) -> _Group | None:
+        """:meth:`_fit` from ``old`` (the group's solids where they stood when it was
+        asked for: the frames move them on meanwhile), as of ``frame``."""
+        row, col = float(blob_filled[1]), float(blob_filled[2])
+        found = self._outline_fit(patch, (row, col), old, self._measured_height(group))
+        if found is None or not found[0]:
+            return None
+        solids, outline = found
+        before = group.solids if group is not None and len(group.solids) == len(solids) else None
+        tracked = [
+            self._new_tracked(s, before[k] if before is not None else None)
+            for k, s in enumerate(solids)
+        ]
+        for t in tracked:
+            self._map(t)
+        offsets = None
+        if len(tracked) == 1:
+            t = tracked[0]
+            assert t.map_g is not None
+            t.bias = t.map_g - np.array([row, col])
+        else:
+            now = [t.solid._replace(theta=t.theta()) for t in tracked]
+            offsets = union_offsets(now, self._chain_floor(outline), self.view)
+        return _Group(tracked, float(blob_filled[0]), row, col, frame, offsets)
+
+    def _measured_height(self, group: _Group | None) -> float | None:
+        """The height a group's single solid has measured over its track, or None (a
+        new blob, several solids, not measurable, declared)."""
+        if group is None or len(group.solids) != 1 or self._declared() is not None:
+            return None
+        t = group.solids[0]
+        return t.height if t.height_sigma <= self.pose.height_sigma_max_cm else None
+
+    def _map(self, t: _Tracked) -> None:
+        """Work out a solid's centroid map where it stands now."""
+        g, j = centroid_map(t.solid.shape, t.theta()[None], self.view, self.camera)
+        t.map_at, t.map_g, t.map_j = t.centre.copy(), g[0], j[0]
+
+    # ------------------------------------------------------------------ per frame
+    def update(
+        self,
+        filled: FloatArray,
+        patches: Sequence[Patch] | None,
+        fallback: Callable[[], PixelJacobian],
+        skip: NDArray[np.bool_],
+        *,
+        fit_all: bool = False,
+    ) -> SolidObjects:
+        """This frame's solids from its blobs' filled (area, row, col) (n, 3), their
+        patches, their centroids on their class's plane (``fallback``, asked for when a
+        blob waits for its fit) and the blobs that are no solid to fit (marked
+        robots')."""
+        self.frame += 1
+        n = len(filled)
+        self._collect()
+        matched = self._match(filled, skip)
+        limit = math.inf if fit_all or self.pose.fits_per_frame == 0 else self.pose.fits_per_frame
+        beside = self._pool is not None and not fit_all
+        if beside:
+            limit = 1 if self._job is None and patches is not None else 0
+        todo = self._queue(filled, matched, skip, patches, limit)
+        new_groups: dict[int, _Group] = {}
+        fitted = set()
+        if beside:
+            if todo and limit and patches is not None:
+                i = todo[0]
+                self._submit(
+                    patches[i], filled[i], self.groups[matched[i]] if matched[i] >= 0 else None
+                )
+            todo = []
+        for i in todo:
+            if len(fitted) >= limit or patches is None:
+                break
+            group = self.groups[matched[i]] if matched[i] >= 0 else None
+            g = self._fit(patches[i], filled[i], group)
+            fitted.add(i)
+            if g is not None:
+                new_groups[i] = g
+        for i in range(n):
+            if i in new_groups or matched[i] < 0 or skip[i]:
+                continue
+            g = self.groups[matched[i]]
+            if i in fitted:  # its refit found nothing: keep what it was
+                pass
+            new_groups[i] = g
+        self._follow(filled, new_groups, fitted)
+        for i, g in new_groups.items():
+            if i not in fitted and len(g.solids) > 1 and patches is not None:
+                self._follow_group(g, patches[i], filled[i])
+        for i, g in new_groups.items():
+            g.area, g.row, g.col = float(filled[i, 0]), float(filled[i, 1]), float(filled[i, 2])
+        self.groups = list(new_groups.values())
+        return self._objects(filled, new_groups, fallback, skip, patches)
+
+    def close(self) -> None:
+        """Stop the fitting thread (a fit running is waited for, none started again)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        self._job = None
+
+    def wait(self) -> None:
+        """Wait until the fit running on the fitting thread, if any, is done (it joins
+        the groups at the next frame)."""
+        if self._job is not None:
+            self._job.done.exception()
+
+    def _submit(self, patch: Patch, blob_filled: FloatArray, group: _Group | None) -> None:
+        """Start fitting one blob on the fitting thread."""
+        assert self._pool is not None
+        done = self._pool.submit(
+            self._fit_from, patch, blob_filled.copy(), group, _starts_of(group), self.frame
+        )
+        self._job = _Job(done, group, self._generation)
+
+    def _collect(self) -> None:
+        """A fit done on the fitting thread joins the groups (a refit replaces the group
+        it fitted again, where that group stands now); one started under an earlier
+        calibration is dropped."""
+        job = self._job
+        if job is None or not job.done.done():
+            return
+        self._job = None
+        fitted = job.done.result()  # a fit's error is the frame's, as when fitted here
+        if job.generation != self._generation:
+            return
+        if job.old is None:
+            if fitted is not None:
+                self.groups.append(fitted)
+            return
+        if not any(g is job.old for g in self.groups):
+            return  # its blob was lost meanwhile
+        if fitted is None:
+            job.old.fitted = self.frame  # nothing found: not again straight away
+            return
+        # found again where the old group is now; its solids followed from where they
+        # were fitted (their offsets from the blob's centroid are the fit's)
+        fitted.area, fitted.row, fitted.col = job.old.area, job.old.row, job.old.col
+        self.groups = [fitted if g is job.old else g for g in self.groups]
+
+    def _match(self, filled: FloatArray, skip: NDArray[np.bool_]) -> NDArray[np.int64]:
+        """Each blob's group of last frame (−1: none)."""
+        out = np.full(len(filled), -1, dtype=np.int64)
+        if not self.groups or not len(filled):
+            return out
+        last = np.array([[g.row, g.col] for g in self.groups])
+        rows, cols = gated_assignment(last, filled[:, 1:3], GATE_PX)
+        for r, c in zip(rows.tolist(), cols.tolist(), strict=True):
+            ratio = filled[c, 0] / max(self.groups[r].area, 1e-9)
+            if not skip[c] and 1.0 / AREA_RATIO <= ratio <= AREA_RATIO:
+                out[c] = r
+        return out
+
+    def _queue(
+        self,
+        filled: FloatArray,
+        matched: NDArray[np.int64],
+        skip: NDArray[np.bool_],
+        patches: Sequence[Patch] | None,
+        limit: float,
+    ) -> list[int]:
+        """The blobs to fit this frame, first first: new blobs — where more wait than
+        ``limit`` fits this frame, the one most like the unmarked robot first (until its
+        fit lands the robot is reported as an obstacle: :meth:`_robot_misfit`), the
+        larger first among equals —, then, every :data:`REFIT_FRAMES` frames, the known
+        blob fitted longest ago."""
+        new = [i for i in range(len(filled)) if matched[i] < 0 and not skip[i]]
+        if 0 < limit < len(new) and patches is not None and not self.pose.robots:
+            misfit = [self._robot_misfit(patches[i], filled[i]) for i in new]
+            order = np.lexsort((-filled[new, 0], np.array(misfit)))
+            new = [new[k] for k in order]
+        else:
+            new.sort(key=lambda i: -filled[i, 0])
+        known = [i for i in range(len(filled)) if matched[i] >= 0]
+        if known and self.frame % REFIT_FRAMES == 0:
+            new.append(min(known, key=lambda i: self.groups[matched[i]].fitted))
+        return new
+
+    def _follow(self, filled: FloatArray, groups: dict[int, _Group], fitted: set[int]) -> None:
+        """Move the single solids not fitted this frame to where their blob's centroid
+        says (their maps worked out again where they moved far)."""
+        moving = [
+            (g.solids[0], i) for i, g in groups.items() if i not in fitted and len(g.solids) == 1
+        ]
+        if not moving:
+            return
+        by_shape: dict[str, list[_Tracked]] = {}
+        for t, _ in moving:
+            if t.map_at is None or math.dist(t.centre, t.map_at) > RELINEARISE_CM:
+                by_shape.setdefault(t.solid.shape, []).append(t)
+        for shape, ts in by_shape.items():
+            g, j = centroid_map(shape, np.array([t.theta() for t in ts]), self.view, self.camera)
+            for k, t in enumerate(ts):
+                t.map_at, t.map_g, t.map_j = t.centre.copy(), g[k], j[k]
+        ts = [t for t, _ in moving]
+        at = np.array([t.map_at for t in ts])
+        g = np.array([t.map_g for t in ts])
+        j = np.array([t.map_j for t in ts])
+        target = filled[[i for _, i in moving], 1:3] + np.array([t.bias for t in ts])
+        for t, c in zip(ts, solve_centres(at, g, j, target), strict=True):
+            t.centre = c
+
+    def _follow_group(self, group: _Group, patch: Patch, blob_filled: FloatArray) -> None:
+        """Move a blob's several solids to where its outline's pixel chain puts their
+        union (shapes and heights kept)."""
+        outline = patch_outline(patch, self.level, (blob_filled[1], blob_filled[2]), self.spots)
+        if outline is None or group.offsets is None or len(outline.chain) < MIN_EDGE_POINTS:
+            return
+        floor = self._chain_floor(outline)
+        now = [t.solid._replace(theta=t.theta()) for t in group.solids]
+        centres = follow_union(now, group.offsets, floor, self.view)
+        for t, c in zip(group.solids, centres, strict=True):
+            t.centre = c
+
+    def _objects(
+        self,
+        filled: FloatArray,
+        groups: dict[int, _Group],
+        fallback: Callable[[], PixelJacobian],
+        skip: NDArray[np.bool_],
+        patches: Sequence[Patch] | None = None,
+    ) -> SolidObjects:
+        rows: list[tuple] = []
+        plane: PixelJacobian | None = None
+        for i in range(len(filled)):
+            if skip[i]:
+                continue
+            g = groups.get(i)
+            if g is None:  # waiting for its fit: where today's method puts it
+                plane = fallback() if plane is None else plane
+                if not bool(plane.valid[i]):
+                    continue
+                xy = (float(plane.x_cm[i]), float(plane.y_cm[i]))
+                rough = None if patches is None else self._rough(patches[i], filled[i])
+                if rough is not None:
+                    xy = (float(rough[0]), float(rough[1]))
+                area = float(filled[i, 0] * plane.area_cm2[i])
+                rows.append(
+                    (
+                        i,
+                        xy,
+                        math.nan,
+                        math.nan,
+                        np.full((3, 3), math.nan),
+                        "",
+                        math.sqrt(area / math.pi),
+                        area,
+                        math.nan,
+                        (math.nan, math.nan),
+                        float(filled[i, 1]),
+                        float(filled[i, 2]),
+                        True,
+                    )
+                )
+                continue
+            for t in g.solids:
+                r, c = (float(filled[i, 1]), float(filled[i, 2]))
+                if len(g.solids) > 1 and t.map_g is not None:
+                    r, c = float(t.map_g[0]), float(t.map_g[1])
+                at = (float(t.centre[0]), float(t.centre[1]))
+                rows.append((i, at, *t.report(), r, c, False))
+        if not rows:
+            z = np.zeros(0)
+            return SolidObjects(
+                np.zeros(0, dtype=np.int64),
+                np.zeros((0, 2)),
+                z,
+                z,
+                np.zeros((0, 3, 3)),
+                np.zeros(0, dtype=object),
+                z,
+                z,
+                z,
+                np.zeros((0, 2)),
+                z,
+                z,
+                np.zeros(0, dtype=bool),
+            )
+        cols = list(zip(*rows, strict=True))
+        kinds = (np.int64, *[np.float64] * 4, object, *[np.float64] * 6, bool)
+        return SolidObjects(*(np.array(c, dtype=k) for c, k in zip(cols, kinds, strict=True)))
+
+
+#: The unmarked robot's footprint is within this share of its configured length and
+#: width, and its measured height within this (cm) or two of its σ, whichever is more.
+ROBOT_SIZE_SHARE = 0.2
+ROBOT_HEIGHT_CM = 1.5
+
+
+def measurable(found: SolidObjects, pose: PoseConfig) -> NDArray[np.bool_]:
+    """Which solids' heights count as measured (fitted, σ within the limit)."""
+    sigma = np.where(np.isfinite(found.height_sigma), found.height_sigma, np.inf)
+    return ~found.pending & (sigma <= pose.height_sigma_max_cm)
+
+
+def robot_row(found: SolidObjects, pose: PoseConfig) -> int:
+    """The solid that is the unmarked robot — the box nearest ``robot_size_cm`` and
+    ``robot_height_cm`` within the tolerances above (the height only where measured) —
+    or −1."""
+    if not found.blob.size:
+        return -1
+    long, short = max(pose.robot_size_cm), min(pose.robot_size_cm)
+    dl = (found.size[:, 0] - long) / (ROBOT_SIZE_SHARE * long)
+    dw = (found.size[:, 1] - short) / (ROBOT_SIZE_SHARE * short)
+    known = measurable(found, pose)
+    tol = np.maximum(ROBOT_HEIGHT_CM, 2.0 * np.where(known, found.height_sigma, 0.0))
+    dh = np.where(known, (found.height - pose.robot_height_cm) / tol, 0.0)
+    fits = (found.shape == "box") & (np.abs(dl) <= 1) & (np.abs(dw) <= 1) & (np.abs(dh) <= 1)
+    score = np.where(fits, dl * dl + dw * dw + dh * dh, np.inf)
+    best = int(score.argmin())
+    return best if np.isfinite(score[best]) else -1
+
+
+def with_heights(pose: PoseConfig, heights: str | None, declared: list[str]) -> PoseConfig:
+    """``pose`` with a heights mode ("measured" or "configured") and heights declared
+    as ``CLASS=CM`` (``robot=5``, ``obstacle=7``: that class's height, not measured) or
+    ``marker:ID=CM`` (the marked robot with that marker carries it that high). Raises
+    ValueError naming what is wrong."""
+    import msgspec
+
+    fields: dict[str, object] = {}
+    if heights is not None:
+        if heights not in ("measured", "configured"):
+            raise ValueError(f"--heights must be 'measured' or 'configured', got {heights!r}")
+        fields["heights"] = heights
+    classes = list(pose.declared_heights)
+    robots = list(pose.robots)
+    for text in declared:
+        name, sep, value = text.partition("=")
+        name = name.strip().lower()
+        try:
+            cm = float(value)
+        except ValueError:
+            cm = math.nan
+        if not sep or not math.isfinite(cm) or not 0.0 <= cm <= 1e4:
+            raise ValueError(
+                f"--height takes CLASS=CM (robot=5, obstacle=7) or marker:ID=CM, got {text!r}"
+            )
+        if name in ("robot", "obstacle"):
+            fields[f"{name}_height_cm"] = cm
+            if name not in classes:
+                classes.append(name)
+        elif name.startswith("marker:") and name[7:].isdigit():
+            marker = int(name[7:])
+            hit = [k for k, r in enumerate(robots) if r.marker_id == marker]
+            if not hit:
+                known = ", ".join(str(r.marker_id) for r in robots) or "none"
+                raise ValueError(
+                    f"--height {text}: no robot carries marker {marker} (configured: {known})"
+                )
+            for k in hit:
+                robots[k] = msgspec.structs.replace(robots[k], marker_height_cm=cm)
+        else:
+            raise ValueError(f"--height takes robot=CM, obstacle=CM or marker:ID=CM, got {text!r}")
+    fields["declared_heights"] = classes
+    fields["robots"] = robots
+    return msgspec.structs.replace(pose, **fields)
