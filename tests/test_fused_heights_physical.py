@@ -17,7 +17,7 @@ from ovis.common.config import load_config
 
 pytestmark = needs_physical
 
-UNSEEN = (2001, 2002, 2003, 2004)
+UNSEEN = (2002, 2003, 2004)
 
 
 @pytest.fixture(scope="module")

@@ -82,7 +82,7 @@ def _forge_world(endpoint: str, keys: Path, err: Path) -> None:
 
 
 def test_up_cameras_2x2_gives_one_clean_world(tmp_path: Path) -> None:
-    cmd, env = _up(tmp_path, 20)
+    cmd, env = _up(tmp_path, 14)
     err = tmp_path / "up.err"
     with err.open("w") as log:
         up = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, text=True, env=env)
@@ -192,7 +192,7 @@ def _kill_and_sum_up(up: subprocess.Popen[bytes], victim: int | None, err: Path)
 def test_up_cameras_restarts_a_killed_chain_stage_and_the_others_go_on(tmp_path: Path) -> None:
     """The per-camera layout: a camera's chain of its own processes; one of them killed
     costs that camera alone."""
-    cmd, env = _up(tmp_path, 25, "per-camera")
+    cmd, env = _up(tmp_path, 18, "per-camera")
     err = tmp_path / "up.err"
     with err.open("w") as log:
         up = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, env=env)
@@ -219,8 +219,8 @@ def test_up_cameras_restarts_a_killed_chain_stage_and_the_others_go_on(tmp_path:
     for name in ("cam00", "cam10", "cam11"):
         c = cams[name]
         assert c["restarts"] == 0 and c["dropped"] <= 0.25 * c["captured"], (name, c)
-    # cam01 is back in the world: killed about a quarter of the way in and never back, it
-    # would have fused about a quarter of what cam00 did
+    # cam01 is back in the world: killed about a third of the way in and never back, it
+    # would have fused about a third of what cam00 did
     assert cams["cam01"]["fused"] > 0.7 * cams["cam00"]["fused"], cams
     # around the restart an object has been reported twice a few times (3 in one
     # of four runs on a loaded host; docs/cameras.md, not done): bounded, not zero
@@ -233,7 +233,7 @@ def test_up_cameras_a_killed_stage_process_is_back_within_1_5_s_for_every_camera
     """The per-stage layout: the label process serves every camera; killed, a spare
     takes over and every camera's obstacles are back within 1.5 s, each camera's gap
     counted (its frames captured and never in the world), the world clean after."""
-    cmd, env = _up(tmp_path, 25)
+    cmd, env = _up(tmp_path, 18)
     endpoint = cmd[cmd.index("--listen") + 1]
     err = tmp_path / "up.err"
     with err.open("w") as log:

@@ -26,8 +26,9 @@ from ovis.common.camera.projection import project
 from ovis.common.config import config_from_dict, load_config, load_points
 from ovis.common.physical.scene import random_scene
 
-# long: minutes of work, started early so the run ends with both workers busy
-pytestmark = pytest.mark.long
+# alone: frames rendered live at 5 frames/s, all kept, and fits that land within seconds:
+# a neighbour's CPU use would falsify both
+pytestmark = pytest.mark.alone
 
 #: a library that is not one, where the dynamic loader looks first: EGL fails to load
 #: as on a machine without it
