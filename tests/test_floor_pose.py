@@ -74,14 +74,24 @@ def views():
     return spec, detect_views(frames, spec)
 
 
-def test_four_corners_locate_the_other_fifty_on_every_photo(views) -> None:
-    spec, (found, rejected, size) = views
+@pytest.fixture(scope="module")
+def held_out_lenses(views) -> list:
+    """Per photo, the lens calibrated on the other 13 (leave one out)."""
+    spec, (found, _, size) = views
+    return [
+        calibrate_intrinsics(
+            None, spec, views=([f for j, f in enumerate(found) if j != k], [], size)
+        ).intrinsics()
+        for k in range(len(found))
+    ]
+
+
+def test_four_corners_locate_the_other_fifty_on_every_photo(views, held_out_lenses) -> None:
+    _, (found, rejected, size) = views
     assert not rejected and len(found) == 14
     rest = np.setdiff1d(np.arange(54), OUTER)
     table = []
-    for k, held in enumerate(found):
-        others = [f for j, f in enumerate(found) if j != k]
-        lens = calibrate_intrinsics(None, spec, views=(others, [], size)).intrinsics()
+    for held, lens in zip(found, held_out_lenses, strict=True):
         corners = held.view.image_xy.astype(np.float64)
         calib = solve_floor_pose(lens, corner_points(corners, OUTER), image_size=size)
         b = back_project(corners[rest, 1], corners[rest, 0], calib.camera, 0.0)
@@ -104,17 +114,17 @@ def test_four_corners_locate_the_other_fifty_on_every_photo(views) -> None:
     assert all(row[2] < MAX_SQUARES for row in table), table
 
 
-def test_wrong_lenses_and_misclicked_points_are_refused_on_every_photo(views) -> None:
+def test_wrong_lenses_and_misclicked_points_are_refused_on_every_photo(
+    views, held_out_lenses
+) -> None:
     """Leave one photo out as above; on each photo: one of 4 (or 5) clicked corners moved
     10 px up, down, left or right, and a lens with 1.5× the focal length or 10× the
     distortion (the board's 54 corners). A face-on view cannot tell a focal length from
     a distance, so the focal length is not caught on every photo."""
-    spec, (found, _, size) = views
+    _, (found, _, size) = views
     clicked = {4: [0, 0, 0], 5: [0, 0, 0]}  # cases, refused, the moved point named
     lenses = {"focal 1.5x": 0, "distortion 10x": 0}
-    for k, held in enumerate(found):
-        others = [f for j, f in enumerate(found) if j != k]
-        lens = calibrate_intrinsics(None, spec, views=(others, [], size)).intrinsics()
+    for held, lens in zip(found, held_out_lenses, strict=True):
         corners = held.view.image_xy.astype(np.float64)
         for which in (OUTER, FIVE):
             for moved in which:

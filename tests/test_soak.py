@@ -1,7 +1,7 @@
 """Soak: the whole pipeline for a bounded time at a high frame rate — no leaks, no
 unbounded queues, and no sequence number lost except those counted as dropped.
 
-Duration and rate come from OVIS_SOAK_S (default 30) and OVIS_SOAK_FPS (default 60);
+Duration and rate come from OVIS_SOAK_S (default 20) and OVIS_SOAK_FPS (default 60);
 the benchmark (benchmarks/) measures the highest rate sustained without drops."""
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from ovis.services.cli.watching import collect_status
 # alone: memory and latency over a minute of frames at their rate
 pytestmark = pytest.mark.alone
 
-SOAK_S = float(os.environ.get("OVIS_SOAK_S", "30"))
+SOAK_S = float(os.environ.get("OVIS_SOAK_S", "20"))
 SOAK_FPS = float(os.environ.get("OVIS_SOAK_FPS", "60"))
 
 
