@@ -797,7 +797,7 @@ def test_unmarked_robot_over_a_sequence_in_ovis_detect(tmp_path) -> None:
     assert len(said) == 2
     assert "velocity –" in said[0] and "velocity (" in said[1], said
     # the first 15 frames again at 15 frames/s
-    slow = json.loads(ovis(args[0], *frames[:15], *args[1 + len(frames):], "--fps", "15").stdout)
+    slow = json.loads(ovis(args[0], *frames[:15], *args[1 + len(frames) :], "--fps", "15").stdout)
     speed = [
         np.mean([math.hypot(o["vx_cm_s"], o["vy_cm_s"]) for f in run[1:] for o in f["objects"]
                  if o["kind"] == "robot"])
