@@ -1,9 +1,9 @@
 """The physical world end to end, as a user runs it: `ovis simulate --world physical`,
 then `ovis calibrate` on its floor marks and `ovis locate`; `ovis up --world physical`
 (real processes, real Zenoh on loopback) rendering the world live, calibrating on the
-floor marks and scoring against the truth, heights included; `--cameras 2x2` over one
-physical world; and what a machine without EGL gets: one line and exit 2, and a test
-run that skips with the reason (or, as CI asks, fails)."""
+floor marks and scoring against the truth, heights included (`--cameras 2x2` over one
+physical world: test_up_physical_grid.py); and what a machine without EGL gets: one
+line and exit 2, and a test run that skips with the reason (or, as CI asks, fails)."""
 
 from __future__ import annotations
 
@@ -182,26 +182,3 @@ def _index_of(truth, first, fps: float) -> int:
     steps = (truth.stamp_ns - first.stamp_ns) * fps / 1e9
     assert abs(steps - round(steps)) < 1e-3, steps
     return round(steps)
-
-
-@needs_physical
-def test_up_physical_cameras_2x2_fuses_one_physical_world(tmp_path: Path) -> None:
-    cfg = tmp_path / "fast.toml"
-    cfg.write_text(
-        'preset = "physical"\n[physical]\nshadows = false\n[fusion]\nwait_ms = 250.0\n'
-        f"[service]\nstate_dir = '{tmp_path / 'state'}'\n"
-    )
-    env = dict(os.environ, OVIS_CACHE=str(tmp_path / "cache"))
-    args = ["up", "--world", "physical", "--cameras", "2x2", "--duration", "6", "--json",
-            "--seed", "53", "--fps", "2", "--listen", f"tcp/127.0.0.1:{free_port()}",
-            "--config", str(cfg)]  # fmt: skip
-    proc = subprocess.run(ovis_cmd(*args), capture_output=True, text=True, env=env,
-                          timeout=600)  # fmt: skip
-    assert proc.returncode == 0, proc.stderr
-    summary = json.loads(proc.stdout)
-    assert "calibrated on the floor marks it sees" in proc.stderr
-    assert all(c["captured"] >= 5 and c["processed"] >= 5 for c in summary["cameras"].values())
-    world = summary["world"]
-    assert world["frames"] >= 5 and world["scored"] >= 5
-    assert world["height_error_cm"]["max"] >= world["height_error_cm"]["mean"] >= 0
-    assert world["heights"]
