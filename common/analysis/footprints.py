@@ -21,8 +21,9 @@ covariance's longest axis, 1σ) is over :data:`POSITION_SIGMA_CM` says its posit
 not measurable (a solid whose foot is hidden behind another: the frame bounds where it
 stands, it does not show it), and :data:`GATE_CM` cannot judge it: left unmatched, it is
 matched to a true object left unmatched within its stated uncertainty (the truth's
-Mahalanobis distance under that covariance within :data:`STATED_CHI2`, and no farther
-than :data:`STATED_CAP_CM`) rather than counted spurious. Such detections are counted
+Mahalanobis distance under that covariance, :data:`STATED_FLOOR_CM` added, within
+:data:`STATED_CHI2`; no farther than :data:`STATED_CAP_CM`, its 1σ at most half that)
+rather than counted spurious. Such detections are counted
 in a row of their own, and their footprint errors are kept out of the footprint's. An
 obstacle must be found unless most of its silhouette is hidden by others (more than
 :data:`HIDDEN_SHARE` of the pixels it covers alone,
@@ -64,6 +65,8 @@ __all__ = [
     "SceneResult",
     "evaluate_rig",
     "physical_config",
+    "position_sigma",
+    "stated_distance",
     "summarise",
 ]
 
@@ -81,8 +84,13 @@ GATE_CM = 5.0
 #: beyond :data:`GATE_CM`.
 STATED_CHI2 = 9.21  # χ² of 2 degrees of freedom at 99 %
 POSITION_SIGMA_CM = GATE_CM / math.sqrt(STATED_CHI2)
-#: Whatever its stated uncertainty, a detection is no true object farther than this (cm).
+#: Whatever its stated uncertainty, a detection is no true object farther than this
+#: (cm), and one stating a 1σ over half of it is none (it says too little).
 STATED_CAP_CM = 4.0 * GATE_CM
+#: Added (1σ, cm) across every direction to a stated covariance matched against the
+#: truth: the footprint's target (issue 36), which a fit's covariance does not include
+#: (it leaves out how far the shape fitted may be off).
+STATED_FLOOR_CM = 0.5
 #: An obstacle more hidden than this share of its silhouette need not be found.
 HIDDEN_SHARE = 0.5
 #: "About 7 cm" and "about 20 cm" tall: within this of it (cm).
@@ -226,6 +234,20 @@ def position_sigma(detection: DetectedObject) -> float:
     return float(math.sqrt(max(float(np.linalg.eigvalsh(xy)[-1]), 0.0)))
 
 
+def stated_distance(detection: DetectedObject, x_cm: float, y_cm: float) -> float:
+    """How far a floor point is from a detection's footprint under its stated uncertainty:
+    the squared Mahalanobis distance under its covariance with :data:`STATED_FLOOR_CM`
+    added across every direction (a fit's covariance leaves out how far its shape's
+    footprint may be off); inf beyond :data:`STATED_CAP_CM`, with no covariance, or
+    where the stated 1σ is over half that cap (it says too little to be one object)."""
+    e = np.array([x_cm - detection.x_cm, y_cm - detection.y_cm])
+    too_vague = not position_sigma(detection) <= 0.5 * STATED_CAP_CM  # NaN: none stated
+    if too_vague or math.hypot(*e) > STATED_CAP_CM:
+        return math.inf
+    cov = np.array(detection.covariance_cm2, dtype=np.float64).reshape(3, 3)[:2, :2]
+    return float(e @ np.linalg.solve(cov + STATED_FLOOR_CM**2 * np.eye(2), e))
+
+
 def _within_stated(
     objects: Sequence[DetectedObject],
     truth: Sequence[SimObject],
@@ -233,17 +255,17 @@ def _within_stated(
     truths: list[int],
 ) -> dict[int, int]:
     """Detections whose position is not measurable matched (optimally) to true objects
-    within their stated uncertainty (module docstring): true index → detection index."""
+    within their stated uncertainty (:func:`stated_distance` within
+    :data:`STATED_CHI2`): true index → detection index."""
     if not detections or not truths:
         return {}
-    cost = np.full((len(truths), len(detections)), np.inf)
-    for b, j in enumerate(detections):
-        cov = np.array(objects[j].covariance_cm2, dtype=np.float64).reshape(3, 3)[:2, :2]
-        for a, i in enumerate(truths):
-            e = np.array([truth[i].x_cm - objects[j].x_cm, truth[i].y_cm - objects[j].y_cm])
-            d2 = float(e @ np.linalg.solve(cov + 1e-9 * np.eye(2), e))
-            if d2 <= STATED_CHI2 and math.hypot(*e) <= STATED_CAP_CM:
-                cost[a, b] = d2
+    cost = np.array(
+        [
+            [stated_distance(objects[j], truth[i].x_cm, truth[i].y_cm) for j in detections]
+            for i in truths
+        ]
+    )
+    cost[cost > STATED_CHI2] = np.inf
     if not np.isfinite(cost).any():
         return {}
     rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e12))
