@@ -318,10 +318,10 @@ def _print_heights(reports, seeds: range) -> None:
         "spurious": lambda x: str(x.spurious),
         "mostly hidden (found)": lambda x: f"{x.hidden} ({x.hidden_found})",
         "footprint error mean / max cm": lambda x: pair(x.footprint_mean_cm, x.footprint_max_cm),
-        "position not measurable: n, within their stated uncertainty": lambda x: (
-            f"{x.positions_unmeasurable}: {x.positions_within_stated}"
+        "positions not measurable (within their σ)": lambda x: (
+            f"{x.positions_unmeasurable} ({x.positions_within_stated})"
         ),
-        "  their footprint error max / stated σ max cm": lambda x: (
+        "  their error max / stated σ max cm": lambda x: (
             "-"
             if not np.isfinite(x.unmeasurable_error_max_cm)
             else f"{x.unmeasurable_error_max_cm:.2f} / {x.unmeasurable_sigma_max_cm:.2f}"
