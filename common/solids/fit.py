@@ -23,7 +23,9 @@ Each solid's covariance comes from the Jacobian and the residuals (scaled for th
 correlation of neighbouring edge points, which share pixels), plus what a bias common
 to all its edges would do (:data:`EDGE_BIAS_PX`). Points of a union's outline near two
 silhouettes (:func:`_junctions`) count for the fit but not for the covariance: a solid
-whose walls' foot is hidden behind another is then, rightly, not measurable.
+whose walls' foot is hidden behind another is then, rightly, not measurable. Where such
+a solid stands is bounded by the others (:func:`bound_behind`): it is placed halfway
+along the stretch of its line of sight they leave it, its covariance spread over that.
 """
 
 from __future__ import annotations
