@@ -18,9 +18,13 @@ import pytest
 from physical_helpers import needs_physical
 
 from ovis.common.analysis.footprints import (
+    STATED_CHI2,
     _detector_config,
+    _score,
     evaluate_rig,
     physical_config,
+    position_sigma,
+    stated_distance,
     summarise,
 )
 from ovis.common.calibration.file import calibration_from_config
@@ -38,9 +42,10 @@ from ovis.common.pipeline.stages import (
     blob_list,
     obstacle_frame,
 )
+from ovis.common.sim.arena import SimObject
 from ovis.common.solids.silhouette import Viewpoint, image_moments
 from ovis.common.vision.frames import as_gray
-from ovis.common.world.detection import Detector
+from ovis.common.world.detection import DetectedObject, Detector
 
 pytestmark = needs_physical
 
@@ -56,8 +61,10 @@ def test_footprints_heights_and_the_robot_on_unseen_scenes(rig_name: str) -> Non
     footprint within 0.5 cm wherever the height is measured and the solid not partly
     hidden (else — near the overhead camera's nadir, short walls seen from above, the
     walls' foot behind another solid — within 1 cm: the footprint then rests on a height
-    known only so well); the robot found by its size and height in every scene, and by
-    its marker."""
+    known only so well), or, where the detection says its position is not measurable
+    (its foot wholly hidden behind another solid), within its stated uncertainty (the
+    scoring's match, no spurious detection left); the robot found by its size and height
+    in every scene, and by its marker."""
     config = load_config()
     for marked in (False, True):
         results = evaluate_rig(config, rig_name, UNSEEN, "measured", marked=marked)
@@ -70,6 +77,8 @@ def test_footprints_heights_and_the_robot_on_unseen_scenes(rig_name: str) -> Non
                 measured = s.height_source[i] == "one camera"
                 if measured:
                     assert abs(s.height_cm[i] - s.true_height_cm[i]) <= 1.0, (s.seed, i)
+                if s.position_unmeasurable[i]:
+                    continue  # its foot hidden: matched within its stated uncertainty
                 # partly hidden (its walls' foot behind another): the footprint rests on
                 # the top and the height, as where the height is not measurable
                 seen = s.hidden_share[i] <= PARTLY_HIDDEN
@@ -450,6 +459,7 @@ def test_a_solid_behind_another_in_line_with_the_tripod_is_told_apart() -> None:
     assert box.z_source == "one camera" and abs(box.z_cm - near.z_cm) <= 1.0
     (behind,) = [o for o in found if o is not box]
     assert behind.z_unmeasured == "not measurable"
+    _within_its_bounds(behind, far)
 
     found, truth = _pair_alone(3104, (4, 6))
     front, cylinder = truth
@@ -461,3 +471,55 @@ def test_a_solid_behind_another_in_line_with_the_tripod_is_told_apart() -> None:
             assert o.z_source == "one camera" and abs(o.z_cm - t.z_cm) <= 1.0
         else:
             assert o.z_unmeasured == "not measurable"
+            _within_its_bounds(o, cylinder)
+
+
+def _within_its_bounds(found: DetectedObject, truth: SimObject) -> None:
+    """A solid whose foot is hidden behind another is placed between the bounds the other
+    sets (its footprint clear of the other's, its foot within the other's silhouette),
+    its stated covariance spread over them: the truth within it (99 %), and a stated 1σ
+    no wider than such a stretch allows (stretch / √12; a 25 cm solid 150 cm from the
+    camera's foot, 140 cm up, has a silhouette reaching 33 cm beyond its footprint: at
+    most 10 cm). It used to stay where the joint fit's start put it, its stated σ
+    far wider than the stretch."""
+    assert stated_distance(found, truth.x_cm, truth.y_cm) <= STATED_CHI2
+    assert position_sigma(found) <= 10.0
+
+
+def test_a_position_not_measurable_is_scored_within_its_stated_uncertainty() -> None:
+    """The sweep's scoring: a detection whose stated footprint uncertainty is wide (a
+    solid whose foot is hidden behind another) and that lies beyond the 5 cm gate is
+    matched to the true object its covariance covers (99 %, at most 20 cm off), counted
+    in a row of its own, not spurious; one that states a narrow uncertainty, whose truth
+    lies beyond the cap, or that states a 1σ over 10 cm, is still spurious."""
+
+    def detection(k: int, x: float, y: float, sx: float, sy: float) -> DetectedObject:
+        cov = [sx * sx, 0.0, 0.0, 0.0, sy * sy, 0.0, 0.0, 0.0, 1.0]
+        return DetectedObject(
+            k, "obstacle", 0.0, 0.0, 100.0, 40.0, 1.0, x, y, 7.0, 3.0, 28.0, covariance_cm2=cov
+        )
+
+    def solid(k: int, x: float, y: float) -> SimObject:
+        return SimObject(
+            id=k, kind="obstacle", x_cm=x, y_cm=y, z_cm=20.0, radius_cm=3.0,
+            heading_deg=0.0, shape="disk", length_cm=6.0, width_cm=6.0,
+        )  # fmt: skip
+
+    truth = [solid(1, 10, 10), solid(2, 50, 50), solid(3, 90, 90), solid(4, 120, 20)]
+    truth.append(solid(5, 20, 120))
+    found = [
+        detection(0, 10.1, 10.0, 0.2, 0.2),  # within the gate
+        detection(1, 50.0, 62.0, 0.3, 8.0),  # 12 cm off, 1.5 σ along its wide axis
+        detection(2, 90.0, 102.0, 0.3, 0.3),  # 12 cm off, saying 0.3 cm
+        detection(3, 120.0, 45.0, 0.3, 30.0),  # within 1 σ, but 25 cm off
+        detection(4, 20.0, 112.0, 0.3, 12.0),  # 8 cm off, saying 12 cm: too vague
+    ]
+    everyone = {k: 100 for k in range(1, 6)}
+    scene = _score(0, found, truth, everyone, everyone, 0.0)
+    assert scene.found == [True, True, False, False, False]
+    assert (scene.spurious, scene.unmeasurable, scene.unmeasurable_within) == (3, 3, 1)
+    assert scene.position_unmeasurable == [False, True, False, False, False]
+    report = summarise([scene], "oblique", "measured")
+    assert report.footprint_max_cm == pytest.approx(0.1)  # the 12 cm one kept apart
+    assert report.unmeasurable_error_max_cm == pytest.approx(12.0)
+    assert (report.positions_unmeasurable, report.positions_within_stated) == (3, 1)

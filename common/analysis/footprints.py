@@ -16,15 +16,25 @@
   the size filter's old 30 cm² on the 7 cm plane.
 
 Each true object is matched to the detection nearest its footprint centre (an optimal
-assignment within :data:`GATE_CM`). An obstacle must be found unless most of its
-silhouette is hidden by others (more than :data:`HIDDEN_SHARE` of the pixels it covers
-alone, :meth:`~ovis.common.physical.world.PhysicalWorld.alone_px`, not seen,
+assignment within :data:`GATE_CM`). A detection whose stated footprint uncertainty (its
+covariance's longest axis, 1σ) is over :data:`POSITION_SIGMA_CM` says its position is
+not measurable (a solid whose foot is hidden behind another: the frame bounds where it
+stands, it does not show it), and :data:`GATE_CM` cannot judge it: left unmatched, it is
+matched to a true object left unmatched within its stated uncertainty (the truth's
+Mahalanobis distance under that covariance, :data:`STATED_FLOOR_CM` added, within
+:data:`STATED_CHI2`; no farther than :data:`STATED_CAP_CM`, its 1σ at most half that)
+rather than counted spurious. Such detections are counted
+in a row of their own, and their footprint errors are kept out of the footprint's. An
+obstacle must be found unless most of its silhouette is hidden by others (more than
+:data:`HIDDEN_SHARE` of the pixels it covers alone,
+:meth:`~ovis.common.physical.world.PhysicalWorld.alone_px`, not seen,
 :meth:`~ovis.common.physical.world.PhysicalWorld.visible_px`): those are counted apart.
 Reported per rig and method (:class:`RigReport`): obstacles found, missed, taken for
-the robot, spurious detections; footprint error; the errors of obstacles about 7 cm
-and about 20 cm tall (within :data:`HEIGHT_BIN_CM`); the measured heights' errors and
-how many were not measurable; in how many scenes the robot was reported as the robot
-(unmarked, and with ``marked``, carrying a marker).
+the robot, spurious detections; footprint error; positions not measurable, how many
+within their stated uncertainty, their largest error and stated σ; the errors of
+obstacles about 7 cm and about 20 cm tall (within :data:`HEIGHT_BIN_CM`); the measured
+heights' errors and how many were not measurable; in how many scenes the robot was
+reported as the robot (unmarked, and with ``marked``, carrying a marker).
 """
 
 from __future__ import annotations
@@ -38,6 +48,7 @@ from typing import Literal
 import cv2
 import msgspec
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from ovis.common.analysis.evaluation import match_objects
 from ovis.common.config import OvisConfig, RobotSpec, config_from_dict
@@ -54,6 +65,8 @@ __all__ = [
     "SceneResult",
     "evaluate_rig",
     "physical_config",
+    "position_sigma",
+    "stated_distance",
     "summarise",
 ]
 
@@ -66,6 +79,18 @@ ARENA_Y_CM = (0.0, 120.0)
 LEVEL = 3
 #: A detection more than this far (cm) from a true footprint centre is not it.
 GATE_CM = 5.0
+#: A detection whose footprint's stated 1σ (its covariance's longest axis) is over this
+#: (cm) has a position not measurable: its 99 % ellipse (:data:`STATED_CHI2`) reaches
+#: beyond :data:`GATE_CM`.
+STATED_CHI2 = 9.21  # χ² of 2 degrees of freedom at 99 %
+POSITION_SIGMA_CM = GATE_CM / math.sqrt(STATED_CHI2)
+#: Whatever its stated uncertainty, a detection is no true object farther than this
+#: (cm), and one stating a 1σ over half of it is none (it says too little).
+STATED_CAP_CM = 4.0 * GATE_CM
+#: Added (1σ, cm) across every direction to a stated covariance matched against the
+#: truth: the footprint's target (issue 36), which a fit's covariance does not include
+#: (it leaves out how far the shape fitted may be off).
+STATED_FLOOR_CM = 0.5
 #: An obstacle more hidden than this share of its silhouette need not be found.
 HIDDEN_SHARE = 0.5
 #: "About 7 cm" and "about 20 cm" tall: within this of it (cm).
@@ -84,8 +109,11 @@ MARKED_ROBOT = RobotSpec(
 class SceneResult(msgspec.Struct, kw_only=True):
     """One scene's numbers: per true obstacle (in scene order) whether it must be found
     (not mostly hidden), whether it was found, taken for the robot, its footprint error
-    (cm; NaN: not found), true height, reported height and where it came from; the
-    spurious detections; whether the robot was reported as the robot."""
+    (cm; NaN: not found), true height, reported height and where it came from, and
+    whether the detection's position is not measurable (:data:`POSITION_SIGMA_CM`) and
+    its stated footprint 1σ (NaN: none stated); the spurious detections; the detections
+    whose position is not measurable and how many of those lie within their stated
+    uncertainty of a true object; whether the robot was reported as the robot."""
 
     seed: int
     must_find: list[bool]
@@ -97,12 +125,16 @@ class SceneResult(msgspec.Struct, kw_only=True):
     height_source: list[str]
     height_sigma_cm: list[float]
     hidden_share: list[float]
+    position_unmeasurable: list[bool]
+    position_sigma_cm: list[float]
     spurious: int
+    unmeasurable: int
+    unmeasurable_within: int
     robot_found: bool
     seconds: float
 
 
-_SCALARS = ("seed", "spurious", "robot_found", "seconds")
+_SCALARS = ("seed", "spurious", "unmeasurable", "unmeasurable_within", "robot_found", "seconds")
 
 
 class RigReport(msgspec.Struct, kw_only=True):
@@ -121,6 +153,10 @@ class RigReport(msgspec.Struct, kw_only=True):
     hidden_found: int
     footprint_mean_cm: float
     footprint_max_cm: float
+    positions_unmeasurable: int
+    positions_within_stated: int
+    unmeasurable_error_max_cm: float
+    unmeasurable_sigma_max_cm: float
     near_7cm: int
     near_7cm_mean_cm: float
     near_7cm_max_cm: float
@@ -189,6 +225,55 @@ def _one_scene(
     return _score(seed, det.objects, truth.objects, visible, alone, seconds)
 
 
+def position_sigma(detection: DetectedObject) -> float:
+    """A detection's stated footprint uncertainty: its covariance's longest axis in the
+    floor's plane (1σ, cm); NaN where it states none."""
+    if detection.covariance_cm2 is None:
+        return math.nan
+    xy = np.array(detection.covariance_cm2, dtype=np.float64).reshape(3, 3)[:2, :2]
+    return float(math.sqrt(max(float(np.linalg.eigvalsh(xy)[-1]), 0.0)))
+
+
+def stated_distance(detection: DetectedObject, x_cm: float, y_cm: float) -> float:
+    """How far a floor point is from a detection's footprint under its stated uncertainty:
+    the squared Mahalanobis distance under its covariance with :data:`STATED_FLOOR_CM`
+    added across every direction (a fit's covariance leaves out how far its shape's
+    footprint may be off); inf beyond :data:`STATED_CAP_CM`, with no covariance, or
+    where the stated 1σ is over half that cap (it says too little to be one object)."""
+    e = np.array([x_cm - detection.x_cm, y_cm - detection.y_cm])
+    too_vague = not position_sigma(detection) <= 0.5 * STATED_CAP_CM  # NaN: none stated
+    if too_vague or math.hypot(*e) > STATED_CAP_CM:
+        return math.inf
+    cov = np.array(detection.covariance_cm2, dtype=np.float64).reshape(3, 3)[:2, :2]
+    return float(e @ np.linalg.solve(cov + STATED_FLOOR_CM**2 * np.eye(2), e))
+
+
+def _within_stated(
+    objects: Sequence[DetectedObject],
+    truth: Sequence[SimObject],
+    detections: list[int],
+    truths: list[int],
+) -> dict[int, int]:
+    """Detections whose position is not measurable matched (optimally) to true objects
+    within their stated uncertainty (:func:`stated_distance` within
+    :data:`STATED_CHI2`): true index → detection index."""
+    if not detections or not truths:
+        return {}
+    cost = np.array(
+        [
+            [stated_distance(objects[j], truth[i].x_cm, truth[i].y_cm) for j in detections]
+            for i in truths
+        ]
+    )
+    cost[cost > STATED_CHI2] = np.inf
+    if not np.isfinite(cost).any():
+        return {}
+    rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e12))
+    return {
+        truths[a]: detections[b] for a, b in zip(rows, cols, strict=True) if np.isfinite(cost[a, b])
+    }
+
+
 def _score(
     seed: int,
     objects: Sequence[DetectedObject],
@@ -199,11 +284,16 @@ def _score(
 ) -> SceneResult:
     acc = match_objects(objects, truth, gate_cm=GATE_CM)
     matched = dict(zip(acc.truth_index.tolist(), acc.detection_index.tolist(), strict=True))
-    out: dict[str, list] = {
-        k: []
-        for k in SceneResult.__struct_fields__
-        if k not in ("seed", "spurious", "robot_found", "seconds")
-    }
+    sigma = [position_sigma(d) for d in objects]
+    unmeasurable = [j for j, s in enumerate(sigma) if s > POSITION_SIGMA_CM]
+    left = set(range(len(objects))) - set(matched.values())
+    matched |= _within_stated(
+        objects,
+        truth,
+        [j for j in unmeasurable if j in left],
+        [i for i in range(len(truth)) if i not in matched],
+    )
+    out: dict[str, list] = {k: [] for k in SceneResult.__struct_fields__ if k not in _SCALARS}
     robot_found = False
     for i, o in enumerate(truth):
         d = objects[matched[i]] if i in matched else None
@@ -221,11 +311,20 @@ def _score(
         out["height_cm"].append(d.z_cm if d is not None else math.nan)
         source = "" if d is None else (d.z_source if not d.z_unmeasured else d.z_unmeasured)
         out["height_source"].append(source)
-        sigma = d.z_sigma_cm if d is not None and d.z_sigma_cm is not None else math.nan
-        out["height_sigma_cm"].append(sigma)
+        z_sigma = d.z_sigma_cm if d is not None and d.z_sigma_cm is not None else math.nan
+        out["height_sigma_cm"].append(z_sigma)
         out["hidden_share"].append(hidden)
+        xy_sigma = sigma[matched[i]] if i in matched else math.nan
+        out["position_unmeasurable"].append(xy_sigma > POSITION_SIGMA_CM)
+        out["position_sigma_cm"].append(xy_sigma)
     return SceneResult(
-        seed=seed, spurious=acc.spurious, robot_found=robot_found, seconds=seconds, **out
+        seed=seed,
+        spurious=len(objects) - len(matched),
+        unmeasurable=len(unmeasurable),
+        unmeasurable_within=sum(1 for j in matched.values() if sigma[j] > POSITION_SIGMA_CM),
+        robot_found=robot_found,
+        seconds=seconds,
+        **out,
     )
 
 
@@ -262,13 +361,14 @@ def summarise(
     must = [(s, i) for s, i in rows if s.must_find[i]]
     hidden = [(s, i) for s, i in rows if not s.must_find[i]]
     found = [(s, i) for s, i in must if s.found[i]]
-    errors = [s.footprint_error_cm[i] for s, i in found]
+    errors = [s.footprint_error_cm[i] for s, i in found if not s.position_unmeasurable[i]]
+    unmeasurable = [(s, i) for s, i in rows if s.found[i] and s.position_unmeasurable[i]]
 
     def near(height: float) -> list[float]:
         return [
             s.footprint_error_cm[i]
             for s, i in found
-            if abs(s.true_height_cm[i] - height) <= HEIGHT_BIN_CM
+            if abs(s.true_height_cm[i] - height) <= HEIGHT_BIN_CM and not s.position_unmeasurable[i]
         ]
 
     n7, n20 = near(7.0), near(20.0)
@@ -292,6 +392,10 @@ def summarise(
         hidden_found=sum(1 for s, i in hidden if s.found[i]),
         footprint_mean_cm=fm,
         footprint_max_cm=fx,
+        positions_unmeasurable=sum(s.unmeasurable for s in results),
+        positions_within_stated=sum(s.unmeasurable_within for s in results),
+        unmeasurable_error_max_cm=_mean_max([s.footprint_error_cm[i] for s, i in unmeasurable])[1],
+        unmeasurable_sigma_max_cm=_mean_max([s.position_sigma_cm[i] for s, i in unmeasurable])[1],
         near_7cm=len(n7),
         near_7cm_mean_cm=m7,
         near_7cm_max_cm=x7,

@@ -23,7 +23,9 @@ Each solid's covariance comes from the Jacobian and the residuals (scaled for th
 correlation of neighbouring edge points, which share pixels), plus what a bias common
 to all its edges would do (:data:`EDGE_BIAS_PX`). Points of a union's outline near two
 silhouettes (:func:`_junctions`) count for the fit but not for the covariance: a solid
-whose walls' foot is hidden behind another is then, rightly, not measurable.
+whose walls' foot is hidden behind another is then, rightly, not measurable. Where such
+a solid stands is bounded by the others (:func:`bound_behind`): it is placed halfway
+along the stretch of its line of sight they leave it, its covariance spread over that.
 """
 
 from __future__ import annotations
@@ -54,6 +56,8 @@ from ovis.common.vision.outline import PROFILE_REACH_PX
 __all__ = [
     "FloorOutline",
     "Solid",
+    "along_sight",
+    "bound_behind",
     "feet_hidden",
     "fit_blob",
     "fit_piece",
@@ -126,6 +130,13 @@ FOOT_HIDDEN_SHARE = 0.5
 #: Added to the normal matrix's diagonal where no point counts along some direction of
 #: the parameters: that direction's variance is then without bound (not measurable).
 UNPINNED = 1e-9
+#: Where a solid whose foot is hidden can stand (:func:`bound_behind`): heights tried
+#: this far apart (cm), each bound then worked out to within :data:`BOUND_TOL_CM`.
+BOUND_STEP_CM = 0.5
+BOUND_TOL_CM = 0.01
+#: A footprint's edge faces the camera's foot when its outward normal points at it
+#: within this cosine: its foot would be seen unless something hides it.
+FACING_COS = 0.3
 
 
 class FloorOutline(NamedTuple):
@@ -688,6 +699,116 @@ def feet_hidden(solids: Sequence[Solid], view: Viewpoint) -> list[bool]:
         inside = np.min([signed_distance(o.shape, o.theta, pts, view) for o in others], axis=0)
         out.append(bool(np.mean(inside < 0.0) >= FOOT_HIDDEN_SHARE))
     return out
+
+
+def _sizes(shape: str) -> list[int]:
+    """Where a shape's parameter vector holds its footprint's sizes (cm)."""
+    return [2, 3] if shape == "box" else [2]
+
+
+def along_sight(solid: Solid, heights: FloatArray, view: Viewpoint) -> FloatArray:
+    """The parameter vectors (B, P) of the solids one camera cannot tell from ``solid``
+    by its top face, at ``heights`` (B,): the top face seen where it is, the footprint
+    (centre and size) scaled about the camera's foot by ``(H − h) / (H − h₀)``. Their
+    silhouettes differ only at the foot (module :mod:`~ovis.common.solids.silhouette`)."""
+    h = np.asarray(heights, dtype=np.float64)
+    q = (view.height_cm - h) / (view.height_cm - float(solid.theta[-1]))
+    theta = np.repeat(solid.theta[None], h.size, axis=0)
+    theta[:, 0:2] = view.foot + q[:, None] * (solid.theta[0:2] - view.foot)
+    theta[:, _sizes(solid.shape)] *= q[:, None]
+    theta[:, -1] = h
+    return theta
+
+
+def _behind_ok(
+    solid: Solid,
+    others: Sequence[Solid],
+    heights: FloatArray,
+    view: Viewpoint,
+    tol_cm: float,
+) -> NDArray[np.bool_]:
+    """Per height (:func:`along_sight`), whether ``solid`` could stand there unseen at the
+    foot: its footprint's edges facing the camera's foot inside the others' silhouettes
+    (within ``tol_cm``: so not in front of them, where their silhouettes do not reach),
+    and its footprint clear of theirs."""
+    thetas = along_sight(solid, heights, view)
+    poly = footprint_polygon(solid.shape, thetas)  # (B, k, 2)
+    e = np.roll(poly[0], -1, axis=0) - poly[0]
+    mid = poly[0] + 0.5 * e
+    normal = np.column_stack([e[:, 1], -e[:, 0]]) / np.maximum(np.hypot(*e.T), 1e-12)[:, None]
+    to_foot = view.foot - mid
+    facing = (normal * to_foot).sum(1) > FACING_COS * np.hypot(*to_foot.T)
+    along = np.linspace(0.1, 0.9, 5)[:, None, None]
+    ahead = np.roll(poly, -1, axis=1)
+    pts = poly[:, facing] + along[:, None] * (ahead[:, facing] - poly[:, facing])[None]
+    flat = pts.transpose(1, 0, 2, 3).reshape(-1, 2)  # (B · 5 · m, 2)
+    inside = np.min([signed_distance(o.shape, o.theta, flat, view) for o in others], axis=0)
+    hidden = (inside.reshape(len(heights), -1) < tol_cm).all(1) if facing.any() else False
+    theirs = [footprint_polygon(o.shape, o.theta).astype(np.float32) for o in others]
+    clear = np.array(
+        [
+            all(cv2.intersectConvexConvex(p.astype(np.float32), t)[0] <= 0.0 for t in theirs)
+            for p in poly
+        ]
+    )
+    return np.asarray(hidden & clear, dtype=bool)
+
+
+def bound_behind(
+    solids: Sequence[Solid], k: int, floor: FloorOutline, view: Viewpoint
+) -> Solid | None:
+    """Solid ``k`` of a blob, whose walls' foot is hidden behind the others
+    (:func:`feet_hidden`), placed where the frame allows it to stand; None where nothing
+    does, or where its fit has no finite covariance. Its top face is seen, and the
+    solids that show that top face (:func:`along_sight`: lower and farther, or taller and
+    nearer) differ only at the foot, so the outline leaves its height free. The others
+    bound it: its footprint is clear of theirs, and its foot, where it faces the camera,
+    lies within their silhouettes (within :data:`OFF_PX` of them: a foot farther out
+    would show in the outline; nearer the camera than they stand, they do not hide it).
+    It is placed halfway between the lowest and the tallest height allowed (and so
+    halfway in distance), its covariance the fit's with the height held (conditioned
+    on it) plus a uniform spread over those bounds along the line of sight; that
+    spread also counts as its edge shift (bounds are no better known for being fitted
+    again)."""
+    solid, others = solids[k], [s for j, s in enumerate(solids) if j != k]
+    lo, hi = _bounds(solid.shape, view)
+    heights = np.arange(float(lo[-1]), float(hi[-1]), BOUND_STEP_CM)
+    tol = OFF_PX / float(np.median(floor.px_per_cm))
+    ok = _behind_ok(solid, others, heights, view, tol)
+    if not ok.any():
+        return None
+    allowed = np.flatnonzero(ok)  # where several stretches allow it: first to last
+    first, last = int(allowed[0]), int(allowed[-1])
+
+    def edge(inner: int, outer: int) -> float:
+        """The bound between an allowed height and one not, by bisection."""
+        if not 0 <= outer < len(heights):
+            return float(heights[inner])
+        a, b = float(heights[inner]), float(heights[outer])
+        while abs(b - a) > BOUND_TOL_CM:
+            m = 0.5 * (a + b)
+            a, b = (m, b) if _behind_ok(solid, others, np.array([m]), view, tol)[0] else (a, m)
+        return a
+
+    h_lo, h_hi = edge(first, first - 1), edge(last, last + 1)
+    h_mid = 0.5 * (h_lo + h_hi)
+    theta = along_sight(solid, np.array([h_mid]), view)[0]
+    span = view.height_cm - h_mid
+    tangent = np.zeros(theta.size)  # d theta / dh along the family
+    tangent[0:2] = -(theta[0:2] - view.foot) / span
+    tangent[_sizes(solid.shape)] = -theta[_sizes(solid.shape)] / span
+    tangent[-1] = 1.0
+    spread = max(h_hi - h_lo, BOUND_TOL_CM) / math.sqrt(12.0)
+    cov, shift = solid.covariance, solid.edge_shift
+    if not (np.isfinite(cov).all() and np.isfinite(shift).all() and cov[-1, -1] > 0):
+        return None
+    held = cov - np.outer(cov[:, -1], cov[-1, :]) / cov[-1, -1]
+    shift = shift - shift[-1] * tangent
+    return solid._replace(
+        theta=theta,
+        covariance=held + spread * spread * np.outer(tangent, tangent),
+        edge_shift=shift + spread * tangent,
+    )
 
 
 def _footprints_overlap(solids: Sequence[Solid]) -> bool:

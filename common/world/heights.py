@@ -39,9 +39,11 @@ reported height is the configured one. A fit that does not explain its outline (
 many edge points off its silhouettes: :attr:`~ovis.common.solids.fit.Solid.explains`)
 is not measured either. Nor is a solid whose walls' foot is hidden behind another of its
 blob: only its top shows, and the outline's points where its silhouette meets the other's
-are no evidence of its height (:func:`~ovis.common.solids.fit.refit_with_tops`); it stays
-where the blob's joint fit put it (:func:`~ovis.common.solids.fit.feet_hidden`) while the
-others are fitted again with their top edges.
+are no evidence of its height (:func:`~ovis.common.solids.fit.refit_with_tops`); it is
+held (:func:`~ovis.common.solids.fit.feet_hidden`) while the others are fitted again with
+their top edges, then placed where the others let it stand, its position's uncertainty
+spread over that stretch of the line of sight
+(:func:`~ovis.common.solids.fit.bound_behind`).
 """
 
 from __future__ import annotations
@@ -63,6 +65,7 @@ from ovis.common.solids.fit import (
     ITERATIONS,
     FloorOutline,
     Solid,
+    bound_behind,
     feet_hidden,
     fit_blob,
     fit_piece,
@@ -398,7 +401,22 @@ class SolidTracker:
                 fresh = fit_piece(floor, self.view, [one.shape], height=hold)
                 one = fresh._replace(covariance=one.covariance, edge_shift=one.edge_shift)
             best = [held_height(one, floor, self.view, hold, sigma)]
+        if height is None and len(best) > 1:
+            best = self._placed_behind(best, floor)
         return best, outline
+
+    def _placed_behind(self, solids: list[Solid], floor: FloorOutline) -> list[Solid]:
+        """A blob's solids, each whose walls' foot is hidden behind the others and whose
+        height is not measurable placed where the others let it stand
+        (:func:`~ovis.common.solids.fit.bound_behind`: between where its footprint meets
+        theirs and where its foot would show), its covariance spread over that stretch
+        of the line of sight (where the joint fit left it, the outline does not say)."""
+        out = list(solids)
+        for k, behind in enumerate(feet_hidden(solids, self.view)):
+            if behind and _sigma(solids[k]) > self.pose.height_sigma_max_cm:
+                placed = bound_behind(solids, k, floor, self.view)
+                out[k] = solids[k] if placed is None else placed
+        return out
 
     def _hold_height(
         self, solid: Solid, floor: FloorOutline, patch: Patch, diff: NDArray[np.float32]

@@ -261,7 +261,9 @@ def heights(
     each through the rig's true camera with the empty floor beside it, and detects
     with measured heights and/or today's configured ones. Prints per camera and method:
     obstacles found (missed, taken for the robot; those more than half hidden by others
-    apart), spurious detections, footprint error, the errors of obstacles about 7 and
+    apart), spurious detections, footprint error, the detections whose position is not
+    measurable (a stated 1-sigma over 1.65 cm) and how many lie within their stated
+    uncertainty of an object, the errors of obstacles about 7 and
     about 20 cm tall, the measured heights' errors, and in how many scenes the robot
     was reported as the robot.
     """
@@ -316,6 +318,14 @@ def _print_heights(reports, seeds: range) -> None:
         "spurious": lambda x: str(x.spurious),
         "mostly hidden (found)": lambda x: f"{x.hidden} ({x.hidden_found})",
         "footprint error mean / max cm": lambda x: pair(x.footprint_mean_cm, x.footprint_max_cm),
+        "positions not measurable (within their σ)": lambda x: (
+            f"{x.positions_unmeasurable} ({x.positions_within_stated})"
+        ),
+        "  their error max / stated σ max cm": lambda x: (
+            "-"
+            if not np.isfinite(x.unmeasurable_error_max_cm)
+            else f"{x.unmeasurable_error_max_cm:.2f} / {x.unmeasurable_sigma_max_cm:.2f}"
+        ),
         "about 7 cm tall: n, mean / max cm": lambda x: (
             f"{x.near_7cm}: " + pair(x.near_7cm_mean_cm, x.near_7cm_max_cm)
         ),
@@ -335,7 +345,11 @@ def _print_heights(reports, seeds: range) -> None:
     console().print(t)
     console().print(
         "footprint: where each obstacle stands (its centre on the floor) against MuJoCo's "
-        "truth, matched within 5 cm; 'about' a height: within 1.5 cm of it; an obstacle is "
+        "truth, matched within 5 cm; a position not measurable (a detection's stated 1σ over "
+        "1.65 cm: a foot hidden behind another solid) is matched within its stated "
+        "uncertainty (99 %, 0.5 cm added, at most 20 cm off and a stated 1σ of at most "
+        "10 cm) and kept out of the footprint error; "
+        "'about' a height: within 1.5 cm of it; an obstacle is "
         "mostly hidden when others hide more than half of its silhouette (counted apart); "
         "the rigs' true cameras, the empty floor subtracted, objects 3 levels brighter"
     )
