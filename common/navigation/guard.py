@@ -45,7 +45,14 @@ from numpy.typing import NDArray
 
 from ovis.common.navigation.base import DriveLimits
 from ovis.common.navigation.observe import Situation
-from ovis.common.navigation.steering import HEADING_GAIN, Arena, goal_direction, inside, wrap_rad
+from ovis.common.navigation.steering import (
+    HEADING_GAIN,
+    Arena,
+    goal_direction,
+    held,
+    inside,
+    wrap_rad,
+)
 
 __all__ = [
     "MARGIN_CM",
@@ -155,13 +162,17 @@ def _contact_times(
     heading: FloatArray,
     speed: FloatArray,
     limits: DriveLimits,
+    way: FloatArray | None = None,
 ) -> FloatArray:
     """(B, C) time to contact of B robots moving at C velocities each (heading,
-    speed: (B, C)) against their other bodies (module docstring)."""
+    speed: (B, C)) against their other bodies (module docstring), each turning its
+    way round ``way`` (B,) (:func:`~.steering.held`; None: the shorter way)."""
     v0x = (s.speed * np.cos(s.heading))[:, None]
     v0y = (s.speed * np.sin(s.heading))[:, None]
     vx, vy = speed * np.cos(heading), speed * np.sin(heading)
     turn = wrap_rad(heading - s.heading[:, None])
+    if way is not None:
+        turn = held(turn, way[:, None])
     sx, sy = start_shift(v0x, v0y, vx, vy, turn, limits)
     # (B, C, M)
     px = s.ox[:, None, :] - (s.x[:, None] + sx)[:, :, None]
@@ -184,14 +195,16 @@ def guard(
     limits: DriveLimits,
     arena: Arena | None = None,
     edge_cm: FloatArray | float = 0.0,
+    way: FloatArray | None = None,
 ) -> Wish:
     """The wishes of B robots (``heading`` rad, ``speed`` cm/s), each kept or changed
-    by its guard of ``guard_s`` (s; 0: off) (module docstring)."""
+    by its guard of ``guard_s`` (s; 0: off) (module docstring), each robot turning its
+    way round ``way`` (:class:`~.steering.Turns`; None: the shorter way)."""
     heading = np.asarray(heading, float)
     speed = np.asarray(speed, float)
     guard_s = np.broadcast_to(np.asarray(guard_s, float), heading.shape)
     wished = heading if arena is None else inside(s, heading, arena, edge_cm)
-    now = _contact_times(s, wished[:, None], speed[:, None], limits)[:, 0]
+    now = _contact_times(s, wished[:, None], speed[:, None], limits, way)[:, 0]
     danger = np.flatnonzero(now < guard_s)
     if danger.size == 0:
         none = np.zeros(heading.shape, bool)
@@ -213,7 +226,7 @@ def guard(
         rows = np.repeat(np.arange(danger.size), h.shape[1])
         flat = Situation(*(None if f is None else f[rows] for f in d))
         h = inside(flat, h.reshape(-1), arena, edge[rows]).reshape(h.shape)
-    t = _contact_times(d, h, v, limits)
+    t = _contact_times(d, h, v, limits, None if way is None else way[danger])
     to_goal, _ = goal_direction(d)
     away = np.abs(wrap_rad(h - to_goal[:, None])) / np.pi
     away = away + np.abs(v - speed[danger, None]) / top
