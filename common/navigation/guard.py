@@ -55,6 +55,7 @@ from ovis.common.navigation.steering import (
 )
 
 __all__ = [
+    "KEEP_S",
     "MARGIN_CM",
     "REACTION_S",
     "SETTLED_DEG",
@@ -82,6 +83,9 @@ SPEEDS = (1.0, 0.5, 0.0)
 #: The cost (s of time to contact) of a candidate a half turn from the goal's direction
 #: and the whole top speed from the wished speed.
 NEAR_WISH_S = 0.2
+#: The cost (s of time to contact) of a candidate a half turn from the heading the robot
+#: was steered to the frame before.
+KEEP_S = 0.15
 
 
 class Wish(NamedTuple):
@@ -196,10 +200,12 @@ def guard(
     arena: Arena | None = None,
     edge_cm: FloatArray | float = 0.0,
     way: FloatArray | None = None,
+    last: FloatArray | None = None,
 ) -> Wish:
     """The wishes of B robots (``heading`` rad, ``speed`` cm/s), each kept or changed
     by its guard of ``guard_s`` (s; 0: off) (module docstring), each robot turning its
-    way round ``way`` (:class:`~.steering.Turns`; None: the shorter way)."""
+    way round ``way`` and steered to ``last`` (rad; NaN: none) the frame before
+    (:class:`~.steering.Turns`; None: neither kept)."""
     heading = np.asarray(heading, float)
     speed = np.asarray(speed, float)
     guard_s = np.broadcast_to(np.asarray(guard_s, float), heading.shape)
@@ -231,6 +237,9 @@ def guard(
     away = np.abs(wrap_rad(h - to_goal[:, None])) / np.pi
     away = away + np.abs(v - speed[danger, None]) / top
     score = np.minimum(t, guard_s[danger, None]) - NEAR_WISH_S * 0.5 * away
+    if last is not None:  # keep to the last choice unless another is clearly better
+        off_last = np.abs(wrap_rad(h - last[danger, None])) / np.pi
+        score = score - KEEP_S * np.where(np.isfinite(off_last), off_last, 0.0)
     best = np.argmax(score, axis=1)
     rows = np.arange(danger.size)
     heading, speed = heading.copy(), speed.copy()

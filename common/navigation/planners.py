@@ -103,8 +103,8 @@ def fuzzy_batch(
     heading = to_goal + np.radians(deviation)
     brake = None
     if np.any(f.guard > 0.0):
-        way = None if turns is None else turns.current(s.x.size)
-        wish = guard(s, heading, speed, f.guard, limits, arena, f.edge_cm, way)
+        way, last = (None, None) if turns is None else turns.current(s.x.size)
+        wish = guard(s, heading, speed, f.guard, limits, arena, f.edge_cm, way, last)
         heading, speed, brake = wish.heading, wish.speed, wish.brake
         deviation = np.degrees(wrap_rad(heading - to_goal))
     out = steer(s, heading, speed, limits, tolerance_cm, arena, f.edge_cm, f.edge_slow, turns)

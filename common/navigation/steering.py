@@ -98,23 +98,29 @@ def held(error: ArrayLike, way: ArrayLike) -> FloatArray:
 
 class Turns:
     """Each robot's way round (module docstring), kept between frames: +1
-    counter-clockwise, −1 clockwise, 0 not yet turned. One per set of robots."""
+    counter-clockwise, −1 clockwise, 0 not yet turned; and the heading (rad) it was
+    steered to (NaN: none yet), which its guard keeps to (:mod:`.guard`). One per set of
+    robots."""
 
     def __init__(self) -> None:
-        self.way: FloatArray | None = None
+        self.way = np.zeros(0)
+        self.heading = np.zeros(0)
 
-    def current(self, n: int) -> FloatArray:
-        """The ways of ``n`` robots (all 0 when the set changed size)."""
-        if self.way is None or self.way.shape != (n,):
-            self.way = np.zeros(n)
-        return self.way
+    def current(self, n: int) -> tuple[FloatArray, FloatArray]:
+        """The ways and last headings of ``n`` robots (none when the set changed size)."""
+        if self.way.shape != (n,):
+            self.way, self.heading = np.zeros(n), np.full(n, np.nan)
+        return self.way, self.heading
 
-    def hold(self, error: ArrayLike) -> FloatArray:
-        """The errors (rad, wrapped; (B,)) to steer by, each kept its robot's way round
-        (:func:`held`); each robot's way becomes the sign of its error taken."""
+    def hold(self, error: ArrayLike, heading: ArrayLike) -> FloatArray:
+        """The errors (rad, wrapped; (B,)) to steer by towards ``heading`` (rad), each
+        kept its robot's way round (:func:`held`); each robot's way becomes the sign of
+        its error taken, its last heading ``heading``."""
         error = np.asarray(error, float)
-        taken = held(error, self.current(error.size))
-        self.way = np.where(taken != 0.0, np.sign(taken), self.way)
+        way, _ = self.current(error.size)
+        taken = held(error, way)
+        self.way = np.where(taken != 0.0, np.sign(taken), way)
+        self.heading = np.broadcast_to(np.asarray(heading, float), error.shape).copy()
         return taken
 
 
@@ -180,7 +186,7 @@ def steer(
         speed = np.asarray(speed, float) * (1.0 - np.asarray(edge_slow, float) * (1.0 - kept))
     error = wrap_rad(np.asarray(heading, float) - s.heading)
     if turns is not None:
-        error = turns.hold(error)
+        error = turns.hold(error, heading)
     omega = np.clip(
         np.degrees(HEADING_GAIN * error), -limits.max_yaw_rate_deg_s, limits.max_yaw_rate_deg_s
     )
