@@ -341,6 +341,22 @@ def test_guard_turns_away_from_every_body_and_shares_with_a_robot() -> None:
     assert apart > 10.0 + MARGIN_CM
 
 
+def test_guard_keeps_to_its_last_choice() -> None:
+    """A body standing dead ahead on the way to the goal: passing it on the left or on
+    the right is as good, and the guard takes the side the robot was steered to the
+    frame before (a choice flipping between far-apart headings from frame to frame left
+    robots turning back and forth near a body, MuJoCo seeds 317 and 329)."""
+    from ovis.common.navigation.guard import guard
+
+    lim = DriveLimits(20.0, 60.0, 300.0, 240.0)
+    ahead = _robots([40.0], [60.0], 0.0, [140.0], [60.0], [(70.0, 60.0, 5.0)])
+    ahead = ahead._replace(speed=np.full(1, 20.0))
+    for side in (1.0, -1.0):
+        last = np.radians([side * 40.0])
+        wish = guard(ahead, np.zeros(1), np.full(1, 20.0), 1.5, lim, last=last)
+        assert wish.guarded[0] and np.sign(wish.heading[0]) == side
+
+
 def test_guard_brakes_when_every_way_is_shut() -> None:
     """A robot at 20 cm/s ringed by eight standing bodies 20 cm away: every way on meets
     one within the guard's time, a stop at the braking limit (2.7 cm on) none: the
