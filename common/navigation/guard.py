@@ -25,9 +25,15 @@ the top speed) and at the wished speed, the one whose time to contact is longest
 to ``guard_s``), and among those as long, the one nearest the goal's direction and the
 wished speed (:data:`NEAR_WISH_S`: what a half turn from the goal and the whole top
 speed cost, in seconds of time to contact; nearest the goal, not the wish: a wish that
-led into danger may be the rules flipping between two bodies). When that is a stop,
-the command says **brake**: the robot stops at its braking limit
-(``[navigation] brake_cm_s2``), as it does for the planner's other stops.
+led into danger may be the rules flipping between two bodies). It **keeps to its last
+choice**: a candidate also costs :data:`KEEP_S` per half turn from the heading the
+robot was steered to the frame before (:class:`~.steering.Turns`), so that the way out
+changes only for one clearly better (a pick flipping between far-apart headings from
+frame to frame left robots turning back and forth near a body: MuJoCo seeds 317 and
+329, docs/navigation.md). When that is a stop, the command says **brake**: the robot
+stops at its braking limit (``[navigation] brake_cm_s2``), as it does for the
+planner's other stops. Each turn is timed the way round the robot keeps
+(:class:`~.steering.Turns`).
 
 **Another robot** shares the avoidance, as in reciprocal velocity obstacles (van den
 Berg, Lin & Manocha 2008): a velocity is judged against it as if the robot's own change
