@@ -191,6 +191,34 @@ def test_edge_takes_the_speed_with_the_heading() -> None:
     assert free.omega_deg_s[0] < 0.0
 
 
+def test_a_robot_turning_round_keeps_its_way() -> None:
+    """A stopped robot whose goal lies behind it, its heading measured 4° either side of
+    the half turn from frame to frame (the error's sign flipping): the planner turns it
+    at the top yaw rate one way every frame, the way it took first, not back and forth
+    (MuJoCo seed 317); once the goal is decisively on the other side (100° to its
+    right) it turns that way, and keeps that way round the half turn from then on."""
+    from ovis.common.navigation.observe import Observation
+    from ovis.common.navigation.planners import Planner
+    from ovis.common.navigation.steering import Arena
+
+    lim = DriveLimits(20.0, 60.0, 300.0, 240.0)
+    planner = Planner("fuzzy", lim, 3.0, 0.1, tuned_default(), Arena(0.0, 150.0, 0.0, 120.0))
+
+    def omegas(headings_deg: list[float], t0: float) -> list[float]:
+        return [
+            planner.plan(
+                Observation(t0 + 0.1 * k, 1, 75.0, 60.0, h, 0.0, 5.0, (135.0, 60.0), [])
+            ).omega_deg_s
+            for k, h in enumerate(headings_deg)
+        ]
+
+    noisy = [180.0 + (4.0 if k % 2 else -4.0) for k in range(12)]
+    first = omegas(noisy, 0.0)
+    assert first == [first[0]] * len(first) and abs(first[0]) == 240.0
+    assert omegas([100.0], 2.0)[0] == -240.0  # the goal 100° to its right: clockwise
+    assert omegas(noisy, 3.0) == [-240.0] * len(noisy)
+
+
 def test_side_chosen_by_the_room_and_kept() -> None:
     """The room on each side of the goal direction is measured to the arena's edge
     (beyond the radius). An obstacle just left of ahead of a robot near the bottom edge,
@@ -311,6 +339,22 @@ def test_guard_turns_away_from_every_body_and_shares_with_a_robot() -> None:
     apart = _closest(x[0], y[0], wish.heading[0], wish.speed[0],
                      x[1], y[1], wish.heading[1], wish.speed[1])  # fmt: skip
     assert apart > 10.0 + MARGIN_CM
+
+
+def test_guard_keeps_to_its_last_choice() -> None:
+    """A body standing dead ahead on the way to the goal: passing it on the left or on
+    the right is as good, and the guard takes the side the robot was steered to the
+    frame before (a choice flipping between far-apart headings from frame to frame left
+    robots turning back and forth near a body, MuJoCo seeds 317 and 329)."""
+    from ovis.common.navigation.guard import guard
+
+    lim = DriveLimits(20.0, 60.0, 300.0, 240.0)
+    ahead = _robots([40.0], [60.0], 0.0, [140.0], [60.0], [(70.0, 60.0, 5.0)])
+    ahead = ahead._replace(speed=np.full(1, 20.0))
+    for side in (1.0, -1.0):
+        last = np.radians([side * 40.0])
+        wish = guard(ahead, np.zeros(1), np.full(1, 20.0), 1.5, lim, last=last)
+        assert wish.guarded[0] and np.sign(wish.heading[0]) == side
 
 
 def test_guard_brakes_when_every_way_is_shut() -> None:

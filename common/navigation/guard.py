@@ -25,9 +25,15 @@ the top speed) and at the wished speed, the one whose time to contact is longest
 to ``guard_s``), and among those as long, the one nearest the goal's direction and the
 wished speed (:data:`NEAR_WISH_S`: what a half turn from the goal and the whole top
 speed cost, in seconds of time to contact; nearest the goal, not the wish: a wish that
-led into danger may be the rules flipping between two bodies). When that is a stop,
-the command says **brake**: the robot stops at its braking limit
-(``[navigation] brake_cm_s2``), as it does for the planner's other stops.
+led into danger may be the rules flipping between two bodies). It **keeps to its last
+choice**: a candidate also costs :data:`KEEP_S` per half turn from the heading the
+robot was steered to the frame before (:class:`~.steering.Turns`), so that the way out
+changes only for one clearly better (a pick flipping between far-apart headings from
+frame to frame left robots turning back and forth near a body: MuJoCo seeds 317 and
+329, docs/navigation.md). When that is a stop, the command says **brake**: the robot
+stops at its braking limit (``[navigation] brake_cm_s2``), as it does for the
+planner's other stops. Each turn is timed the way round the robot keeps
+(:class:`~.steering.Turns`).
 
 **Another robot** shares the avoidance, as in reciprocal velocity obstacles (van den
 Berg, Lin & Manocha 2008): a velocity is judged against it as if the robot's own change
@@ -45,9 +51,17 @@ from numpy.typing import NDArray
 
 from ovis.common.navigation.base import DriveLimits
 from ovis.common.navigation.observe import Situation
-from ovis.common.navigation.steering import HEADING_GAIN, Arena, goal_direction, inside, wrap_rad
+from ovis.common.navigation.steering import (
+    HEADING_GAIN,
+    Arena,
+    goal_direction,
+    held,
+    inside,
+    wrap_rad,
+)
 
 __all__ = [
+    "KEEP_S",
     "MARGIN_CM",
     "REACTION_S",
     "SETTLED_DEG",
@@ -75,6 +89,9 @@ SPEEDS = (1.0, 0.5, 0.0)
 #: The cost (s of time to contact) of a candidate a half turn from the goal's direction
 #: and the whole top speed from the wished speed.
 NEAR_WISH_S = 0.2
+#: The cost (s of time to contact) of a candidate a half turn from the heading the robot
+#: was steered to the frame before.
+KEEP_S = 0.15
 
 
 class Wish(NamedTuple):
@@ -155,13 +172,17 @@ def _contact_times(
     heading: FloatArray,
     speed: FloatArray,
     limits: DriveLimits,
+    way: FloatArray | None = None,
 ) -> FloatArray:
     """(B, C) time to contact of B robots moving at C velocities each (heading,
-    speed: (B, C)) against their other bodies (module docstring)."""
+    speed: (B, C)) against their other bodies (module docstring), each turning its
+    way round ``way`` (B,) (:func:`~.steering.held`; None: the shorter way)."""
     v0x = (s.speed * np.cos(s.heading))[:, None]
     v0y = (s.speed * np.sin(s.heading))[:, None]
     vx, vy = speed * np.cos(heading), speed * np.sin(heading)
     turn = wrap_rad(heading - s.heading[:, None])
+    if way is not None:
+        turn = held(turn, way[:, None])
     sx, sy = start_shift(v0x, v0y, vx, vy, turn, limits)
     # (B, C, M)
     px = s.ox[:, None, :] - (s.x[:, None] + sx)[:, :, None]
@@ -184,14 +205,18 @@ def guard(
     limits: DriveLimits,
     arena: Arena | None = None,
     edge_cm: FloatArray | float = 0.0,
+    way: FloatArray | None = None,
+    last: FloatArray | None = None,
 ) -> Wish:
     """The wishes of B robots (``heading`` rad, ``speed`` cm/s), each kept or changed
-    by its guard of ``guard_s`` (s; 0: off) (module docstring)."""
+    by its guard of ``guard_s`` (s; 0: off) (module docstring), each robot turning its
+    way round ``way`` and steered to ``last`` (rad; NaN: none) the frame before
+    (:class:`~.steering.Turns`; None: neither kept)."""
     heading = np.asarray(heading, float)
     speed = np.asarray(speed, float)
     guard_s = np.broadcast_to(np.asarray(guard_s, float), heading.shape)
     wished = heading if arena is None else inside(s, heading, arena, edge_cm)
-    now = _contact_times(s, wished[:, None], speed[:, None], limits)[:, 0]
+    now = _contact_times(s, wished[:, None], speed[:, None], limits, way)[:, 0]
     danger = np.flatnonzero(now < guard_s)
     if danger.size == 0:
         none = np.zeros(heading.shape, bool)
@@ -213,11 +238,14 @@ def guard(
         rows = np.repeat(np.arange(danger.size), h.shape[1])
         flat = Situation(*(None if f is None else f[rows] for f in d))
         h = inside(flat, h.reshape(-1), arena, edge[rows]).reshape(h.shape)
-    t = _contact_times(d, h, v, limits)
+    t = _contact_times(d, h, v, limits, None if way is None else way[danger])
     to_goal, _ = goal_direction(d)
     away = np.abs(wrap_rad(h - to_goal[:, None])) / np.pi
     away = away + np.abs(v - speed[danger, None]) / top
     score = np.minimum(t, guard_s[danger, None]) - NEAR_WISH_S * 0.5 * away
+    if last is not None:  # keep to the last choice unless another is clearly better
+        off_last = np.abs(wrap_rad(h - last[danger, None])) / np.pi
+        score = score - KEEP_S * np.where(np.isfinite(off_last), off_last, 0.0)
     best = np.argmax(score, axis=1)
     rows = np.arange(danger.size)
     heading, speed = heading.copy(), speed.copy()

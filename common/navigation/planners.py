@@ -9,9 +9,10 @@
 
 Every planner keeps, per robot, the other bodies' velocities smoothed over the frames
 (an exponential mean with weight ``VELOCITY_WEIGHT`` for the newest measurement:
-a velocity from two frames' positions carries their noise twice). The batched cores
-(:func:`fuzzy_batch`, :func:`straight_batch`) are what the tuning's fast simulation
-runs for a whole population at once.
+a velocity from two frames' positions carries their noise twice); the fuzzy and
+straight planners keep each robot's way round a half turn (:class:`~.steering.Turns`).
+The batched cores (:func:`fuzzy_batch`, :func:`straight_batch`) are what the tuning's
+fast simulation runs for a whole population at once.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from ovis.common.navigation.fuzzy import FuzzyArrays, FuzzyParams, infer_arrays
 from ovis.common.navigation.guard import guard
 from ovis.common.navigation.observe import Body, Observation, Situation, situation
 from ovis.common.navigation.sides import Sides, roomier_right
-from ovis.common.navigation.steering import Arena, Steer, goal_direction, steer, wrap_rad
+from ovis.common.navigation.steering import Arena, Steer, Turns, goal_direction, steer, wrap_rad
 
 __all__ = [
     "BRAKE",
@@ -76,11 +77,13 @@ def fuzzy_batch(
     arena: Arena | None = None,
     sides: Sides | None = None,
     keys: np.ndarray | None = None,
+    turns: Turns | None = None,
 ) -> tuple[Steer, Critical, np.ndarray]:
     """The fuzzy planner for B robots (with B controllers): their commands, critical
     bodies and deviations (deg). ``sides`` keeps each robot's chosen side between
     calls (:mod:`.sides`; None: chosen afresh each time), for the critical body's key
-    in ``keys`` (B, M) (default its index)."""
+    in ``keys`` (B, M) (default its index); ``turns`` each robot's way round
+    (:class:`~.steering.Turns`; None: the shorter way each time)."""
     crit = critical_obstacle(s, f.lookahead, f.closest_approach)
     none = crit.index < 0
     angle = crit.angle_deg
@@ -100,19 +103,24 @@ def fuzzy_batch(
     heading = to_goal + np.radians(deviation)
     brake = None
     if np.any(f.guard > 0.0):
-        wish = guard(s, heading, speed, f.guard, limits, arena, f.edge_cm)
+        way, last = (None, None) if turns is None else turns.current(s.x.size)
+        wish = guard(s, heading, speed, f.guard, limits, arena, f.edge_cm, way, last)
         heading, speed, brake = wish.heading, wish.speed, wish.brake
         deviation = np.degrees(wrap_rad(heading - to_goal))
-    out = steer(s, heading, speed, limits, tolerance_cm, arena, f.edge_cm, f.edge_slow)
+    out = steer(s, heading, speed, limits, tolerance_cm, arena, f.edge_cm, f.edge_slow, turns)
     if brake is not None:
         out = out._replace(brake=brake & ~out.arrived)
     return out, crit, deviation
 
 
-def straight_batch(s: Situation, limits: DriveLimits, tolerance_cm: float) -> Steer:
-    """Straight to the goal at top speed (blind: it leaves the arena if its goal does)."""
+def straight_batch(
+    s: Situation, limits: DriveLimits, tolerance_cm: float, turns: Turns | None = None
+) -> Steer:
+    """Straight to the goal at top speed (blind: it leaves the arena if its goal does),
+    each robot turning its way round kept in ``turns`` (None: the shorter way)."""
     to_goal, _ = goal_direction(s)
-    return steer(s, to_goal, np.full(s.x.size, limits.max_speed_cm_s), limits, tolerance_cm)
+    top = np.full(s.x.size, limits.max_speed_cm_s)
+    return steer(s, to_goal, top, limits, tolerance_cm, turns=turns)
 
 
 class Planner:
@@ -138,6 +146,7 @@ class Planner:
         self.arena = arena
         self.fuzzy = FuzzyArrays.of(fuzzy) if fuzzy is not None else None
         self._sides = Sides()
+        self._turns = Turns()
         self._velocity: dict[tuple[str, int], tuple[float, float, float]] = {}
 
     def _smoothed(self, obs: Observation) -> Observation:
@@ -165,13 +174,20 @@ class Planner:
             assert self.fuzzy is not None
             keys = np.array([[_key(b) for b in obs.others]], dtype=np.int64).reshape(1, -1)
             out, crit, deviation = fuzzy_batch(
-                s, self.fuzzy, self.limits, self.tolerance_cm, self.arena, self._sides, keys
+                s,
+                self.fuzzy,
+                self.limits,
+                self.tolerance_cm,
+                self.arena,
+                self._sides,
+                keys,
+                self._turns,
             )
             return _command(out, obs.others, crit, float(deviation[0]))
         if self.name == "dwa":
             out = dwa(s, self.limits, self.tolerance_cm, self.period_s, self.arena)
         else:
-            out = straight_batch(s, self.limits, self.tolerance_cm)
+            out = straight_batch(s, self.limits, self.tolerance_cm, self._turns)
         return _command(out, obs.others)
 
 

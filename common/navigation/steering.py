@@ -10,7 +10,18 @@ robot beyond it is lost); in a corner, where nothing of it is left, the goal's
 direction is taken the same way. A planner may also ask that the speed goes with the
 heading the edge took away (``edge_slow``: 0 keeps the speed, 1 scales it by the
 cosine of the angle taken away): a robot that cannot turn where it wanted to need not
-run along the edge at the speed it chose for that turn."""
+run along the edge at the speed it chose for that turn.
+
+**The way round** (:class:`Turns`, kept per robot between frames). A heading nearly
+behind the robot is as near one way round as the other, and the frame-to-frame noise
+of the wanted heading (or of the robot's own) flips the sign of the error: a control
+without memory then turns the robot at the top yaw rate one way and back the next
+frame, so that it neither turns round nor stays put (MuJoCo seed 317,
+docs/navigation.md). So where the error is within ``HOLD_DEG`` of a half turn, the
+robot keeps turning the way it turned the frame before, even when the other way is
+shorter (by up to twice ``HOLD_DEG``). It turns the other way when the error on that
+side is below ``180° − HOLD_DEG`` (the wanted heading moved decisively), and as a turn
+brings the error down, that is the shorter way anyway."""
 
 from __future__ import annotations
 
@@ -25,9 +36,12 @@ from ovis.common.navigation.observe import Situation
 __all__ = [
     "EDGE_CM",
     "HEADING_GAIN",
+    "HOLD_DEG",
     "Arena",
     "Steer",
+    "Turns",
     "goal_direction",
+    "held",
     "inside",
     "steer",
     "wrap_rad",
@@ -41,6 +55,8 @@ EDGE_CM = 4.0
 #: The robot brakes to stop at this share of the goal's tolerance, so that it crosses
 #: into the tolerance still moving (braking to its edge would take ever longer).
 ARRIVE_SHARE = 0.5
+#: Within this (deg) of a half turn a robot keeps the way it turned before.
+HOLD_DEG = 45.0
 
 FloatArray = NDArray[np.float64]
 
@@ -67,6 +83,45 @@ class Steer(NamedTuple):
 def wrap_rad(a: ArrayLike) -> FloatArray:
     """Angles wrapped to [−π, π)."""
     return (np.asarray(a, float) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def held(error: ArrayLike, way: ArrayLike) -> FloatArray:
+    """Heading errors (rad, wrapped) taken the way round ``way`` (+1 counter-clockwise,
+    −1 clockwise, 0 either) where they lie within :data:`HOLD_DEG` of a half turn
+    (module docstring): there an error of the other sign goes the long way, by up to
+    π + ``HOLD_DEG``."""
+    error = np.asarray(error, float)
+    way = np.asarray(way, float)
+    behind = np.abs(error) > np.pi - np.radians(HOLD_DEG)
+    return np.where(behind & (way * error < 0.0), error + 2.0 * np.pi * way, error)
+
+
+class Turns:
+    """Each robot's way round (module docstring), kept between frames: +1
+    counter-clockwise, −1 clockwise, 0 not yet turned; and the heading (rad) it was
+    steered to (NaN: none yet), which its guard keeps to (:mod:`.guard`). One per set of
+    robots."""
+
+    def __init__(self) -> None:
+        self.way = np.zeros(0)
+        self.heading = np.zeros(0)
+
+    def current(self, n: int) -> tuple[FloatArray, FloatArray]:
+        """The ways and last headings of ``n`` robots (none when the set changed size)."""
+        if self.way.shape != (n,):
+            self.way, self.heading = np.zeros(n), np.full(n, np.nan)
+        return self.way, self.heading
+
+    def hold(self, error: ArrayLike, heading: ArrayLike) -> FloatArray:
+        """The errors (rad, wrapped; (B,)) to steer by towards ``heading`` (rad), each
+        kept its robot's way round (:func:`held`); each robot's way becomes the sign of
+        its error taken, its last heading ``heading``."""
+        error = np.asarray(error, float)
+        way, _ = self.current(error.size)
+        taken = held(error, way)
+        self.way = np.where(taken != 0.0, np.sign(taken), way)
+        self.heading = np.broadcast_to(np.asarray(heading, float), error.shape).copy()
+        return taken
 
 
 def goal_direction(s: Situation) -> tuple[FloatArray, FloatArray]:
@@ -117,16 +172,21 @@ def steer(
     arena: Arena | None = None,
     edge_cm: ArrayLike = EDGE_CM,
     edge_slow: ArrayLike = 0.0,
+    turns: Turns | None = None,
 ) -> Steer:
     """The commands that take each robot towards ``heading`` (rad) at ``speed`` (cm/s),
     kept on ``arena`` if given, within ``edge_cm`` of its edges, slowed by
-    ``edge_slow`` where the edge takes some of the heading away (module docstring)."""
+    ``edge_slow`` where the edge takes some of the heading away, each turning its way
+    round kept in ``turns`` (None: the shorter way, afresh each frame) (module
+    docstring)."""
     if arena is not None:
         wanted = np.asarray(heading, float)
         heading = inside(s, wanted, arena, edge_cm)
         kept = np.maximum(np.cos(wrap_rad(heading - wanted)), 0.0)
         speed = np.asarray(speed, float) * (1.0 - np.asarray(edge_slow, float) * (1.0 - kept))
     error = wrap_rad(np.asarray(heading, float) - s.heading)
+    if turns is not None:
+        error = turns.hold(error, heading)
     omega = np.clip(
         np.degrees(HEADING_GAIN * error), -limits.max_yaw_rate_deg_s, limits.max_yaw_rate_deg_s
     )

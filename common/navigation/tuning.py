@@ -48,7 +48,7 @@ from ovis.common.navigation.fuzzy import (
 from ovis.common.navigation.planners import fuzzy_batch
 from ovis.common.navigation.scenarios import Scenario
 from ovis.common.navigation.sides import Sides
-from ovis.common.navigation.steering import Arena
+from ovis.common.navigation.steering import Arena, Turns
 from ovis.common.navigation.training import (
     CONTACT_COST,
     CONTACT_MARGIN_CM,
@@ -162,11 +162,11 @@ def drive_with(
     (x0, x1), (y0, y1) = scenarios[0].scene.arena_x_cm, scenarios[0].scene.arena_y_cm
     arena = Arena(x0, x1, y0, y1)
 
-    sides = Sides()
+    sides, turns = Sides(), Turns()
 
     def policy(s, rows):
         f = controllers.take(rows)
-        return fuzzy_batch(s, f, limits, nav.goal_tolerance_cm, arena, sides)[0]
+        return fuzzy_batch(s, f, limits, nav.goal_tolerance_cm, arena, sides, turns=turns)[0]
 
     return simulate(policy, data, controllers.distance_step.size, nav, margin_cm)
 
