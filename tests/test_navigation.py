@@ -345,7 +345,8 @@ def test_guard_keeps_to_its_last_choice() -> None:
     """A body standing dead ahead on the way to the goal: passing it on the left or on
     the right is as good, and the guard takes the side the robot was steered to the
     frame before (a choice flipping between far-apart headings from frame to frame left
-    robots turning back and forth near a body, MuJoCo seeds 317 and 329)."""
+    robots turning back and forth near a body, MuJoCo seeds 317 and 329); but not a
+    detour, when a heading nearer the goal on the same side is as clear."""
     from ovis.common.navigation.guard import guard
 
     lim = DriveLimits(20.0, 60.0, 300.0, 240.0)
@@ -355,6 +356,12 @@ def test_guard_keeps_to_its_last_choice() -> None:
         last = np.radians([side * 40.0])
         wish = guard(ahead, np.zeros(1), np.full(1, 20.0), 1.5, lim, last=last)
         assert wish.guarded[0] and np.sign(wish.heading[0]) == side
+    # steered 90° to the left of it, the wish still meets it, and the way 30° to the
+    # left of the goal is as clear as the detour: the keep does not hold the detour
+    # (a keep holding it held a robot of MuJoCo seed 213, two robots, off its goal)
+    beside = ahead._replace(heading=np.radians([90.0]))
+    wish = guard(beside, np.zeros(1), np.full(1, 20.0), 2.0, lim, last=np.radians([90.0]))
+    assert wish.guarded[0] and np.degrees(wish.heading[0]) == pytest.approx(30.0)
 
 
 def test_guard_brakes_when_every_way_is_shut() -> None:

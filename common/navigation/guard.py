@@ -30,8 +30,13 @@ choice**: a candidate also costs :data:`KEEP_S` per half turn from the heading t
 robot was steered to the frame before (:class:`~.steering.Turns`), so that the way out
 changes only for one clearly better (a pick flipping between far-apart headings from
 frame to frame left robots turning back and forth near a body: MuJoCo seeds 317 and
-329, docs/navigation.md). When that is a stop, the command says **brake**: the robot
-stops at its braking limit (``[navigation] brake_cm_s2``), as it does for the
+329, docs/navigation.md); but nothing for a candidate clear for the whole guard's time
+and between that heading and the goal's direction (:func:`off_last`): the keep holds a
+way out against one as marginal, not a detour against a clear way back (it costs more
+per half turn than the goal's direction gains, so it held a detour against every way
+back as clear as it for as long as the wish stayed in danger: two robots kept off
+their goals, docs/navigation.md). When that is a stop, the command says **brake**: the
+robot stops at its braking limit (``[navigation] brake_cm_s2``), as it does for the
 planner's other stops. Each turn is timed the way round the robot keeps
 (:class:`~.steering.Turns`).
 
@@ -69,6 +74,7 @@ __all__ = [
     "TURNS_DEG",
     "Wish",
     "guard",
+    "off_last",
     "start_shift",
     "time_to_contact",
     "turn_time",
@@ -167,6 +173,21 @@ def start_shift(
     )
 
 
+def off_last(
+    heading: FloatArray, last: FloatArray, to_goal: FloatArray, clear: NDArray[np.bool_]
+) -> FloatArray:
+    """(B, C) share of a half turn each of C candidate headings (rad) of B robots turns
+    away from the heading ``last`` (B,) each was steered to the frame before (NaN: none,
+    0); 0 for a candidate ``clear`` (no contact within the guard's time) between that
+    heading and the goal's direction ``to_goal`` (B,) (module docstring: the keep holds
+    a way out against one as marginal, not a detour against a clear way back)."""
+    ahead = wrap_rad(last - to_goal)[:, None]
+    off = wrap_rad(heading - to_goal[:, None])
+    back = clear & (off * ahead >= 0.0) & (np.abs(off) <= np.abs(ahead))
+    turned = np.abs(wrap_rad(heading - last[:, None])) / np.pi
+    return np.where(back | ~np.isfinite(turned), 0.0, turned)
+
+
 def _contact_times(
     s: Situation,
     heading: FloatArray,
@@ -244,8 +265,8 @@ def guard(
     away = away + np.abs(v - speed[danger, None]) / top
     score = np.minimum(t, guard_s[danger, None]) - NEAR_WISH_S * 0.5 * away
     if last is not None:  # keep to the last choice unless another is clearly better
-        off_last = np.abs(wrap_rad(h - last[danger, None])) / np.pi
-        score = score - KEEP_S * np.where(np.isfinite(off_last), off_last, 0.0)
+        clear = t >= guard_s[danger, None]
+        score = score - KEEP_S * off_last(h, last[danger], to_goal, clear)
     best = np.argmax(score, axis=1)
     rows = np.arange(danger.size)
     heading, speed = heading.copy(), speed.copy()
