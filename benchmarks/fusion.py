@@ -270,11 +270,49 @@ def _runs_text(values: list[float], unit: str) -> str:
     return "runs " + ", ".join(f"{v:.3g}" for v in values) + f" {unit}".rstrip()
 
 
-def _chain_rows(quick: bool, log=print) -> list[Row]:
+def proofs_ms(cameras: int = 4, size: int = 4_000, reps: int = 200) -> float:
+    """Median ms of one world frame's proofs of origin, in one process: each camera's
+    obstacles signed (pose) and verified (fusion), and the world frame signed (fusion),
+    on payloads of ``size`` bytes (a few robots' and obstacles' messages)."""
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
+    from ovis.common.trust.proof import Signer, signed_bytes
+
+    key = Ed25519PrivateKey.generate()
+    signer, public = Signer(key), key.public_key()
+    payload, topic = os.urandom(size), "ovis/default/cam/cam00/obstacles"
+    sig = key.sign(signed_bytes(topic, payload))
+    samples = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        for _ in range(cameras):
+            signer.attachment(topic, payload)
+            public.verify(sig, signed_bytes(topic, payload))
+        signer.attachment("ovis/default/world", payload)
+        samples.append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(samples))
+
+
+def compute_floor_ms(merge_ms: float, reps: int, log=print) -> dict[str, float]:
+    """The work of one world frame in one process, no bus: every camera's preprocess,
+    label and pose (:func:`~benchmarks.stage_work.stage_work_ms`, warm, on that camera's
+    frames of the same run's seed), the merge (``merge_ms``) and the proofs
+    (:func:`proofs_ms`)."""
+    from benchmarks.stage_work import stage_work_ms
+
+    stages = sum(sum(stage_work_ms(SEED % 1000, reps, camera=k).values()) for k in range(4))
+    proofs = proofs_ms()
+    log(f"[fusion] in-process work per world frame: stages {stages:.2f} ms, merge "
+        f"{merge_ms:.2f} ms, proofs {proofs:.2f} ms")  # fmt: skip
+    return {"stages": stages, "merge": merge_ms, "proofs": proofs}
+
+
+def _chain_rows(quick: bool, merge_ms: float, log=print) -> list[Row]:
     up_cameras(2.0)  # prerenders (and caches) every camera's period: not timed
     rounds, duration = (1, 10.0) if quick else (3, 30.0)
     runs = layout_runs(rounds, duration, log)
     empty = {layout: empty_topology(150 if quick else 600, layout, log) for layout in LAYOUTS}
+    work = compute_floor_ms(merge_ms, 60 if quick else 300, log)
     ours, ref = runs["per-stage"], runs["per-camera"]
     what = (
         "4 cameras + fusion (ovis up --cameras 2x2, 4 × 640×480 at 30 frames/s), one "
@@ -313,7 +351,26 @@ def _chain_rows(quick: bool, log=print) -> list[Row]:
         row("lost", "frames captured after the start-up that never reached the world", "",
             f"; of {lost_text}; in the first second, the start-up, counted apart: {early}"),
         row("chain_p50", "one camera's capture → pose p50", "ms"),
+        _design_floor_row(what, [r.cpu for r in ours], empty["per-stage"]["cpu"], work),
     ]  # fmt: skip
+
+
+def _design_floor_row(what: str, cpu: list[float], bus_ms: float, work: dict[str, float]) -> Row:
+    """The per-stage layout's CPU per world frame against what its design cannot go
+    under: its empty topology (the same processes and messages, no work) plus the work
+    done in one process (:func:`compute_floor_ms`), both measured in this run."""
+    floor = bus_ms + sum(work.values())
+    return Row(
+        f"{PREFIX} {what}: CPU time of all its processes per world frame against the "
+        f"design's floor ({_runs_text(cpu, 'ms')}; floor: the empty per-stage topology "
+        f"{bus_ms:.2f} ms + the work in one process, warm, {work['stages']:.2f} ms for the "
+        f"4 cameras' preprocess, label and pose, {work['merge']:.2f} ms the merge, "
+        f"{work['proofs']:.2f} ms the proofs of origin)",
+        "ms",
+        max(cpu),
+        floor,
+        ratio(max(cpu), floor),
+    )
 
 
 def fusion_rows(quick: bool, log=print) -> list[Row]:
@@ -328,7 +385,7 @@ def fusion_rows(quick: bool, log=print) -> list[Row]:
     # No targets here: issue 38's are for the four cameras' stages plus fusion, run by
     # `ovis up --cameras 2x2`: _chain_rows.
     return [
-        *_chain_rows(quick, log),
+        *_chain_rows(quick, p50, log),
         Row(f"{PREFIX} merge one world frame in-process ({label}) p50 (p99 {p99:.2f} ms; "
             "floor: the frame period)", "ms", p50, period, ratio(p50, period)),
         Row(f"{PREFIX} live, 4 cameras' detections at 30 frames/s: camera stamp → world p50 "

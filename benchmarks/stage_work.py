@@ -81,16 +81,16 @@ class FramePath:
         return out
 
 
-def grid_camera_frames(seed: int, n: int) -> tuple[OvisConfig, list[Frame]]:
-    """Camera ``cam00``'s chain configuration of ``ovis up --cameras 2x2 --seed seed``
-    and its first ``n`` frames, stamped at 30 frames/s."""
+def grid_camera_frames(seed: int, n: int, camera: int = 0) -> tuple[OvisConfig, list[Frame]]:
+    """Camera ``camera``'s (0: ``cam00``) chain configuration of ``ovis up --cameras 2x2
+    --seed seed`` and its first ``n`` frames, stamped at 30 frames/s."""
     from ovis.common.config import with_options
     from ovis.common.sim.gridview import GridCamera, grid_specs
     from ovis.common.sim.scenes import marked_scene
     from ovis.services.cli.multicam_up import OBSTACLES, ROBOTS
 
     base = marked_scene(with_options(None, seed=seed), ROBOTS, OBSTACLES)
-    spec = grid_specs(2, 2, base, base.service.seed)[0]
+    spec = grid_specs(2, 2, base, base.service.seed)[camera]
     config = msgspec.structs.replace(base, camera=spec.camera)
     camera = GridCamera(config, 2, 2, spec.name, base.service.seed)
     frames = [
@@ -100,10 +100,11 @@ def grid_camera_frames(seed: int, n: int) -> tuple[OvisConfig, list[Frame]]:
     return config, frames
 
 
-def stage_work_ms(seed: int, reps: int, evict_mb: float = 0.0) -> dict[str, float]:
-    """Each stage's median ms per frame on ``cam00``'s frames (:func:`grid_camera_frames`),
-    after a warm-up, with ``evict_mb`` MB written between the stages (0: warm caches)."""
-    config, frames = grid_camera_frames(seed, 60)
+def stage_work_ms(seed: int, reps: int, evict_mb: float = 0.0, camera: int = 0) -> dict[str, float]:
+    """Each stage's median ms per frame on camera ``camera``'s frames (0: ``cam00``;
+    :func:`grid_camera_frames`), after a warm-up, with ``evict_mb`` MB written between
+    the stages (0: warm caches)."""
+    config, frames = grid_camera_frames(seed, 60, camera)
     path = FramePath(config)
     for frame in frames:  # the warm-up: the trackers and tables in their steady state
         path(frame)

@@ -106,6 +106,40 @@ def test_render_does_not_change_the_state() -> None:
     assert arena.truth_camera == CONFIGS["default"].camera
 
 
+@pytest.mark.parametrize("preset", ["default", "pinhole"])
+def test_the_kept_plane_samples_change_no_frame(
+    preset: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Frames painted from the planes' kept samples (PlaneTiles) are byte for byte those
+    painted by back-projecting every shape's samples as it is drawn, over frames that
+    reuse tiles and reach new ones (and clutter on the floor)."""
+    config = load_config(preset=preset)
+    kept = [img.tobytes() for img, _ in Arena(config, 11).frames(12)]
+    monkeypatch.setattr(Arena, "_plane", lambda self, z: None)
+    drawn = [img.tobytes() for img, _ in Arena(config, 11).frames(12)]
+    assert kept == drawn
+
+
+def test_plane_tiles_hold_the_back_projection_of_any_window() -> None:
+    """A window across tiles and the image's last, ragged ones: the samples' plane points
+    and validity as back_project gives them."""
+    from ovis.common.camera.projection import back_project as any_back_project
+    from ovis.common.sim.painting import PlaneTiles
+
+    cam = CONFIGS["default"].camera
+    tiles = PlaneTiles(cam, 7.0, 3)
+    for r0, r1, c0, c1 in ((20, 90, 25, 70), (int(cam.rows) - 5, int(cam.rows), 600, 640)):
+        x, y, valid = tiles.window(r0, r1, c0, c1)
+        off = (np.arange(3) + 0.5) / 3 - 0.5
+        rr = (np.arange(r0, r1)[:, None] + off).reshape(-1, 1)
+        cc = (np.arange(c0, c1)[:, None] + off).reshape(1, -1)
+        bp = any_back_project(rr, cc, cam, 7.0)
+        assert x.shape == (3 * (r1 - r0), 3 * (c1 - c0))
+        assert np.array_equal(x, bp.x_cm) and np.array_equal(y, bp.y_cm)
+        assert np.array_equal(valid, bp.valid)
+    assert 0 < tiles.done.sum() < tiles.done.size  # only the tiles painted over
+
+
 def test_bad_seed_and_impossible_arena_are_reported() -> None:
     with pytest.raises(ValueError, match="non-negative"):
         Arena(CONFIGS["paper"], -1)

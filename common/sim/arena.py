@@ -82,6 +82,7 @@ from ovis.common.config import (
     dump_toml,
 )
 from ovis.common.sim.painting import (
+    PlaneTiles,
     finish_frame,
     marker_hand,
     outline,
@@ -125,6 +126,9 @@ _CLUTTER_TRIES = 40
 _STREAM_LIGHT = 1
 _STREAM_CLUTTER = 2
 _STREAM_NOISE = 3
+#: Planes whose back-projected samples a scene keeps (:class:`PlaneTiles`): its objects'
+#: top heights and the floor; shapes on any other plane are back-projected as painted.
+_KEPT_PLANES = 4
 
 FloatArray = NDArray[np.float64]
 
@@ -340,6 +344,15 @@ class Arena:
             direction_rad=float(light_rng.uniform(0.0, 2.0 * math.pi)),
         )
         self._light.setflags(write=False)
+        self._planes: dict[float, PlaneTiles] = {}
+
+    def _plane(self, z: float) -> PlaneTiles | None:
+        """The samples of plane Z = ``z`` kept between frames (none past
+        :data:`_KEPT_PLANES` planes)."""
+        plane = self._planes.get(z)
+        if plane is None and len(self._planes) < _KEPT_PLANES:
+            plane = self._planes[z] = PlaneTiles(self._cam, z, self._sim.supersample)
+        return plane
 
     def _setup_one_robot(self, cz: float, z_robot: float, z_obst: float) -> None:
         """The paper's scene: one unmarked robot and moving obstacles."""
@@ -681,16 +694,17 @@ class Arena:
     def _paint_object(self, level: NDArray[np.float32], i: int) -> None:
         x, y = float(self._x[i]), float(self._y[i])
         h, z = float(self._heading[i]), float(self._z[i])
+        plane = self._plane(z)
         paint_top_face(
             level, self._cam, self._sim, x=x, y=y, z=z, heading=h,
             half_len=float(self._half_len[i]), half_wid=float(self._half_wid[i]),
-            is_rect=bool(self._is_rect[i]),
+            is_rect=bool(self._is_rect[i]), samples=plane,
         )  # fmt: skip
         if self._marked is not None and i < len(self._marked.marker_ids):
             paint_marker(
                 level, self._cam, self._sim, cells=self._marked.cells[i],
                 side_cm=self._marked.side_cm[i], hand=self._marked.hand,
-                x=x, y=y, z=z, heading=h,
+                x=x, y=y, z=z, heading=h, samples=plane,
             )  # fmt: skip
 
     def _paint_clutter(self, level: NDArray[np.float32]) -> None:
@@ -756,7 +770,8 @@ class Arena:
                     )
                     return dx * dx + dy * dy <= r * r
 
-                paint_shape(level, cam, sim.supersample, px, py, 0.0, inside, sim.clutter_level)
+                paint_shape(level, cam, sim.supersample, px, py, 0.0, inside, sim.clutter_level,
+                            self._plane(0.0))  # fmt: skip
                 break
 
     def render(

@@ -18,6 +18,7 @@ from ovis.common.config import CameraModel, SimulatorConfig
 
 __all__ = [
     "PlaneSamples",
+    "PlaneTiles",
     "finish_frame",
     "marker_hand",
     "outline",
@@ -32,6 +33,7 @@ Inside = Callable[[FloatArray, FloatArray], NDArray[np.bool_]]
 OUTLINE_POINTS = 32  # points on a disk's outline (rectangles: 4 per edge)
 PEPPER_MAX = 30  # pepper noise: grey levels 0…PEPPER_MAX
 _BAND_ROWS = 16  # image rows back-projected at once by PlaneSamples
+_TILE_PX = 32  # side of the image tiles PlaneTiles back-projects at a time
 
 
 def outline(
@@ -84,6 +86,54 @@ class PlaneSamples:
         return self.x[win], self.y[win], self.valid[win]
 
 
+def _sample_grid(r0: int, r1: int, c0: int, c1: int, s: int) -> tuple[FloatArray, FloatArray]:
+    """The sub-pixel samples (``s``² per pixel, at their centres) of pixel rows
+    r0…r1−1 and cols c0…c1−1: a column of rows and a row of cols, to broadcast."""
+    off = (np.arange(s) + 0.5) / s - 0.5
+    rr = (np.arange(r0, r1)[:, None] + off).reshape(-1, 1)
+    cc = (np.arange(c0, c1)[:, None] + off).reshape(1, -1)
+    return rr, cc
+
+
+class PlaneTiles:
+    """The back-projection of ``cam``'s sub-pixel samples onto the plane Z = ``z``,
+    worked out tile by tile (:data:`_TILE_PX` pixels a side) the first time a shape is
+    painted over it and kept: a moving shape costs a look-up once its tiles have been
+    seen, with no start-up cost and only the memory of the tiles seen. The values are
+    those :func:`paint_shape` computes without it (float64, each sample on its own), so
+    a frame is the same either way."""
+
+    def __init__(self, cam: CameraModel, z: float, supersample: int) -> None:
+        self.cam, self.z, self.s = cam, float(z), int(supersample)
+        rows, cols = int(cam.rows), int(cam.cols)
+        shape = (rows * self.s, cols * self.s)
+        # untouched pages of these cost no memory until a tile is written into them
+        self.x, self.y = np.empty(shape), np.empty(shape)
+        self.valid = np.empty(shape, bool)
+        self.done = np.zeros((-(-rows // _TILE_PX), -(-cols // _TILE_PX)), bool)
+
+    def window(
+        self, r0: int, r1: int, c0: int, c1: int
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+        """Plane points and validity of the samples of pixel rows r0…r1−1, cols c0…c1−1."""
+        t = _TILE_PX
+        tiles = (slice(r0 // t, -(-r1 // t)), slice(c0 // t, -(-c1 // t)))
+        for i, j in np.argwhere(~self.done[tiles]):
+            self._tile(tiles[0].start + int(i), tiles[1].start + int(j))
+        s = self.s
+        win = (slice(r0 * s, r1 * s), slice(c0 * s, c1 * s))
+        return self.x[win], self.y[win], self.valid[win]
+
+    def _tile(self, i: int, j: int) -> None:
+        t, s = _TILE_PX, self.s
+        r0, c0 = i * t, j * t
+        r1, c1 = min(r0 + t, int(self.cam.rows)), min(c0 + t, int(self.cam.cols))
+        bp = back_project(*_sample_grid(r0, r1, c0, c1, s), self.cam, self.z)
+        win = (slice(r0 * s, r1 * s), slice(c0 * s, c1 * s))
+        self.x[win], self.y[win], self.valid[win] = bp.x_cm, bp.y_cm, bp.valid
+        self.done[i, j] = True
+
+
 def paint_shape(
     level: NDArray[np.float32],
     cam: CameraModel,
@@ -93,7 +143,7 @@ def paint_shape(
     z: float,
     inside: Inside,
     value: float,
-    samples: PlaneSamples | None = None,
+    samples: PlaneSamples | PlaneTiles | None = None,
 ) -> None:
     """Composite one flat shape of intensity ``value`` into ``level`` (in place).
 
@@ -116,10 +166,7 @@ def paint_shape(
     if samples is not None:
         X, Y, valid = samples.window(r0, r1, c0, c1)
     else:
-        off = (np.arange(s) + 0.5) / s - 0.5
-        rr = (np.arange(r0, r1)[:, None] + off).reshape(-1, 1)
-        cc = (np.arange(c0, c1)[:, None] + off).reshape(1, -1)
-        bp = back_project(rr, cc, cam, z)
+        bp = back_project(*_sample_grid(r0, r1, c0, c1, s), cam, z)
         X, Y, valid = bp.x_cm, bp.y_cm, bp.valid
     hit = inside(X, Y) & valid
     cov = hit.reshape(r1 - r0, s, c1 - c0, s).mean(axis=(1, 3), dtype=np.float32)
@@ -139,7 +186,7 @@ def paint_top_face(
     half_len: float,
     half_wid: float,
     is_rect: bool,
-    samples: PlaneSamples | None = None,
+    samples: PlaneSamples | PlaneTiles | None = None,
 ) -> None:
     """Paint an object's top face (``sim.object_level``): a rectangle turned by
     ``heading`` (radians) or a disk of radius ``half_len``, centred on (x, y) at Z = z."""
@@ -178,7 +225,7 @@ def paint_marker(
     y: float,
     z: float,
     heading: float,
-    samples: PlaneSamples | None = None,
+    samples: PlaneSamples | PlaneTiles | None = None,
 ) -> None:
     """Paint the black cells (``sim.marker_level``) of a marker (``cells``: True where
     white) of side ``side_cm`` centred on (x, y) at Z = z, its top edge towards

@@ -78,11 +78,6 @@ def stage_cores(allowed: list[int], pin: str) -> dict[str, list[int]]:
     if spec == "none" or (spec == "auto" and len(allowed) < 2):
         return {stage: [] for stage in stages}
     if spec == "auto":
-        import os  # EXPERIMENT (not to commit): per-stage placement by env
-
-        if os.environ.get("OVIS_STAGE_CORES"):
-            got = dict(kv.split("=") for kv in os.environ["OVIS_STAGE_CORES"].split(";"))
-            return {st: [int(c) for c in got[st].split(",") if c] for st in stages}
         return {stage: [allowed[-1 if stage == "label" else -2]] for stage in stages}
     return dict.fromkeys(stages, _cores(spec))
 
