@@ -231,6 +231,28 @@ class _Group:
     offsets: FloatArray | None = None
 
 
+@dataclass
+class _Stack:
+    """The centroid maps of the single solids a frame moves (:meth:`SolidTracker._follow`),
+    stacked: kept while the same solids move and none has moved far from where its map
+    was worked out (``far``, as of the last frame)."""
+
+    solids: list[_Tracked]
+    at: FloatArray
+    g: FloatArray
+    j: FloatArray
+    bias: FloatArray
+    far: NDArray[np.bool_]
+
+    @classmethod
+    def of(cls, solids: list[_Tracked]) -> _Stack:
+        at = np.array([t.map_at for t in solids])
+        g = np.array([t.map_g for t in solids])
+        j = np.array([t.map_j for t in solids])
+        bias = np.array([t.bias for t in solids])
+        return cls(solids, at, g, j, bias, np.zeros(len(solids), dtype=bool))
+
+
 def _sigma(solid: Solid) -> float:
     """One fit's height uncertainty (1σ, cm) as :class:`_Tracked` counts it: its
     covariance, at least its edge shift."""
@@ -299,6 +321,8 @@ class SolidTracker:
         self.frame = 0
         self._generation = 0
         self._job: _Job | None = None
+        self._stack: _Stack | None = None
+        self._reports: _Reports | None = None
         self._pool = ThreadPoolExecutor(1, "solid-fit") if background else None
         self.reconfigure(camera, image, pose)
 
@@ -808,27 +832,33 @@ class SolidTracker:
 
     def _follow(self, filled: FloatArray, groups: dict[int, _Group], fitted: set[int]) -> None:
         """Move the single solids not fitted this frame to where their blob's centroid
-        says (their maps worked out again where they moved far)."""
+        says (their maps worked out again where they moved far). Their maps stacked are
+        kept from frame to frame while the same solids move (:class:`_Stack`)."""
         moving = [
             (g.solids[0], i) for i, g in groups.items() if i not in fitted and len(g.solids) == 1
         ]
         if not moving:
             return
-        by_shape: dict[str, list[_Tracked]] = {}
-        for t, _ in moving:
-            if t.map_at is None or math.dist(t.centre, t.map_at) > RELINEARISE_CM:
-                by_shape.setdefault(t.solid.shape, []).append(t)
-        for shape, ts in by_shape.items():
-            g, j = centroid_map(shape, np.array([t.theta() for t in ts]), self.view, self.camera)
-            for k, t in enumerate(ts):
-                t.map_at, t.map_g, t.map_j = t.centre.copy(), g[k], j[k]
         ts = [t for t, _ in moving]
-        at = np.array([t.map_at for t in ts])
-        g = np.array([t.map_g for t in ts])
-        j = np.array([t.map_j for t in ts])
-        target = filled[[i for _, i in moving], 1:3] + np.array([t.bias for t in ts])
-        for t, c in zip(ts, solve_centres(at, g, j, target), strict=True):
+        stack = self._stack
+        if stack is None or not _same(ts, stack.solids) or stack.far.any():
+            by_shape: dict[str, list[_Tracked]] = {}
+            for t in ts:
+                if t.map_at is None or math.dist(t.centre, t.map_at) > RELINEARISE_CM:
+                    by_shape.setdefault(t.solid.shape, []).append(t)
+            for shape, some in by_shape.items():
+                thetas = np.array([t.theta() for t in some])
+                g, j = centroid_map(shape, thetas, self.view, self.camera)
+                for k, t in enumerate(some):
+                    t.map_at, t.map_g, t.map_j = t.centre.copy(), g[k], j[k]
+            stack = self._stack = _Stack.of(ts)
+        target = filled[[i for _, i in moving], 1:3] + stack.bias
+        centres = solve_centres(stack.at, stack.g, stack.j, target)
+        for t, c in zip(ts, centres, strict=True):
             t.centre = c
+        d = centres - stack.at
+        # a margin below the limit: the next frame checks those near it as above
+        stack.far = np.hypot(d[:, 0], d[:, 1]) > RELINEARISE_CM * (1.0 - 1e-9)
 
     def _follow_group(self, group: _Group, patch: Patch, blob_filled: FloatArray) -> None:
         """Move a blob's several solids to where its outline's pixel chain puts their
@@ -850,6 +880,9 @@ class SolidTracker:
         skip: NDArray[np.bool_],
         patches: Sequence[Patch] | None = None,
     ) -> SolidObjects:
+        solids = [(i, t, len(g.solids) > 1) for i, g in groups.items() for t in g.solids]
+        if solids and len(groups) == len(filled) - int(np.count_nonzero(skip)):
+            return self._followed(filled, sorted(solids, key=lambda s: s[0]))
         rows: list[tuple] = []
         plane: PixelJacobian | None = None
         for i in range(len(filled)):
@@ -909,6 +942,73 @@ class SolidTracker:
         cols = list(zip(*rows, strict=True))
         kinds = (np.int64, *[np.float64] * 4, object, *[np.float64] * 6, bool)
         return SolidObjects(*(np.array(c, dtype=k) for c, k in zip(cols, kinds, strict=True)))
+
+    def _followed(
+        self, filled: FloatArray, solids: list[tuple[int, _Tracked, bool]]
+    ) -> SolidObjects:
+        """:meth:`_objects` where no blob waits for its fit: ``solids`` (blob, solid,
+        whether its blob holds several) in blob order. What a solid reports besides where
+        it stands is fixed from its fit on: stacked once (:class:`_Reports`) and kept
+        while the frames hold the same solids."""
+        ts = [t for _, t, _ in solids]
+        reports = self._reports
+        if reports is None or not _same(ts, reports.solids):
+            reports = self._reports = _Reports.of(ts)
+        blob = np.array([i for i, _, _ in solids], dtype=np.int64)
+        rc = filled[blob, 1:3]
+        for k, (_, t, several) in enumerate(solids):
+            if several and t.map_g is not None:
+                rc[k] = t.map_g
+        r = reports
+        return SolidObjects(
+            blob,
+            np.array([t.centre for t in ts], dtype=np.float64),
+            r.height,
+            r.height_sigma,
+            r.covariance,
+            r.shape,
+            r.radius,
+            r.area_cm2,
+            r.yaw_deg,
+            r.size,
+            rc[:, 0].copy(),
+            rc[:, 1].copy(),
+            r.pending,
+        )
+
+
+def _same(a: list[_Tracked], b: list[_Tracked]) -> bool:
+    """Whether two lists hold the same solids (the same objects: a refit makes new ones),
+    in the same order."""
+    return len(a) == len(b) and all(x is y for x, y in zip(a, b, strict=True))
+
+
+@dataclass
+class _Reports:
+    """:meth:`_Tracked.report` of a frame's solids, stacked as :class:`SolidObjects`'
+    columns (read only: shared by the frames that hold the same solids)."""
+
+    solids: list[_Tracked]
+    height: FloatArray
+    height_sigma: FloatArray
+    covariance: FloatArray
+    shape: NDArray[np.object_]
+    radius: FloatArray
+    area_cm2: FloatArray
+    yaw_deg: FloatArray
+    size: FloatArray
+    pending: NDArray[np.bool_]
+
+    @classmethod
+    def of(cls, solids: list[_Tracked]) -> _Reports:
+        cols = list(zip(*(t.report() for t in solids), strict=True))
+        kinds = (*[np.float64] * 3, object, *[np.float64] * 4)
+        arrays = [np.array(c, dtype=k) for c, k in zip(cols, kinds, strict=True)]
+        for a in arrays:
+            a.flags.writeable = False
+        pending = np.zeros(len(solids), dtype=bool)
+        pending.flags.writeable = False
+        return cls(solids, *arrays, pending)
 
 
 #: The unmarked robot's footprint is within this share of its configured length and
