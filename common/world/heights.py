@@ -76,7 +76,7 @@ from ovis.common.solids.fit import (
     rough_footprint,
     union_offsets,
 )
-from ovis.common.solids.footprint import centroid_map, solve_centres
+from ovis.common.solids.footprint import centroid_map
 from ovis.common.solids.outline_floor import floor_outline
 from ovis.common.solids.shapes import equal_area_radius, size_and_yaw
 from ovis.common.solids.silhouette import Viewpoint, signed_distance, top_near_edges
@@ -169,6 +169,7 @@ class _Tracked:
     map_g: FloatArray | None = None
     map_j: FloatArray | None = None
     _report: tuple | None = None
+    _linear: tuple | None = None
 
     @property
     def height(self) -> float:
@@ -179,6 +180,17 @@ class _Tracked:
         if self.h_weight <= 0:
             return math.inf
         return max(math.sqrt(1.0 / self.h_weight), self.h_floor)
+
+    def linear(self) -> tuple[float, ...]:
+        """Its centroid map as plain numbers: where it was worked out (x, y), the image
+        centroid there (row, col), its Jacobian (row by row) and the centroid's bias
+        (row, col); kept while the map and the bias are the same."""
+        kept = self._linear
+        if kept is None or kept[0] is not self.map_at or kept[1] is not self.bias:
+            assert self.map_at is not None and self.map_g is not None and self.map_j is not None
+            values = (*self.map_at, *self.map_g, *self.map_j.ravel(), *self.bias)
+            kept = self._linear = (self.map_at, self.bias, tuple(float(v) for v in values))
+        return kept[2]
 
     def theta(self) -> FloatArray:
         t = self.solid.theta.copy()
@@ -229,28 +241,6 @@ class _Group:
     fitted: int  # the frame of the last fit
     #: several solids: how far out their outline's pixel chain lies from each (px)
     offsets: FloatArray | None = None
-
-
-@dataclass
-class _Stack:
-    """The centroid maps of the single solids a frame moves (:meth:`SolidTracker._follow`),
-    stacked: kept while the same solids move and none has moved far from where its map
-    was worked out (``far``, as of the last frame)."""
-
-    solids: list[_Tracked]
-    at: FloatArray
-    g: FloatArray
-    j: FloatArray
-    bias: FloatArray
-    far: NDArray[np.bool_]
-
-    @classmethod
-    def of(cls, solids: list[_Tracked]) -> _Stack:
-        at = np.array([t.map_at for t in solids])
-        g = np.array([t.map_g for t in solids])
-        j = np.array([t.map_j for t in solids])
-        bias = np.array([t.bias for t in solids])
-        return cls(solids, at, g, j, bias, np.zeros(len(solids), dtype=bool))
 
 
 def _sigma(solid: Solid) -> float:
@@ -321,7 +311,6 @@ class SolidTracker:
         self.frame = 0
         self._generation = 0
         self._job: _Job | None = None
-        self._stack: _Stack | None = None
         self._reports: _Reports | None = None
         self._pool = ThreadPoolExecutor(1, "solid-fit") if background else None
         self.reconfigure(camera, image, pose)
@@ -832,33 +821,25 @@ class SolidTracker:
 
     def _follow(self, filled: FloatArray, groups: dict[int, _Group], fitted: set[int]) -> None:
         """Move the single solids not fitted this frame to where their blob's centroid
-        says (their maps worked out again where they moved far). Their maps stacked are
-        kept from frame to frame while the same solids move (:class:`_Stack`)."""
+        says (their maps worked out again where they moved far): one linear step of
+        :func:`~ovis.common.solids.footprint.solve_centres` each, in plain Python (a
+        frame's few solids: a dozen array calls cost more than the arithmetic)."""
         moving = [
             (g.solids[0], i) for i, g in groups.items() if i not in fitted and len(g.solids) == 1
         ]
         if not moving:
             return
-        ts = [t for t, _ in moving]
-        stack = self._stack
-        if stack is None or not _same(ts, stack.solids) or stack.far.any():
-            by_shape: dict[str, list[_Tracked]] = {}
-            for t in ts:
-                if t.map_at is None or math.dist(t.centre, t.map_at) > RELINEARISE_CM:
-                    by_shape.setdefault(t.solid.shape, []).append(t)
-            for shape, some in by_shape.items():
-                thetas = np.array([t.theta() for t in some])
-                g, j = centroid_map(shape, thetas, self.view, self.camera)
-                for k, t in enumerate(some):
-                    t.map_at, t.map_g, t.map_j = t.centre.copy(), g[k], j[k]
-            stack = self._stack = _Stack.of(ts)
-        target = filled[[i for _, i in moving], 1:3] + stack.bias
-        centres = solve_centres(stack.at, stack.g, stack.j, target)
-        for t, c in zip(ts, centres, strict=True):
-            t.centre = c
-        d = centres - stack.at
-        # a margin below the limit: the next frame checks those near it as above
-        stack.far = np.hypot(d[:, 0], d[:, 1]) > RELINEARISE_CM * (1.0 - 1e-9)
+        by_shape: dict[str, list[_Tracked]] = {}
+        for t, _ in moving:
+            if t.map_at is None or math.dist(t.centre, t.map_at) > RELINEARISE_CM:
+                by_shape.setdefault(t.solid.shape, []).append(t)
+        for shape, ts in by_shape.items():
+            g, j = centroid_map(shape, np.array([t.theta() for t in ts]), self.view, self.camera)
+            for k, t in enumerate(ts):
+                t.map_at, t.map_g, t.map_j = t.centre.copy(), g[k], j[k]
+        rows = filled.tolist()
+        for t, i in moving:
+            t.centre = np.array(_solve_centre(t.linear(), rows[i][1], rows[i][2]))
 
     def _follow_group(self, group: _Group, patch: Patch, blob_filled: FloatArray) -> None:
         """Move a blob's several solids to where its outline's pixel chain puts their
@@ -975,6 +956,21 @@ class SolidTracker:
             rc[:, 1].copy(),
             r.pending,
         )
+
+
+def _solve_centre(linear: tuple[float, ...], row: float, col: float) -> tuple[float, float]:
+    """:func:`~ovis.common.solids.footprint.solve_centres` for one solid, in plain Python
+    (the same operations in the same order): the footprint centre whose image centroid
+    is (``row``, ``col``) less its bias, by one linear step of its map
+    (:meth:`_Tracked.linear`); a singular map keeps the centre."""
+    ax, ay, gr, gc, j00, j01, j10, j11, b0, b1 = linear
+    det = j00 * j11 - j01 * j10
+    ok = math.isfinite(det) and abs(det) > 1e-9 and math.isfinite(gr) and math.isfinite(gc)
+    e0, e1 = ((row + b0) - gr, (col + b1) - gc) if ok else (0.0, 0.0)
+    safe = det if ok else 1.0
+    dx = (j11 * e0 - j01 * e1) / safe
+    dy = (-j10 * e0 + j00 * e1) / safe
+    return ax + dx, ay + dy
 
 
 def _same(a: list[_Tracked], b: list[_Tracked]) -> bool:
