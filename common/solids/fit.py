@@ -853,12 +853,14 @@ def follow_union(
     p = start.size
     step = 1e-3
     moves = step * np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    own = []  # each solid's (3, N): where it is, moved in x, moved in y
-    for k, s in enumerate(solids):
-        theta = np.repeat(s.theta[None], 3, axis=0)
-        theta[:, 0:2] = start[2 * k : 2 * k + 2] + moves
-        d = floor.px_per_cm * signed_distance(s.shape, theta, floor.points, view)
-        own.append(d - offsets[k])
+    own: list[FloatArray] = [np.zeros(0)] * len(solids)  # each (3, N): here, moved in x, y
+    for shape in dict.fromkeys(s.shape for s in solids):  # the solids of a shape at once
+        ks = [k for k, s in enumerate(solids) if s.shape == shape]
+        theta = np.repeat(np.array([solids[k].theta for k in ks]), 3, axis=0)
+        theta[:, 0:2] = (start.reshape(-1, 2)[ks][:, None, :] + moves).reshape(-1, 2)
+        d = floor.px_per_cm * signed_distance(shape, theta, floor.points, view)
+        for n, k in enumerate(ks):
+            own[k] = d[3 * n : 3 * n + 3] - offsets[k]
     here = np.stack([d[0] for d in own])  # (k, N)
     r = here.min(0)
     moved = np.empty((p, r.size))
