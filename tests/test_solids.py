@@ -25,6 +25,7 @@ from ovis.common.solids.silhouette import (
 )
 from ovis.common.vision.outline import (
     BlobPatches,
+    SmoothedDiff,
     background_spots,
     blob_patches,
     object_mask,
@@ -234,7 +235,9 @@ def test_a_floor_marks_mask_is_the_same_from_its_kept_level_and_cut_patches_are_
     """The object mask over a floor mark (a bright spot of the empty floor): a shadow on
     it is no object, a dark solid hiding it is; the whole floor image's spot level is
     kept between frames (read-only, by identity) and gives the mask a fresh copy of the
-    spots gives. Patches cut when asked for are :func:`blob_patches`' of the same boxes."""
+    spots gives, as does a whole frame's mask in kept buffers (:class:`SmoothedDiff`, frame
+    after frame, on a rough D too). Patches cut when asked for are :func:`blob_patches`' of
+    the same boxes."""
     floor = np.full((60, 80), 40, np.uint8)
     floor[20:30, 30:40] = 120  # a floor mark
     spots = background_spots(floor)
@@ -246,6 +249,11 @@ def test_a_floor_marks_mask_is_the_same_from_its_kept_level_and_cut_patches_are_
     diff = np.subtract(frame, floor, dtype=np.int16)
     kept = object_mask(diff, 20.0, spots)
     assert np.array_equal(kept, object_mask(diff, 20.0, spots.copy()))
+    frames = SmoothedDiff()
+    rough = np.random.default_rng(1).integers(0, 256, floor.shape, dtype=np.uint8)
+    for image in (frame, rough, frame):
+        d = np.subtract(image, floor, dtype=np.int16)
+        assert np.array_equal(frames.mask(image, floor, 20.0, spots), object_mask(d, 20.0, spots))
     assert kept[22:28, 31:33].all() and not kept[22:28, 37:40].any()
     assert kept[47:53, 7:13].all() and kept.sum() < 200
     boxes = np.array([[20, 30, 10, 10], [45, 5, 10, 10], [0, 70, 5, 10]])

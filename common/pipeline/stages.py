@@ -27,7 +27,7 @@ from ovis.common.messages import (
 )
 from ovis.common.vision.contrast import ObjectWindow
 from ovis.common.vision.frames import GrayImage
-from ovis.common.vision.outline import background_spots, blob_patches
+from ovis.common.vision.outline import SmoothedDiff, background_spots, blob_patches
 from ovis.common.vision.segmentation import Segmentation, background_image, segmentation
 from ovis.common.vision.smoothing import smooth
 from ovis.common.world.detection import (
@@ -84,11 +84,13 @@ def wrong_size(frame: _Sized, camera: CameraModel, kind: str) -> str | None:
 
 class FloorSpots:
     """The bright spots of one empty-floor image (:func:`background_spots`), worked out
-    once for it."""
+    once for it, and the buffers one camera's frames' object pixels are found in
+    (:class:`SmoothedDiff`)."""
 
     def __init__(self) -> None:
         self._floor: NDArray[np.uint8] | None = None
         self._spots: NDArray[np.uint8] | None = None
+        self.smoothed = SmoothedDiff()
 
     def of(self, floor: NDArray[np.uint8]) -> NDArray[np.uint8]:
         if floor is not self._floor or self._spots is None:
@@ -121,7 +123,10 @@ def binary_frame(
     measured = calib.pose.heights == "measured"
     if measured:  # the object pixels the fitted outlines come from
         floor = background_image(params, gray.shape)
-        mask = solid_pixels(gray, floor, params, spots.of(floor) if spots else None)
+        if spots is not None:
+            mask = solid_pixels(gray, floor, params, spots.of(floor), spots.smoothed)
+        else:
+            mask = solid_pixels(gray, floor, params, None)
         seg = Segmentation(mask, 0, int(params.threshold))
     else:
         seg = segmentation(smooth(gray, params.median, median3=median3), params, window)

@@ -821,25 +821,6 @@ def _footprints_overlap(solids: Sequence[Solid]) -> bool:
     )
 
 
-def _offset_union(
-    solids: Sequence[Solid], floor: FloorOutline, view: Viewpoint, offsets: FloatArray
-) -> Residuals:
-    """Residuals (px) of an outline against the union of ``solids`` moved to the centres
-    being fitted ((M, 2k) → (M, N)), each solid's edge taken ``offsets`` px further out."""
-
-    def residuals(centres: FloatArray) -> FloatArray:
-        d = None
-        for k, s in enumerate(solids):
-            theta = np.broadcast_to(s.theta, (*centres.shape[:-1], s.theta.size)).copy()
-            theta[..., 0:2] = centres[..., 2 * k : 2 * k + 2]
-            dk = floor.px_per_cm * signed_distance(s.shape, theta, floor.points, view) - offsets[k]
-            d = dk if d is None else np.minimum(d, dk)
-        assert d is not None
-        return d
-
-    return residuals
-
-
 def union_offsets(solids: Sequence[Solid], floor: FloorOutline, view: Viewpoint) -> FloatArray:
     """How far out (px) an outline lies from each solid's silhouette, over the points
     nearest it (median): a rougher outline than the fit's (the threshold's pixel chain)
@@ -863,15 +844,31 @@ def follow_union(
     view: Viewpoint,
 ) -> FloatArray:
     """The centres (k, 2) that put the union of ``solids`` (shapes and heights kept) on an
-    outline, each solid's edge ``offsets`` px out (:func:`union_offsets`): one
-    Gauss–Newton step from where they are (they moved little since the last frame)."""
+    outline, each solid's edge ``offsets`` px further out (:func:`union_offsets`): one
+    Gauss–Newton step from where they are (they moved little since the last frame), the
+    Jacobian by differences. A step of one solid's centre leaves the others' distances
+    as they are: each solid's are worked out where it is and moved one step in x and
+    in y, and the union's residuals at every step made from them."""
     start = np.concatenate([s.theta[0:2] for s in solids])
     p = start.size
     step = 1e-3
-    batch = np.vstack([start, start + step * np.eye(p)])
-    r_all = _offset_union(solids, floor, view, offsets)(batch)
-    r = r_all[0]
-    jac = (r_all[1:] - r) / step  # (p, N)
+    moves = step * np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    own: list[FloatArray] = [np.zeros(0)] * len(solids)  # each (3, N): here, moved in x, y
+    for shape in dict.fromkeys(s.shape for s in solids):  # the solids of a shape at once
+        ks = [k for k, s in enumerate(solids) if s.shape == shape]
+        theta = np.repeat(np.array([solids[k].theta for k in ks]), 3, axis=0)
+        theta[:, 0:2] = (start.reshape(-1, 2)[ks][:, None, :] + moves).reshape(-1, 2)
+        d = floor.px_per_cm * signed_distance(shape, theta, floor.points, view)
+        for n, k in enumerate(ks):
+            own[k] = d[3 * n : 3 * n + 3] - offsets[k]
+    here = np.stack([d[0] for d in own])  # (k, N)
+    r = here.min(0)
+    moved = np.empty((p, r.size))
+    for k, d in enumerate(own):
+        rest = np.delete(here, k, axis=0)
+        for c in (0, 1):
+            moved[2 * k + c] = np.minimum(rest.min(0), d[1 + c]) if len(rest) else d[1 + c]
+    jac = (moved - r) / step  # (p, N)
     weight = 1.0 / np.sqrt(1.0 + (r / LOSS_PX) ** 2)
     a = (jac * weight) @ jac.T
     g = (jac * weight) @ r

@@ -39,12 +39,14 @@ __all__ = [
     "BlobPatches",
     "Outline",
     "Patch",
+    "SmoothedDiff",
     "background_spots",
     "blob_patches",
     "chain_normals",
     "edges_along",
     "object_mask",
     "patch_outline",
+    "smoothed_mask",
     "split_outline",
     "subpixel_edges",
 ]
@@ -183,13 +185,68 @@ def object_mask(
     spot darkens it too, but not above the floor). The label stage's blobs and the
     outlines fitted come from this one mask."""
     d = cv2.GaussianBlur(diff.astype(np.float32), (0, 0), SMOOTH_PX)
-    mask = (d >= level).view(np.uint8)
+    return smoothed_mask(d, level, spots)
+
+
+def smoothed_mask(
+    d: NDArray[np.float32],
+    level: float,
+    spots: NDArray[np.uint8] | None = None,
+    *,
+    out: NDArray[np.bool_] | None = None,
+) -> NDArray[np.uint8]:
+    """:func:`object_mask` from D already smoothed (:data:`SMOOTH_PX`), into ``out`` when
+    given."""
+    mask = np.greater_equal(d, level, out=out).view(np.uint8)
     if spots is not None:
         at, lift = _spot_lift(spots)
         here = d.ravel()[at]
         hidden = (np.abs(here) >= level) & (here + lift >= level)
         mask.ravel()[at[hidden]] = 1
     return mask
+
+
+class SmoothedDiff:
+    """Object pixels of whole frames as :func:`object_mask` finds them, into buffers kept
+    from one frame to the next (a frame's images allocated afresh each time cost more in
+    page faults than their arithmetic); D smoothed by the very kernel
+    ``cv2.GaussianBlur`` uses, applied to the integer D straight away
+    (``cv2.sepFilter2D``: no float copy of D). Not to be shared between threads."""
+
+    def __init__(self) -> None:
+        self._diff: NDArray[np.int16] | None = None
+        self._smooth: NDArray[np.float32] | None = None
+        self._mask: NDArray[np.bool_] | None = None
+
+    def smoothed(
+        self, gray: NDArray[np.uint8], background: NDArray[np.uint8]
+    ) -> NDArray[np.float32]:
+        """The frame less the empty floor, smoothed; valid until the next call."""
+        if self._diff is None or self._smooth is None or self._diff.shape != gray.shape:
+            self._diff = np.empty(gray.shape, np.int16)
+            self._smooth = np.empty(gray.shape, np.float32)
+            self._mask = np.empty(gray.shape, bool)
+        np.subtract(gray, background, out=self._diff, dtype=np.int16)
+        cv2.sepFilter2D(self._diff, cv2.CV_32F, _SMOOTH, _SMOOTH, dst=self._smooth)
+        return self._smooth
+
+    def mask(
+        self,
+        gray: NDArray[np.uint8],
+        background: NDArray[np.uint8],
+        level: float,
+        spots: NDArray[np.uint8] | None = None,
+    ) -> NDArray[np.uint8]:
+        """:func:`object_mask` of the frame less the empty floor; valid until the next
+        call."""
+        d = self.smoothed(gray, background)
+        assert self._mask is not None
+        return smoothed_mask(d, level, spots, out=self._mask)
+
+
+#: ``cv2.GaussianBlur``'s kernel for :data:`SMOOTH_PX` on float images (its taps:
+#: 8 σ + 1, rounded, odd).
+_SMOOTH = cv2.getGaussianKernel(round(8 * SMOOTH_PX + 1) | 1, SMOOTH_PX, cv2.CV_32F)
 
 
 #: :func:`_spot_lift` of the last few whole spot images (by identity; they are read-only).

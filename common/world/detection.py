@@ -28,11 +28,12 @@ from ovis.common.vision.frames import ImageError, as_gray
 from ovis.common.vision.labeling import filter_components, label_components
 from ovis.common.vision.markers import Markers
 from ovis.common.vision.objects import background
-from ovis.common.vision.outline import BlobPatches, Patch, object_mask
+from ovis.common.vision.outline import BlobPatches, Patch, SmoothedDiff
 from ovis.common.vision.perimeter import perimeter
 from ovis.common.vision.segmentation import background_image, read_roi, segment_gray
 from ovis.common.vision.shape import compactness, orientation
 from ovis.common.world.heights import (
+    SolidObjects,
     SolidTracker,
     heights_unavailable,
     measurable,
@@ -225,12 +226,17 @@ def solid_pixels(
     background: NDArray[np.uint8],
     params: ImageParams,
     spots: NDArray[np.uint8] | None,
+    smoothed: SmoothedDiff | None = None,
 ) -> NDArray[np.uint8]:
     """Object pixels of a frame when heights are measured: at least ``threshold − 128``
     brighter than the empty floor (:func:`~ovis.common.vision.outline.object_mask`, the
-    mask the fitted outlines come from), within the region of interest."""
-    diff = np.subtract(gray, background, dtype=np.int16)
-    mask = object_mask(diff, float(params.threshold - NEUTRAL), spots)
+    mask the fitted outlines come from), within the region of interest. ``smoothed``:
+    a sequence of frames' buffers (:class:`~ovis.common.vision.outline.SmoothedDiff`;
+    the mask is then one of them, valid until the next frame)."""
+    level = float(params.threshold - NEUTRAL)
+    mask = (smoothed if smoothed is not None else SmoothedDiff()).mask(
+        gray, background, level, spots
+    )
     if params.roi:
         mask &= (read_roi(params, gray.shape) > 0).astype(np.uint8)
     return mask
@@ -461,6 +467,33 @@ class _Rows(NamedTuple):
     extra: dict[str, NDArray[np.object_]] | None
 
 
+class _HeightColumns(NamedTuple):
+    """The columns of a frame's rows with measured heights that its solids fix
+    (:meth:`Detector._height_columns`): the robot's row (−1: none), which rows are
+    robots, heights, radii, areas, headings, elongations, which to report and the
+    height's columns (``z_source`` … ``z_fit_cm``)."""
+
+    robot: int
+    is_robot: NDArray[np.bool_]
+    z: NDArray[np.float64]
+    radius: NDArray[np.float64]
+    area_cm2: NDArray[np.float64]
+    heading: NDArray[np.float64]
+    elongation: NDArray[np.float64]
+    ok: NDArray[np.bool_]
+    extra: dict[str, NDArray[np.object_]]
+
+
+class _KeptColumns(NamedTuple):
+    """The last frame's :class:`_HeightColumns`, kept while the solid tracker reports
+    the same solids (its reports' ``height`` array, the same object) under the same
+    ``[pose]``."""
+
+    height: NDArray[np.float64]
+    pose: PoseConfig
+    columns: _HeightColumns
+
+
 def _first_robot_planner(plans: list[RobotPlan]) -> list[PlannerEntry]:
     """The legacy planner list: the first robot's obstacles, when it has a goal."""
     if not plans:
@@ -495,8 +528,10 @@ class Detector:
         self.unmarked = UnmarkedRobot(pose)
         self.tables = PlaneTables()
         self.window = ObjectWindow()  # the local-contrast window, settled over the frames
+        self._smoothed = SmoothedDiff()  # measured heights: the smoothed D's buffers
         self._last_stamp: float | None = None
         self.solids: SolidTracker | None = None
+        self._kept_columns: _KeptColumns | None = None
         self._setup_heights()
         self.min_area_px = size_filter_px(image, camera, size_plane_cm(pose))
         self.marker_side_px = marker_side_px(pose, camera)
@@ -613,7 +648,7 @@ class Detector:
         assert self.solids is not None
         background = background_image(self.image, gray.shape)
         self.solids.use_background(background)
-        return solid_pixels(gray, background, self.image, self.solids.spots)
+        return solid_pixels(gray, background, self.image, self.solids.spots, self._smoothed)
 
     def _patches(self, gray: NDArray[np.uint8], blobs: Blobs) -> BlobPatches:
         """Each blob's patch of the frame less the empty floor (cut when asked for)."""
@@ -740,24 +775,68 @@ class Detector:
 
         skip = marked.owner >= 0
         found = self.solids.update(filled, patches, obstacle_plane, skip, fit_all=fit_all)
-        m = found.blob.size
         reps = [k for k in marked.rep if k >= 0]
         blob = np.concatenate([found.blob, np.array(reps, dtype=np.int64)])
-        n = blob.size
+        rep = np.array(reps, dtype=np.int64)
+        kept = self._kept_columns
+        if kept is not None and kept.height is found.height and kept.pose is pose:
+            cols = kept.columns  # the same solids as last frame: what they report is fixed
+        else:
+            cols = self._height_columns(found, marked, blobs, top, rep)
+            # without marked robots the columns depend only on the solids (a robot's
+            # rows come with its blob)
+            cacheable = not pose.robots and not found.pending.any()
+            self._kept_columns = _KeptColumns(found.height, pose, cols) if cacheable else None
+        top_xy = np.zeros((0, 2))
+        if rep.size:
+            assert top is not None  # marked robots: worked out
+            top_xy = np.column_stack([top.x_cm[rep], top.y_cm[rep]])
+        m, n = found.blob.size, blob.size
+        return _Rows(
+            _then(found.row, blobs.row[rep]),
+            _then(found.col, blobs.col[rep]),
+            blobs.area_px[blob],
+            blobs.perimeter_px[blob],
+            blobs.compactness[blob],
+            _then(found.xy, top_xy),
+            cols.z,
+            cols.radius,
+            cols.area_cm2,
+            cols.heading,
+            cols.elongation,
+            cols.is_robot,
+            cols.ok,
+            marked.in_rows(m + np.arange(rep.size), [k >= 0 for k in marked.rep], n),
+            cols.robot,
+            cols.extra,
+        )
+
+    def _height_columns(
+        self,
+        found: SolidObjects,
+        marked: _MarkedFrame,
+        blobs: Blobs,
+        top: PixelJacobian | None,
+        rep: NDArray[np.int64],
+    ) -> _HeightColumns:
+        """The columns of a frame's rows (:meth:`_solid_rows`) other than where they are
+        in the image and on the floor: which is the robot, heights and where they come
+        from, sizes, headings; the solids' rows, then the marked robots' (their blobs
+        ``rep``) as configured heights put them (their filter moves them)."""
+        pose = self.pose
+        m = found.blob.size
+        n = m + rep.size
         robot = robot_row(found, pose) if not pose.robots or _unseen(marked, pose) else -1
         is_robot = np.zeros(n, dtype=bool)
         is_robot[m:] = True
         if robot >= 0:
             is_robot[robot] = True
-        # the marked robots' rows as configured heights put them (their filter moves them)
-        rep = np.array(reps, dtype=np.int64)
         top_area = top_heading = top_elong = np.zeros(0)
-        top_xy, top_ok = np.zeros((0, 2)), np.zeros(0, dtype=bool)
+        top_ok = np.zeros(0, dtype=bool)
         if rep.size:
             assert top is not None  # marked robots: worked out
             top_area, top_heading, top_elong = (a[rep] for a in world_shape(blobs, top))
-            top_xy, top_ok = np.column_stack([top.x_cm[rep], top.y_cm[rep]]), top.valid[rep]
-        xy = _then(found.xy, top_xy)
+            top_ok = top.valid[rep]
         length, width = found.size[:, 0], found.size[:, 1]
         elongation = np.where(
             (found.shape == "box") & (width > 0), length / np.where(width > 0, width, 1.0), 1.0
@@ -789,22 +868,15 @@ class Detector:
             "shape": shape.astype(object),
             "z_fit_cm": np.where(weak, h, None),
         }
-        return _Rows(
-            _then(found.row, blobs.row[rep]),
-            _then(found.col, blobs.col[rep]),
-            blobs.area_px[blob],
-            blobs.perimeter_px[blob],
-            blobs.compactness[blob],
-            xy,
+        return _HeightColumns(
+            robot,
+            is_robot,
             np.where(use, h, class_height),
             _then(found.radius, np.sqrt(top_area / np.pi)),
             _then(found.area_cm2, top_area),
             _then(found.yaw_deg, top_heading),
             _then(elongation, top_elong),
-            is_robot,
             ok,
-            marked.in_rows(m + np.arange(rep.size), [k >= 0 for k in marked.rep], n),
-            robot,
             extra,
         )
 

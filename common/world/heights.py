@@ -76,7 +76,7 @@ from ovis.common.solids.fit import (
     rough_footprint,
     union_offsets,
 )
-from ovis.common.solids.footprint import centroid_map, solve_centres
+from ovis.common.solids.footprint import centroid_map
 from ovis.common.solids.outline_floor import floor_outline
 from ovis.common.solids.shapes import equal_area_radius, size_and_yaw
 from ovis.common.solids.silhouette import Viewpoint, signed_distance, top_near_edges
@@ -169,6 +169,7 @@ class _Tracked:
     map_g: FloatArray | None = None
     map_j: FloatArray | None = None
     _report: tuple | None = None
+    _linear: tuple | None = None
 
     @property
     def height(self) -> float:
@@ -179,6 +180,17 @@ class _Tracked:
         if self.h_weight <= 0:
             return math.inf
         return max(math.sqrt(1.0 / self.h_weight), self.h_floor)
+
+    def linear(self) -> tuple[float, ...]:
+        """Its centroid map as plain numbers: where it was worked out (x, y), the image
+        centroid there (row, col), its Jacobian (row by row) and the centroid's bias
+        (row, col); kept while the map and the bias are the same."""
+        kept = self._linear
+        if kept is None or kept[0] is not self.map_at or kept[1] is not self.bias:
+            assert self.map_at is not None and self.map_g is not None and self.map_j is not None
+            values = (*self.map_at, *self.map_g, *self.map_j.ravel(), *self.bias)
+            kept = self._linear = (self.map_at, self.bias, tuple(float(v) for v in values))
+        return kept[2]
 
     def theta(self) -> FloatArray:
         t = self.solid.theta.copy()
@@ -299,6 +311,7 @@ class SolidTracker:
         self.frame = 0
         self._generation = 0
         self._job: _Job | None = None
+        self._reports: _Reports | None = None
         self._pool = ThreadPoolExecutor(1, "solid-fit") if background else None
         self.reconfigure(camera, image, pose)
 
@@ -808,7 +821,9 @@ class SolidTracker:
 
     def _follow(self, filled: FloatArray, groups: dict[int, _Group], fitted: set[int]) -> None:
         """Move the single solids not fitted this frame to where their blob's centroid
-        says (their maps worked out again where they moved far)."""
+        says (their maps worked out again where they moved far): one linear step of
+        :func:`~ovis.common.solids.footprint.solve_centres` each, in plain Python (a
+        frame's few solids: a dozen array calls cost more than the arithmetic)."""
         moving = [
             (g.solids[0], i) for i, g in groups.items() if i not in fitted and len(g.solids) == 1
         ]
@@ -822,13 +837,9 @@ class SolidTracker:
             g, j = centroid_map(shape, np.array([t.theta() for t in ts]), self.view, self.camera)
             for k, t in enumerate(ts):
                 t.map_at, t.map_g, t.map_j = t.centre.copy(), g[k], j[k]
-        ts = [t for t, _ in moving]
-        at = np.array([t.map_at for t in ts])
-        g = np.array([t.map_g for t in ts])
-        j = np.array([t.map_j for t in ts])
-        target = filled[[i for _, i in moving], 1:3] + np.array([t.bias for t in ts])
-        for t, c in zip(ts, solve_centres(at, g, j, target), strict=True):
-            t.centre = c
+        rows = filled.tolist()
+        for t, i in moving:
+            t.centre = np.array(_solve_centre(t.linear(), rows[i][1], rows[i][2]))
 
     def _follow_group(self, group: _Group, patch: Patch, blob_filled: FloatArray) -> None:
         """Move a blob's several solids to where its outline's pixel chain puts their
@@ -850,6 +861,9 @@ class SolidTracker:
         skip: NDArray[np.bool_],
         patches: Sequence[Patch] | None = None,
     ) -> SolidObjects:
+        solids = [(i, t, len(g.solids) > 1) for i, g in groups.items() for t in g.solids]
+        if solids and len(groups) == len(filled) - int(np.count_nonzero(skip)):
+            return self._followed(filled, sorted(solids, key=lambda s: s[0]))
         rows: list[tuple] = []
         plane: PixelJacobian | None = None
         for i in range(len(filled)):
@@ -909,6 +923,88 @@ class SolidTracker:
         cols = list(zip(*rows, strict=True))
         kinds = (np.int64, *[np.float64] * 4, object, *[np.float64] * 6, bool)
         return SolidObjects(*(np.array(c, dtype=k) for c, k in zip(cols, kinds, strict=True)))
+
+    def _followed(
+        self, filled: FloatArray, solids: list[tuple[int, _Tracked, bool]]
+    ) -> SolidObjects:
+        """:meth:`_objects` where no blob waits for its fit: ``solids`` (blob, solid,
+        whether its blob holds several) in blob order. What a solid reports besides where
+        it stands is fixed from its fit on: stacked once (:class:`_Reports`) and kept
+        while the frames hold the same solids."""
+        ts = [t for _, t, _ in solids]
+        reports = self._reports
+        if reports is None or not _same(ts, reports.solids):
+            reports = self._reports = _Reports.of(ts)
+        blob = np.array([i for i, _, _ in solids], dtype=np.int64)
+        rc = filled[blob, 1:3]
+        for k, (_, t, several) in enumerate(solids):
+            if several and t.map_g is not None:
+                rc[k] = t.map_g
+        r = reports
+        return SolidObjects(
+            blob,
+            np.array([t.centre for t in ts], dtype=np.float64),
+            r.height,
+            r.height_sigma,
+            r.covariance,
+            r.shape,
+            r.radius,
+            r.area_cm2,
+            r.yaw_deg,
+            r.size,
+            rc[:, 0].copy(),
+            rc[:, 1].copy(),
+            r.pending,
+        )
+
+
+def _solve_centre(linear: tuple[float, ...], row: float, col: float) -> tuple[float, float]:
+    """:func:`~ovis.common.solids.footprint.solve_centres` for one solid, in plain Python
+    (the same operations in the same order): the footprint centre whose image centroid
+    is (``row``, ``col``) less its bias, by one linear step of its map
+    (:meth:`_Tracked.linear`); a singular map keeps the centre."""
+    ax, ay, gr, gc, j00, j01, j10, j11, b0, b1 = linear
+    det = j00 * j11 - j01 * j10
+    ok = math.isfinite(det) and abs(det) > 1e-9 and math.isfinite(gr) and math.isfinite(gc)
+    e0, e1 = ((row + b0) - gr, (col + b1) - gc) if ok else (0.0, 0.0)
+    safe = det if ok else 1.0
+    dx = (j11 * e0 - j01 * e1) / safe
+    dy = (-j10 * e0 + j00 * e1) / safe
+    return ax + dx, ay + dy
+
+
+def _same(a: list[_Tracked], b: list[_Tracked]) -> bool:
+    """Whether two lists hold the same solids (the same objects: a refit makes new ones),
+    in the same order."""
+    return len(a) == len(b) and all(x is y for x, y in zip(a, b, strict=True))
+
+
+@dataclass
+class _Reports:
+    """:meth:`_Tracked.report` of a frame's solids, stacked as :class:`SolidObjects`'
+    columns (read only: shared by the frames that hold the same solids)."""
+
+    solids: list[_Tracked]
+    height: FloatArray
+    height_sigma: FloatArray
+    covariance: FloatArray
+    shape: NDArray[np.object_]
+    radius: FloatArray
+    area_cm2: FloatArray
+    yaw_deg: FloatArray
+    size: FloatArray
+    pending: NDArray[np.bool_]
+
+    @classmethod
+    def of(cls, solids: list[_Tracked]) -> _Reports:
+        cols = list(zip(*(t.report() for t in solids), strict=True))
+        kinds = (*[np.float64] * 3, object, *[np.float64] * 4)
+        arrays = [np.array(c, dtype=k) for c, k in zip(cols, kinds, strict=True)]
+        for a in arrays:
+            a.flags.writeable = False
+        pending = np.zeros(len(solids), dtype=bool)
+        pending.flags.writeable = False
+        return cls(solids, *arrays, pending)
 
 
 #: The unmarked robot's footprint is within this share of its configured length and

@@ -75,7 +75,13 @@ def gated_assignment(
         return none, none
     if len(a) * len(b) <= DENSE_PAIRS:  # a few obstacles: the whole cost matrix is cheaper
         cost = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
-        cost[~(cost <= gate)] = _OUT_OF_GATE  # (NaN too)
+        near = cost <= gate  # (NaN: not)
+        if near.sum(0).max() <= 1 and near.sum(1).max() <= 1:
+            # each point has at most one candidate (obstacles apart, as most frames'):
+            # those pairs are the one assignment with the most pairs
+            rows, cols = np.nonzero(near)
+            return rows.astype(np.int64), cols.astype(np.int64)
+        cost[~near] = _OUT_OF_GATE
         return _optimal(cost)
     from scipy.spatial import cKDTree  # on first use: most processes never match many
 
