@@ -183,7 +183,7 @@ def summary_lines(rows: list[dict[str, Any]]) -> list[str]:
         if not targeted:
             continue
         missed = [
-            f"{r['name'][len(prefix) :].lstrip(': ')}: {_num(r['value'], r['unit'])}"
+            f"{r['name'][len(prefix) :].lstrip(':, ')}: {_num(r['value'], r['unit'])}"
             + ("" if r["ratio"] is None else f" ({r['ratio']:.2f}×)")
             + f", target {r['target']}"
             for r in targeted
