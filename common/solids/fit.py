@@ -866,12 +866,17 @@ def follow_union(
     moved = np.empty((p, r.size))
     for k, d in enumerate(own):
         rest = np.delete(here, k, axis=0)
+        others = rest.min(0) if len(rest) else None  # the union of the other solids
         for c in (0, 1):
-            moved[2 * k + c] = np.minimum(rest.min(0), d[1 + c]) if len(rest) else d[1 + c]
+            if others is None:
+                moved[2 * k + c] = d[1 + c]
+            else:
+                np.minimum(others, d[1 + c], out=moved[2 * k + c])
     jac = (moved - r) / step  # (p, N)
     weight = 1.0 / np.sqrt(1.0 + (r / LOSS_PX) ** 2)
-    a = (jac * weight) @ jac.T
-    g = (jac * weight) @ r
+    weighted = jac * weight
+    a = weighted @ jac.T
+    g = weighted @ r
     try:
         delta = -np.linalg.solve(a + 1e-9 * np.eye(p), g)
     except np.linalg.LinAlgError:
