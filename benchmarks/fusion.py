@@ -273,7 +273,9 @@ def _runs_text(values: list[float], unit: str) -> str:
 def proofs_ms(cameras: int = 4, size: int = 4_000, reps: int = 200) -> float:
     """Median ms of one world frame's proofs of origin, in one process: each camera's
     obstacles signed (pose) and verified (fusion), and the world frame signed (fusion),
-    on payloads of ``size`` bytes (a few robots' and obstacles' messages)."""
+    on payloads of ``size`` bytes (a few robots' and obstacles' messages). The checks
+    call the public key as :class:`~ovis.common.trust.proof.Verifier` does, without its
+    replay guard, which would refuse the same message repeated."""
     from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
     from ovis.common.trust.proof import Signer, signed_bytes

@@ -209,9 +209,10 @@ def smoothed_mask(
 class SmoothedDiff:
     """Object pixels of whole frames as :func:`object_mask` finds them, into buffers kept
     from one frame to the next (a frame's images allocated afresh each time cost more in
-    page faults than their arithmetic); D smoothed by the very kernel
-    ``cv2.GaussianBlur`` uses, applied to the integer D straight away
-    (``cv2.sepFilter2D``: no float copy of D). Not to be shared between threads."""
+    page faults than their arithmetic); D smoothed by the kernel ``cv2.GaussianBlur``
+    uses, applied to the integer D straight away (``cv2.sepFilter2D``: no float copy of
+    D; the same numbers on whole frames, on small images GaussianBlur's own path may
+    differ in the last bits of a float). Not to be shared between threads."""
 
     def __init__(self) -> None:
         self._diff: NDArray[np.int16] | None = None

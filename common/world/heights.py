@@ -940,21 +940,12 @@ class SolidTracker:
         for k, (_, t, several) in enumerate(solids):
             if several and t.map_g is not None:
                 rc[k] = t.map_g
-        r = reports
         return SolidObjects(
-            blob,
-            np.array([t.centre for t in ts], dtype=np.float64),
-            r.height,
-            r.height_sigma,
-            r.covariance,
-            r.shape,
-            r.radius,
-            r.area_cm2,
-            r.yaw_deg,
-            r.size,
-            rc[:, 0].copy(),
-            rc[:, 1].copy(),
-            r.pending,
+            blob=blob,
+            xy=np.array([t.centre for t in ts], dtype=np.float64),
+            row=rc[:, 0].copy(),
+            col=rc[:, 1].copy(),
+            **reports.columns,
         )
 
 
@@ -979,32 +970,30 @@ def _same(a: list[_Tracked], b: list[_Tracked]) -> bool:
     return len(a) == len(b) and all(x is y for x, y in zip(a, b, strict=True))
 
 
-@dataclass
-class _Reports:
-    """:meth:`_Tracked.report` of a frame's solids, stacked as :class:`SolidObjects`'
-    columns (read only: shared by the frames that hold the same solids)."""
+#: The :class:`SolidObjects` columns of :meth:`_Tracked.report`, in its order, and their
+#: element types.
+_REPORTED = ("height", "height_sigma", "covariance", "shape", "radius", "area_cm2",
+             "yaw_deg", "size")  # fmt: skip
+_REPORTED_KINDS = (*[np.float64] * 3, object, *[np.float64] * 4)
+
+
+class _Reports(NamedTuple):
+    """:meth:`_Tracked.report` of a frame's solids stacked as :class:`SolidObjects`'
+    columns (:data:`_REPORTED`, and ``pending`` all false), read only: shared by the
+    frames that hold the same solids."""
 
     solids: list[_Tracked]
-    height: FloatArray
-    height_sigma: FloatArray
-    covariance: FloatArray
-    shape: NDArray[np.object_]
-    radius: FloatArray
-    area_cm2: FloatArray
-    yaw_deg: FloatArray
-    size: FloatArray
-    pending: NDArray[np.bool_]
+    columns: dict[str, NDArray]
 
     @classmethod
     def of(cls, solids: list[_Tracked]) -> _Reports:
-        cols = list(zip(*(t.report() for t in solids), strict=True))
-        kinds = (*[np.float64] * 3, object, *[np.float64] * 4)
-        arrays = [np.array(c, dtype=k) for c, k in zip(cols, kinds, strict=True)]
-        for a in arrays:
+        cols = zip(*(t.report() for t in solids), strict=True)
+        arrays = [np.array(c, dtype=k) for c, k in zip(cols, _REPORTED_KINDS, strict=True)]
+        columns = dict(zip(_REPORTED, arrays, strict=True))
+        columns["pending"] = np.zeros(len(solids), dtype=bool)
+        for a in columns.values():
             a.flags.writeable = False
-        pending = np.zeros(len(solids), dtype=bool)
-        pending.flags.writeable = False
-        return cls(solids, *arrays, pending)
+        return cls(solids, columns)
 
 
 #: The unmarked robot's footprint is within this share of its configured length and
