@@ -63,6 +63,7 @@ __all__ = [
     "fit_piece",
     "fit_union",
     "follow_union",
+    "held_covariance",
     "held_height",
     "levenberg_marquardt",
     "radial_height",
@@ -514,13 +515,25 @@ def held_height(
     height's uncertainty (1σ, cm), fitted again with its height held at ``height`` (the
     configured one) where that is within :data:`HELD_SIGMAS` σ of the fitted one (the
     outline does not rule it out), else the solid as it was. The held fit keeps the free
-    fit's covariance and edge shift: its height is no better known for being held."""
+    fit's edge shift, and its covariance widened by the step from it
+    (:func:`held_covariance`): its height is no better known for being held."""
     if not abs(float(solid.theta[-1]) - height) <= HELD_SIGMAS * sigma:
         return solid
     start = solid.theta.copy()
     start[-1] = height
     held = refit(solid._replace(theta=start), floor, view, height=height)
-    return held._replace(covariance=solid.covariance, edge_shift=solid.edge_shift)
+    return held._replace(covariance=held_covariance(solid, held.theta), edge_shift=solid.edge_shift)
+
+
+def held_covariance(free: Solid, theta: FloatArray) -> FloatArray:
+    """The covariance of a solution ``theta`` held away from a free fit along the
+    ambiguity (its height held where the outline does not pin it): the free fit's
+    covariance plus the outer product of the step between them — the expected squared
+    error about the held solution if the truth lies about the free fit as its covariance
+    says (a footprint held at the configured height near the camera's nadir is off along
+    the line of sight by as much as that height is)."""
+    step = theta - free.theta
+    return free.covariance + np.outer(step, step)
 
 
 def robot_misfit(

@@ -130,14 +130,16 @@ class DetectedObject(msgspec.Struct):
     #: faces it)
     z_unmeasured: Literal["", "declared", "not measurable", "pending"] = ""
     #: covariance of (x_cm, y_cm, z_cm), cm², row by row (9 numbers), from the fit of its
-    #: silhouette (heights measured); None otherwise
+    #: silhouette (heights measured; "not measurable": about the footprint at ``z_fit_cm``,
+    #: widened by the step to it from the fit's own height); None otherwise
     covariance_cm2: Annotated[list[Finite], msgspec.Meta(min_length=9, max_length=9)] | None = None
     #: the solid's fitted shape (heights measured): "cylinder", "box", "prism3", "prism5",
     #: "prism6"; "" when not fitted
     shape: Literal["", "cylinder", "box", "prism3", "prism5", "prism6"] = ""
-    #: the height this camera's fit found where it is "not measurable" by it alone (its
-    #: σ, ``covariance_cm2``'s last, over ``pose.height_sigma_max_cm``): ``z_cm`` is then
-    #: the configured one, and fusion weighs this one with other cameras' by the
+    #: where the height is "not measurable" by this camera alone (its σ,
+    #: ``covariance_cm2``'s last, over ``pose.height_sigma_max_cm``): the height its
+    #: footprint ``x_cm``, ``y_cm`` rests on (the fit's own, or the one it is held at),
+    #: while ``z_cm`` is the configured one; fusion weighs it with other cameras' by the
     #: covariance (:mod:`ovis.common.fusion.merge`); None otherwise
     z_fit_cm: Finite | None = None
 

@@ -70,6 +70,7 @@ from ovis.common.solids.fit import (
     fit_blob,
     fit_piece,
     follow_union,
+    held_covariance,
     held_height,
     refit_with_tops,
     robot_misfit,
@@ -412,7 +413,8 @@ class SolidTracker:
                 # lower than its walls show: fitted afresh at that height (a free fit
                 # that ran off toward the camera leaves its start in a wrong valley)
                 fresh = fit_piece(floor, self.view, [one.shape], height=hold)
-                one = fresh._replace(covariance=one.covariance, edge_shift=one.edge_shift)
+                widened = held_covariance(one, fresh.theta)
+                one = fresh._replace(covariance=widened, edge_shift=one.edge_shift)
             best = [held_height(one, floor, self.view, hold, sigma)]
         if height is None and len(best) > 1:
             best = self._placed_behind(best, floor)
@@ -522,7 +524,9 @@ class SolidTracker:
         unknowns, and a low one's wall is too thin for the inner edge to pull a far-off
         start to it), the solid fitted at each of several heights and with its top face's
         inner edge looked for where each puts it: the one whose predicted edge is found
-        most fully, then fits best; and the top edge's points found for it (None: no
+        most fully, then fits best, among those that still explain the outline (a low
+        solid held tall finds edges inside its top face, not its top's edge, and then
+        misses its outline by pixels); and the top edge's points found for it (None: no
         search, or nothing found)."""
         sigma = math.sqrt(max(float(solid.covariance[-1, -1]), 0.0))
         if not sigma > self.pose.height_sigma_max_cm:
@@ -537,6 +541,8 @@ class SolidTracker:
             if tops is None:  # no top edge where this height puts it: no evidence
                 continue
             fitted = refit_with_tops([start], floor, [tops], self.view)[0]
+            if solid.explains and not fitted.explains:  # an edge inside, not the top's
+                continue
             score = (1.0 - share) + fitted.rms_px
             if best is None or score < best[0]:
                 best = (score, fitted, tops)
