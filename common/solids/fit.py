@@ -63,6 +63,7 @@ __all__ = [
     "fit_piece",
     "fit_union",
     "follow_union",
+    "height_spread",
     "held_covariance",
     "held_height",
     "levenberg_marquardt",
@@ -72,6 +73,7 @@ __all__ = [
     "robot_misfit",
     "rough_footprint",
     "union_offsets",
+    "unplaced_covariance",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -822,6 +824,34 @@ def bound_behind(
         covariance=held + spread * spread * np.outer(tangent, tangent),
         edge_shift=shift + spread * tangent,
     )
+
+
+def height_spread(view: Viewpoint) -> float:
+    """The σ (cm) of a height known only to lie within the range a fit allows
+    (uniform over it)."""
+    lo, hi = _bounds("cylinder", view)
+    return float(hi[-1] - lo[-1]) / math.sqrt(12.0)
+
+
+def unplaced_covariance(solid: Solid, view: Viewpoint) -> FloatArray:
+    """A covariance for a solid whose fit has none that is finite (a wrong shape fitted
+    to the part of a solid that another hides, where the outline pins it nowhere): its
+    footprint's centre anywhere on the footprint fitted (the polygon's second moments:
+    uniform over it), its height anywhere within the range (:func:`height_spread`),
+    each size as uncertain as it is large, its yaw unknown; no correlations. What it
+    says is how little the frame tells, not a fit's precision."""
+    poly = footprint_polygon(solid.shape, solid.theta).astype(np.float32)
+    m = cv2.moments(poly)  # signed by the corners' turn: so are the central moments
+    area = m["m00"] if abs(m["m00"]) > 1e-9 else 1e-9
+    cov = np.zeros((solid.theta.size, solid.theta.size))
+    cov[0, 0], cov[1, 1] = m["mu20"] / area, m["mu02"] / area
+    cov[0, 1] = cov[1, 0] = m["mu11"] / area
+    for k in _sizes(solid.shape):
+        cov[k, k] = float(solid.theta[k]) ** 2
+    if solid.theta.size > len(_sizes(solid.shape)) + 3:  # a yaw: any
+        cov[-2, -2] = math.pi**2 / 3.0
+    cov[-1, -1] = height_spread(view) ** 2
+    return cov
 
 
 def _footprints_overlap(solids: Sequence[Solid]) -> bool:

@@ -70,12 +70,14 @@ from ovis.common.solids.fit import (
     fit_blob,
     fit_piece,
     follow_union,
+    height_spread,
     held_covariance,
     held_height,
     refit_with_tops,
     robot_misfit,
     rough_footprint,
     union_offsets,
+    unplaced_covariance,
 )
 from ovis.common.solids.footprint import centroid_map
 from ovis.common.solids.outline_floor import floor_outline
@@ -171,6 +173,9 @@ class _Tracked:
     map_j: FloatArray | None = None
     _report: tuple | None = None
     _linear: tuple | None = None
+    #: the σ (cm) of a height known only within the range a fit allows (reported where
+    #: none is measured: :func:`~ovis.common.solids.fit.height_spread`)
+    h_unknown: float = math.inf
 
     @property
     def height(self) -> float:
@@ -213,9 +218,13 @@ class _Tracked:
             if cov.size:
                 pick = [0, 1, cov.shape[0] - 1]
                 c3 = cov[np.ix_(pick, pick)].copy()
-                c3[2, :2] *= sigma / max(math.sqrt(max(cov[-1, -1], 1e-18)), 1e-9)
+                if math.isfinite(sigma):
+                    c3[2, :2] *= sigma / max(math.sqrt(max(cov[-1, -1], 1e-18)), 1e-9)
+                    c3[2, 2] = sigma * sigma
+                else:  # no height measured (its fit does not explain the outline)
+                    c3[2, :2] = 0.0
+                    c3[2, 2] = self.h_unknown**2
                 c3[:2, 2] = c3[2, :2]
-                c3[2, 2] = sigma * sigma
             else:
                 c3 = np.full((3, 3), math.nan)
             self._report = (
@@ -418,7 +427,22 @@ class SolidTracker:
             best = [held_height(one, floor, self.view, hold, sigma)]
         if height is None and len(best) > 1:
             best = self._placed_behind(best, floor)
-        return best, outline
+        return [self._placed(s) for s in best], outline
+
+    def _placed(self, solid: Solid) -> Solid:
+        """``solid``, with :func:`~ovis.common.solids.fit.unplaced_covariance` where its
+        fit's covariance does not place it (not finite, not positive semi-definite as a
+        near-singular fit can leave it, or a σ of its footprint's or height's over the
+        camera's height: the outline pins it nowhere)."""
+        c = solid.covariance
+        if c.size:
+            pick = [0, 1, c.shape[0] - 1]
+            block = c[np.ix_(pick, pick)]
+            if np.isfinite(block).all():
+                axes = np.linalg.eigvalsh(0.5 * (block + block.T))
+                if axes[0] >= -1e-9 * max(axes[-1], 1.0) and axes[-1] <= self.view.height_cm**2:
+                    return solid
+        return solid._replace(covariance=unplaced_covariance(solid, self.view))
 
     def _placed_behind(self, solids: list[Solid], floor: FloorOutline) -> list[Solid]:
         """A blob's solids, each whose walls' foot is hidden behind the others and whose
@@ -633,7 +657,9 @@ class SolidTracker:
         if before is not None:
             w_sum, h_sum = before.h_weight + w, before.h_sum + w * h
             floor = min(before.h_floor, floor)
-        return _Tracked(solid, w_sum, h_sum, floor, solid.theta[:2].copy())
+        return _Tracked(
+            solid, w_sum, h_sum, floor, solid.theta[:2].copy(), h_unknown=height_spread(self.view)
+        )
 
     def _fit(self, patch: Patch, blob_filled: FloatArray, group: _Group | None) -> _Group | None:
         """Fit (or fit again) one blob; its group with the offsets of its solids' image
