@@ -38,7 +38,11 @@ from ovis.common.calibration.file import Calibration, dipe_text
 from ovis.common.calibration.ga import GenerationStats
 from ovis.common.calibration.rejected import save_rejected
 from ovis.common.calibration.store import CalibrationStore, StoreWriteError
-from ovis.common.calibration.validity import calibration_problem
+from ovis.common.calibration.validity import (
+    calibration_problem,
+    setup_problem,
+    simulated_setup,
+)
 from ovis.common.config import ControlPoint, load_points
 from ovis.common.messages import (
     ENCODING,
@@ -120,7 +124,9 @@ def restored(service: Service, store: CalibrationStore, saved: Calibration) -> C
 def main(service: Service) -> None:
     cfg = service.config
     store = CalibrationStore(cfg.service.state_dir, keep=cfg.service.keep_calibrations)
-    saved, problems = store.latest(lambda calib: calibration_problem(calib, cfg))
+    saved, problems = store.latest(
+        lambda calib: calibration_problem(calib, cfg) or setup_problem(calib, cfg)
+    )
     for problem in problems:  # the newest valid version is used: these were newer
         service.error("bad_saved_calibration", f"skipped {problem}")
     try:
@@ -322,6 +328,8 @@ def main(service: Service) -> None:
     ) -> CalibrateReply:
         """Publish ``calib`` (made on ``made_on``) as the new calibration once it passed
         the checks and the gate (judged on ``image``, frame ``seq``); or the reply why not."""
+        if calib.simulated:  # the set-up it was made on: another run's never takes it
+            calib = msgspec.structs.replace(calib, simulated_for=simulated_setup(cfg))
         problem = calibration_problem(calib, cfg)
         if problem is not None:  # never published: the stages would refuse it anyway
             service.error("calibration", f"calibration on {made_on}: {problem}")

@@ -162,3 +162,33 @@ def test_the_store_keeps_one_epoch_and_stamps_every_version(tmp_path) -> None:
     (tmp_path / "epoch").write_text("garbage")
     assert CalibrationStore(tmp_path).epoch() != epoch  # a broken id is replaced
     assert CalibrationStore(tmp_path / "other").epoch() != epoch
+
+
+def test_a_calibration_of_another_simulated_set_up_is_not_taken_from_the_store(tmp_path) -> None:
+    """A state folder shared by runs of the light and the physical world: the light
+    world's calibration (made on its simulated camera) is refused by a physical run's
+    calibrator, which calibrates anew; the same world's is taken; one saved before the
+    set-up was recorded is another run's; a real camera's run never asks."""
+    light = load_config()
+    physical = load_config(preset="physical")
+    calib = msgspec.structs.replace(
+        calibration_from_config(light),
+        simulated=True,
+        simulated_for=validity.simulated_setup(light),
+    )
+    assert validity.setup_problem(calib, light) is None
+    problem = validity.setup_problem(calib, physical)
+    assert problem is not None and "the light world's" in problem and "physical" in problem
+    older = msgspec.structs.replace(calib, simulated_for="")
+    assert "an earlier run's" in (validity.setup_problem(older, light) or "")
+    real = msgspec.structs.replace(
+        light, service=msgspec.structs.replace(light.service, source="0")
+    )
+    assert validity.setup_problem(older, real) is None
+    assert validity.setup_problem(msgspec.structs.replace(older, simulated=False), light) is None
+    store = CalibrationStore(tmp_path)
+    store.save(calib)
+    saved, problems = store.latest(lambda c: validity.setup_problem(c, physical))
+    assert saved is None and len(problems) == 1 and "light" in problems[0]
+    saved, problems = store.latest(lambda c: validity.setup_problem(c, light))
+    assert saved is not None and saved.simulated_for == calib.simulated_for and not problems

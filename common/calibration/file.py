@@ -107,6 +107,11 @@ class Calibration(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     #: made on the simulator's ground truth (the calibrator with points "simulator"): the
     #: simulated camera's, never taken for a real camera's (``ovis up`` checks it)
     simulated: bool = False
+    #: with ``simulated``: the simulated set-up it was made on (its world and a digest of
+    #: the camera that renders it: :func:`~ovis.common.calibration.validity.simulated_setup`),
+    #: so that a run of another world or camera does not take it for its own; "" in
+    #: files from before this was recorded
+    simulated_for: str = ""
 
     def __post_init__(self) -> None:
         for name in ("dipe_px", "dipe_mm", "dipe_max_px", "dipe_max_mm"):

@@ -10,6 +10,7 @@ must land on those planes and within :data:`MAX_FOOTPRINT_CM` of the world origi
 
 from __future__ import annotations
 
+import hashlib
 import math
 from typing import Any
 
@@ -20,7 +21,14 @@ from ovis.common.calibration.file import Calibration
 from ovis.common.camera.projection import back_project, camera_centre_cm
 from ovis.common.config import OvisConfig
 
-__all__ = ["BORDER_SAMPLES", "MAX_FOOTPRINT_CM", "border_pixels", "calibration_problem"]
+__all__ = [
+    "BORDER_SAMPLES",
+    "MAX_FOOTPRINT_CM",
+    "border_pixels",
+    "calibration_problem",
+    "setup_problem",
+    "simulated_setup",
+]
 
 #: The footprint of the image on the floor must lie within this distance (cm) of the
 #: world origin on each axis: 100 m, far beyond any arena a ceiling camera sees.
@@ -95,3 +103,28 @@ def calibration_problem(calib: Calibration, config: OvisConfig) -> str | None:
                 f"{extent:.0f} cm from the origin (limit {MAX_FOOTPRINT_CM:g} cm)"
             )
     return None
+
+
+def simulated_setup(config: OvisConfig) -> str:
+    """The simulated set-up a calibrator run on ``config`` calibrates: its world and a
+    digest of the camera that renders it ("light:3f2a…")."""
+    camera = msgspec.json.encode(config.camera)
+    return f"{config.simulator.world}:{hashlib.sha256(camera).hexdigest()[:16]}"
+
+
+def setup_problem(calib: Calibration, config: OvisConfig) -> str | None:
+    """Why a calibration made on the simulator (``simulated``) is not this simulated run's
+    (one line), or None: made on another world or another simulated camera (a state
+    folder shared by runs of the light and the physical world). Calibrations of a real
+    camera, and any for a real source, pass: that check is :func:`calibration_problem`'s."""
+    if not (calib.simulated and config.service.simulated_source):
+        return None
+    here = simulated_setup(config)
+    if calib.simulated_for == here:
+        return None
+    world = calib.simulated_for.partition(":")[0]
+    made = f"the {world} world's" if world else "an earlier run's"
+    return (
+        f"calibration v{calib.version} is not this run's: made on {made} simulated camera, "
+        f"this run renders the {config.simulator.world} world's ({here})"
+    )

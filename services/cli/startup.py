@@ -143,7 +143,7 @@ def calibration_for_run(cfg: Any, given: Path | None, size: tuple[int, int] | No
     from ovis.common.calibration.file import load_calibration
     from ovis.common.calibration.frame_size import FrameSizeError, fit_to_frames
     from ovis.common.calibration.store import CalibrationStore
-    from ovis.common.calibration.validity import calibration_problem
+    from ovis.common.calibration.validity import calibration_problem, simulated_setup
 
     if given is not None:
         calib, name = load_calibration(given), str(given)
@@ -162,6 +162,9 @@ def calibration_for_run(cfg: Any, given: Path | None, size: tuple[int, int] | No
     problem = calibration_problem(calib, services_config(cfg, calib))
     if problem is not None:
         raise UserError(f"{name}: {problem} (nothing was started)")
+    if given is not None and calib.simulated and cfg.service.simulated_source:
+        # given for this simulated run: its set-up's, whatever it was made on
+        calib = msgspec.structs.replace(calib, simulated_for=simulated_setup(cfg))
     if given is not None or lines:
         store = CalibrationStore(cfg.service.state_dir)
         calib = store.save(calib)
