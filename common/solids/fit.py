@@ -49,6 +49,7 @@ from ovis.common.solids.silhouette import (
     MAX_HEIGHT_SHARE,
     Viewpoint,
     signed_distance,
+    signed_distance_few,
     top_distance,
 )
 from ovis.common.vision.outline import PROFILE_REACH_PX
@@ -837,6 +838,12 @@ def union_offsets(solids: Sequence[Solid], floor: FloorOutline, view: Viewpoint)
     )
 
 
+#: :func:`follow_union`'s difference step (cm) and a solid's three centres: where it
+#: is, moved in x, moved in y.
+_FOLLOW_STEP = 1e-3
+_FOLLOW_MOVES = ((0.0, 0.0), (_FOLLOW_STEP, 0.0), (0.0, _FOLLOW_STEP))
+
+
 def follow_union(
     solids: Sequence[Solid],
     offsets: FloatArray,
@@ -850,28 +857,27 @@ def follow_union(
     as they are: each solid's are worked out where it is and moved one step in x and
     in y, and the union's residuals at every step made from them."""
     start = np.concatenate([s.theta[0:2] for s in solids])
-    p = start.size
-    step = 1e-3
-    moves = step * np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    own: list[FloatArray] = [np.zeros(0)] * len(solids)  # each (3, N): here, moved in x, y
+    p, k, n = start.size, len(solids), len(floor.points)
+    own = np.empty((k, 3, n))  # each solid's residuals here, moved in x, moved in y
     for shape in dict.fromkeys(s.shape for s in solids):  # the solids of a shape at once
-        ks = [k for k, s in enumerate(solids) if s.shape == shape]
-        theta = np.repeat(np.array([solids[k].theta for k in ks]), 3, axis=0)
-        theta[:, 0:2] = (start.reshape(-1, 2)[ks][:, None, :] + moves).reshape(-1, 2)
-        d = floor.px_per_cm * signed_distance(shape, theta, floor.points, view)
-        for n, k in enumerate(ks):
-            own[k] = d[3 * n : 3 * n + 3] - offsets[k]
-    here = np.stack([d[0] for d in own])  # (k, N)
+        ks = [j for j, s in enumerate(solids) if s.shape == shape]
+        rows = []
+        for j in ks:
+            theta = solids[j].theta.tolist()
+            for mx, my in _FOLLOW_MOVES:
+                rows.append([theta[0] + mx, theta[1] + my, *theta[2:]])
+        d = floor.px_per_cm * signed_distance_few(shape, rows, floor.points, view)
+        own[ks] = d.reshape(len(ks), 3, n) - np.asarray(offsets)[ks, None, None]
+    here = own[:, 0]
     r = here.min(0)
-    moved = np.empty((p, r.size))
-    for k, d in enumerate(own):
-        rest = np.delete(here, k, axis=0)
-        others = rest.min(0) if len(rest) else None  # the union of the other solids
-        for c in (0, 1):
-            if others is None:
-                moved[2 * k + c] = d[1 + c]
-            else:
-                np.minimum(others, d[1 + c], out=moved[2 * k + c])
+    if k == 1:
+        moved = own[0, 1:3]
+    else:  # each solid moved, against the union of the others where they are
+        others = (
+            here[::-1] if k == 2 else np.stack([np.delete(here, j, 0).min(0) for j in range(k)])
+        )
+        moved = np.minimum(others[:, None, :], own[:, 1:3]).reshape(p, n)
+    step = _FOLLOW_STEP
     jac = (moved - r) / step  # (p, N)
     weight = 1.0 / np.sqrt(1.0 + (r / LOSS_PX) ** 2)
     weighted = jac * weight

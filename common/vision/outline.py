@@ -199,10 +199,15 @@ def smoothed_mask(
     given."""
     mask = np.greater_equal(d, level, out=out).view(np.uint8)
     if spots is not None:
-        at, lift = _spot_lift(spots)
+        at = _spot_pixels(spots)
         here = d.ravel()[at]
-        hidden = (np.abs(here) >= level) & (here + lift >= level)
-        mask.ravel()[at[hidden]] = 1
+        # a spot's pixel at least ``level`` brighter is in already: only one at least
+        # ``level`` darker may be added, and only then is the spot level worked out
+        dark = here <= -level
+        if dark.any():
+            at, lift = _spot_lift(spots)
+            hidden = dark & (here + lift >= level)
+            mask.ravel()[at[hidden]] = 1
     return mask
 
 
@@ -254,6 +259,22 @@ _SMOOTH = cv2.getGaussianKernel(round(8 * SMOOTH_PX + 1) | 1, SMOOTH_PX, cv2.CV_
 _LIFTS: dict[int, tuple[NDArray[np.uint8], NDArray[np.intp], NDArray[np.float32]]] = {}
 
 
+def _spot_pixels(spots: NDArray[np.uint8]) -> NDArray[np.intp]:
+    """The flat indices of the spots' pixels (:func:`_spot_lift`'s, kept for whole
+    images)."""
+    hit = _LIFTS.get(id(spots))
+    if hit is not None and hit[0] is spots:
+        return hit[1]
+    if _kept(spots):
+        return _spot_lift(spots)[0]
+    return np.flatnonzero(spots)
+
+
+def _kept(spots: NDArray[np.uint8]) -> bool:
+    """Whether :func:`_spot_lift` keeps a spot image's numbers: a whole, read-only one."""
+    return not spots.flags.writeable and spots.base is None
+
+
 def _spot_lift(spots: NDArray[np.uint8]) -> tuple[NDArray[np.intp], NDArray[np.float32]]:
     """The flat indices of the spots' pixels and the smoothed spot level there (as
     :func:`object_mask` smooths D). A whole image of :func:`background_spots` is worked
@@ -267,7 +288,7 @@ def _spot_lift(spots: NDArray[np.uint8]) -> tuple[NDArray[np.intp], NDArray[np.f
         lift = np.zeros(0, dtype=np.float32)
     else:
         lift = cv2.GaussianBlur(spots.astype(np.float32), (0, 0), SMOOTH_PX).ravel()[at]
-    if not spots.flags.writeable and spots.base is None:
+    if _kept(spots):
         while len(_LIFTS) >= 4:
             _LIFTS.pop(next(iter(_LIFTS)))
         _LIFTS[id(spots)] = (spots, at, lift)
@@ -317,16 +338,15 @@ def patch_outline(
 
 def chain_normals(chain: NDArray[np.int32]) -> tuple[FloatArray, FloatArray]:
     """Chain points (col, row) as floats and their outward unit normals (from the
-    chain's direction over ±:data:`NORMAL_SPAN` points)."""
+    chain's direction over ±:data:`NORMAL_SPAN` points; its orientation from its signed
+    area, :func:`cv2.contourArea`: exact on whole pixels)."""
     p = chain.astype(np.float64)
-    at = np.arange(len(p))
-    k = NORMAL_SPAN
-    tangent = p[(at + k) % len(p)] - p[(at - k) % len(p)]
+    k = NORMAL_SPAN % len(p)
+    ring = np.concatenate([p[len(p) - k :], p, p[:k]])  # the chain, wrapped k each way
+    tangent = ring[2 * k :] - ring[: len(p)]
     tangent /= np.maximum(np.hypot(tangent[:, 0], tangent[:, 1]), 1e-9)[:, None]
-    ahead = p[(at + 1) % len(p)]
-    twice_area = np.sum(p[:, 0] * ahead[:, 1] - ahead[:, 0] * p[:, 1])
-    sign = 1.0 if twice_area > 0 else -1.0
-    return p, sign * np.stack([tangent[:, 1], -tangent[:, 0]], 1)
+    sign = 1.0 if cv2.contourArea(p.astype(np.float32), oriented=True) > 0 else -1.0
+    return p, tangent[:, ::-1] * np.array([sign, -sign])
 
 
 class _Steps(NamedTuple):
