@@ -30,6 +30,7 @@ along the stretch of its line of sight they leave it, its covariance spread over
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
@@ -844,6 +845,14 @@ _FOLLOW_STEP = 1e-3
 _FOLLOW_MOVES = ((0.0, 0.0), (_FOLLOW_STEP, 0.0), (0.0, _FOLLOW_STEP))
 
 
+@functools.lru_cache(maxsize=8)
+def _ridge(p: int) -> FloatArray:
+    """What :func:`follow_union` adds to its normal matrix's diagonal (made once)."""
+    out = 1e-9 * np.eye(p)
+    out.flags.writeable = False
+    return out
+
+
 def follow_union(
     solids: Sequence[Solid],
     offsets: FloatArray,
@@ -866,28 +875,54 @@ def follow_union(
             theta = solids[j].theta.tolist()
             for mx, my in _FOLLOW_MOVES:
                 rows.append([theta[0] + mx, theta[1] + my, *theta[2:]])
-        d = floor.px_per_cm * signed_distance_few(shape, rows, floor.points, view)
-        own[ks] = d.reshape(len(ks), 3, n) - np.asarray(offsets)[ks, None, None]
+        d = signed_distance_few(shape, rows, floor.points, view)
+        d *= floor.px_per_cm
+        for i, j in enumerate(ks):
+            np.subtract(d[3 * i : 3 * i + 3], offsets[j], out=own[j])
+    m = np.empty((p + 1, n))  # the Jacobian's rows (p, N), then the residuals
     here = own[:, 0]
-    r = here.min(0)
+    r = here.min(0, out=m[p])
+    jac = m[:p]
     if k == 1:
-        moved = own[0, 1:3]
+        jac[:] = own[0, 1:3]
     else:  # each solid moved, against the union of the others where they are
         others = (
             here[::-1] if k == 2 else np.stack([np.delete(here, j, 0).min(0) for j in range(k)])
         )
-        moved = np.minimum(others[:, None, :], own[:, 1:3]).reshape(p, n)
-    step = _FOLLOW_STEP
-    jac = (moved - r) / step  # (p, N)
+        np.minimum(others[:, None, :], own[:, 1:3], out=jac.reshape(k, 2, n))
+    jac -= r
+    jac /= _FOLLOW_STEP
     weight = 1.0 / np.sqrt(1.0 + (r / LOSS_PX) ** 2)
-    weighted = jac * weight
-    a = weighted @ jac.T
-    g = weighted @ r
-    try:
-        delta = -np.linalg.solve(a + 1e-9 * np.eye(p), g)
-    except np.linalg.LinAlgError:
+    normal = ((jac * weight) @ m.T).tolist()  # JᵀWJ (p, p) beside JᵀWr
+    for i in range(p):
+        normal[i][i] += 1e-9
+    step = _solve_small(normal)
+    if step is None:
         return start.reshape(-1, 2)
-    return (start + delta).reshape(-1, 2)
+    return (start - step).reshape(-1, 2)
+
+
+def _solve_small(rows: list[list[float]]) -> FloatArray | None:
+    """x with A·x = b, from the rows of [A | b] (a few unknowns), by Gaussian elimination
+    with partial pivoting in plain Python (for four unknowns a LAPACK call costs more
+    than the arithmetic); None where A is singular. ``rows`` are overwritten."""
+    n = len(rows)
+    for c in range(n):
+        best = max(range(c, n), key=lambda i: abs(rows[i][c]))
+        if rows[best][c] == 0.0:
+            return None
+        rows[c], rows[best] = rows[best], rows[c]
+        top = rows[c]
+        for i in range(c + 1, n):
+            f = rows[i][c] / top[c]
+            row = rows[i]
+            for j in range(c, n + 1):
+                row[j] -= f * top[j]
+    x = [0.0] * n
+    for i in reversed(range(n)):
+        row = rows[i]
+        x[i] = (row[n] - sum(row[j] * x[j] for j in range(i + 1, n))) / row[i]
+    return np.array(x)
 
 
 def _with_tops(

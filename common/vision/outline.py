@@ -205,8 +205,7 @@ def smoothed_mask(
         # ``level`` darker may be added, and only then is the spot level worked out
         dark = here <= -level
         if dark.any():
-            at, lift = _spot_lift(spots)
-            hidden = dark & (here + lift >= level)
+            hidden = dark & (here + _spot_lift(spots, at) >= level)
             mask.ravel()[at[hidden]] = 1
     return mask
 
@@ -255,44 +254,40 @@ class SmoothedDiff:
 _SMOOTH = cv2.getGaussianKernel(round(8 * SMOOTH_PX + 1) | 1, SMOOTH_PX, cv2.CV_32F)
 
 
-#: :func:`_spot_lift` of the last few whole spot images (by identity; they are read-only).
-_LIFTS: dict[int, tuple[NDArray[np.uint8], NDArray[np.intp], NDArray[np.float32]]] = {}
+#: The spots' pixels (:func:`_spot_pixels`) and their :func:`_spot_lift` (None until
+#: asked for) of the last few whole spot images (by identity; they are read-only).
+_LIFTS: dict[int, list] = {}
 
 
 def _spot_pixels(spots: NDArray[np.uint8]) -> NDArray[np.intp]:
-    """The flat indices of the spots' pixels (:func:`_spot_lift`'s, kept for whole
-    images)."""
+    """The flat indices of the spots' pixels; a whole image of :func:`background_spots`'s
+    are worked out once (every frame's mask uses them), a patch's slice's each time."""
     hit = _LIFTS.get(id(spots))
     if hit is not None and hit[0] is spots:
         return hit[1]
-    if _kept(spots):
-        return _spot_lift(spots)[0]
-    return np.flatnonzero(spots)
-
-
-def _kept(spots: NDArray[np.uint8]) -> bool:
-    """Whether :func:`_spot_lift` keeps a spot image's numbers: a whole, read-only one."""
-    return not spots.flags.writeable and spots.base is None
-
-
-def _spot_lift(spots: NDArray[np.uint8]) -> tuple[NDArray[np.intp], NDArray[np.float32]]:
-    """The flat indices of the spots' pixels and the smoothed spot level there (as
-    :func:`object_mask` smooths D). A whole image of :func:`background_spots` is worked
-    out once (every frame's mask uses it); a patch's slice of it each time (smoothed
-    within the slice, as the patch's D is)."""
-    hit = _LIFTS.get(id(spots))
-    if hit is not None and hit[0] is spots:
-        return hit[1], hit[2]
     at = np.flatnonzero(spots)
+    if not spots.flags.writeable and spots.base is None:
+        while len(_LIFTS) >= 4:
+            _LIFTS.pop(next(iter(_LIFTS)))
+        _LIFTS[id(spots)] = [spots, at, None]
+    return at
+
+
+def _spot_lift(spots: NDArray[np.uint8], at: NDArray[np.intp]) -> NDArray[np.float32]:
+    """The smoothed spot level at the spots' pixels ``at`` (:func:`_spot_pixels`), as
+    :func:`object_mask` smooths D: a whole image's worked out once, a patch's slice's
+    each time (smoothed within the slice, as the patch's D is)."""
+    hit = _LIFTS.get(id(spots))
+    kept = hit is not None and hit[0] is spots
+    if kept and hit[2] is not None:
+        return hit[2]
     if not at.size:
         lift = np.zeros(0, dtype=np.float32)
     else:
         lift = cv2.GaussianBlur(spots.astype(np.float32), (0, 0), SMOOTH_PX).ravel()[at]
-    if _kept(spots):
-        while len(_LIFTS) >= 4:
-            _LIFTS.pop(next(iter(_LIFTS)))
-        _LIFTS[id(spots)] = (spots, at, lift)
-    return at, lift
+    if kept:
+        hit[2] = lift
+    return lift
 
 
 def patch_outline(
