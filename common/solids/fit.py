@@ -868,6 +868,8 @@ def follow_union(
     start = np.concatenate([s.theta[0:2] for s in solids])
     p, k, n = start.size, len(solids), len(floor.points)
     own = np.empty((k, 3, n))  # each solid's residuals here, moved in x, moved in y
+    q1 = np.ones((n, 3))  # the outline's points as (x, y, 1)
+    q1[:, :2] = floor.points
     for shape in dict.fromkeys(s.shape for s in solids):  # the solids of a shape at once
         ks = [j for j, s in enumerate(solids) if s.shape == shape]
         rows = []
@@ -875,7 +877,7 @@ def follow_union(
             theta = solids[j].theta.tolist()
             for mx, my in _FOLLOW_MOVES:
                 rows.append([theta[0] + mx, theta[1] + my, *theta[2:]])
-        d = signed_distance_few(shape, rows, floor.points, view)
+        d = signed_distance_few(shape, rows, q1, view)
         d *= floor.px_per_cm
         for i, j in enumerate(ks):
             np.subtract(d[3 * i : 3 * i + 3], offsets[j], out=own[j])

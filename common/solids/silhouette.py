@@ -167,20 +167,22 @@ def signed_distance(shape: str, theta: FloatArray, q: FloatArray, view: Viewpoin
 
 
 def signed_distance_few(
-    shape: str, theta: Sequence[Sequence[float]], q: FloatArray, view: Viewpoint
+    shape: str, theta: Sequence[Sequence[float]], q1: FloatArray, view: Viewpoint
 ) -> FloatArray:
     """:func:`signed_distance` of a few parameter vectors ``theta`` (B, P), plain lists
-    of floats (a frame's
-    follow of a blob's solids): a polygon's silhouette edges worked out in plain Python
-    (the same operations in the same order as :func:`hull_edges` and
-    :func:`_segments_distance`; for a few footprints a hundred array calls on a dozen
-    corners cost more than the arithmetic), then the distances to their lines in one
-    pass. Result (B, N)."""
+    of floats (a frame's follow of a blob's solids), at floor points ``q1`` (N, 3)
+    given as (x, y, 1). The silhouettes' edges (or a cylinder's axis) are worked out in
+    plain Python — the same operations in the same order as :func:`footprint_polygon`,
+    :func:`hull_edges`, :func:`_segments_distance` and :func:`capsule_distance`: for a
+    few footprints a hundred array calls on a dozen corners cost more than the
+    arithmetic —, then each point's distances to their lines in one matrix product
+    (these may differ from :func:`signed_distance`'s in a float's last bits). Result
+    (B, N)."""
     fx, fy = (float(v) for v in view.foot)
     big = view.height_cm
     if shape == "cylinder":
-        return _capsules_few(theta, q, view)
-    lines: list[list[tuple[float, float, float]]] = []  # per silhouette: (nx, ny, c)
+        return _capsules_few(theta, q1, view)
+    lines: list[list[tuple[float, float, float]]] = []  # per silhouette: (nx, ny, −c)
     for row in theta:
         s = big / (big - min(row[-1], MAX_HEIGHT_SHARE * big))  # top_scale
         foot = _corners(shape, row)
@@ -205,19 +207,16 @@ def signed_distance_few(
             length = math.sqrt(ex * ex + ey * ey)
             if length > 1e-12:  # an empty edge never counts
                 nx, ny = ey / length, -ex / length
-                mine.append((nx, ny, nx * ax + ny * ay))
+                mine.append((nx, ny, -(nx * ax + ny * ay)))
         lines.append(mine)
     m = max(len(mine) for mine in lines)  # each silhouette's lines, its first repeated
     table = np.array([mine + mine[:1] * (m - len(mine)) for mine in lines]).reshape(-1, 3)
-    d = q[:, 0] * table[:, 0, None] + q[:, 1] * table[:, 1, None] - table[:, 2, None]
-    return d.reshape(len(lines), m, -1).max(1)
+    return (table @ q1.T).reshape(len(lines), m, -1).max(1)
 
 
-def _capsules_few(theta: Sequence[Sequence[float]], q: FloatArray, view: Viewpoint) -> FloatArray:
-    """:func:`signed_distance` of a few cylinders (:func:`capsule_distance`), each one's
-    numbers but the distances worked out in plain Python (the same operations in the
-    same order; the lengths by ``np.hypot``, which ``math.hypot`` may differ from in
-    the last bit)."""
+def _capsules_few(theta: Sequence[Sequence[float]], q1: FloatArray, view: Viewpoint) -> FloatArray:
+    """:func:`signed_distance_few` of cylinders (:func:`capsule_distance`; the axes'
+    lengths by ``np.hypot``, which ``math.hypot`` may differ from in the last bit)."""
     fx, fy = (float(v) for v in view.foot)
     big = view.height_cm
     rows = []
@@ -226,24 +225,25 @@ def _capsules_few(theta: Sequence[Sequence[float]], q: FloatArray, view: Viewpoi
         r2 = s * r
         rows.append((x, y, r, r2, fx + s * (x - fx) - x, fy + s * (y - fy) - y))
     length = np.hypot([row[4] for row in rows], [row[5] for row in rows]).tolist()
-    cols = []
+    axes, cols = [], []
     for (x, y, r1, r2, dx, dy), ell in zip(rows, length, strict=True):
         if ell <= abs(r2 - r1):  # one disk holds the other: rare, left to the general case
-            return signed_distance("cylinder", np.array(theta), q, view)
+            return signed_distance("cylinder", np.array(theta), q1[:, :2], view)
         safe = max(ell, 1e-12)
         ux, uy = dx / safe, dy / safe
         b = min(max((r1 - r2) / safe, -1.0), 1.0)
         a = math.sqrt(1.0 - b * b)
-        cols.append((x, y, ux, uy, -uy, b, -b, a, r1, r2, ell, a * ell))
+        axes.append((ux, uy, -(x * ux + y * uy)))  # along the axis from the near disk
+        axes.append((-uy, ux, x * uy - y * ux))  # across it
+        cols.append((b, -b, a, r1, r2, ell, a * ell))
+    along, across = (np.array(axes) @ q1.T).reshape(-1, 2, len(q1)).transpose(1, 0, 2)
+    across = np.abs(across)
     c = np.array(cols).T[:, :, None]  # each (B, 1)
-    px, py = q[:, 0] - c[0], q[:, 1] - c[1]
-    along = px * c[2] + py * c[3]
-    across = np.abs(px * c[4] + py * c[2])
-    k = c[6] * across + c[7] * along
-    side = across * c[7] + along * c[5] - c[8]
-    near_end = np.hypot(across, along) - c[8]
-    far_end = np.hypot(across, along - c[10]) - c[9]
-    return np.where(k < 0.0, near_end, np.where(k > c[11], far_end, side))
+    k = c[1] * across + c[2] * along
+    side = across * c[2] + along * c[0] - c[3]
+    near_end = np.hypot(across, along) - c[3]
+    far_end = np.hypot(across, along - c[5]) - c[4]
+    return np.where(k < 0.0, near_end, np.where(k > c[6], far_end, side))
 
 
 def _corners(shape: str, theta: Sequence[float]) -> list[tuple[float, float]]:
