@@ -350,6 +350,9 @@ def test_a_floor_marks_mask_is_the_same_from_its_kept_level_and_cut_patches_are_
         lift = cv2.GaussianBlur(spots.astype(np.float32), (0, 0), 0.8)
         hidden = (spots > 0) & (np.abs(smooth) >= 20.0) & (smooth + lift >= 20.0)
         assert np.array_equal(object_mask(d, 20.0, spots), (smooth >= 20.0) | hidden)
+        for _ in range(2):  # a patch's slice of the spots: the second time, as kept
+            here, cut = spots[12:40, 22:50], d[12:40, 22:50]
+            assert np.array_equal(object_mask(cut, 20.0, here), object_mask(cut, 20.0, +here))
     assert kept[22:28, 31:33].all() and not kept[22:28, 37:40].any()
     assert kept[47:53, 7:13].all() and kept.sum() < 200
     boxes = np.array([[20, 30, 10, 10], [45, 5, 10, 10], [0, 70, 5, 10]])

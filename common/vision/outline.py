@@ -199,13 +199,14 @@ def smoothed_mask(
     given."""
     mask = np.greater_equal(d, level, out=out).view(np.uint8)
     if spots is not None:
-        at = _spot_pixels(spots)
+        entry = _spot_entry(spots)
+        at = entry[1]
         here = d.ravel()[at]
         # a spot's pixel at least ``level`` brighter is in already: only one at least
         # ``level`` darker may be added, and only then is the spot level worked out
         dark = here <= -level
         if dark.any():
-            hidden = dark & (here + _spot_lift(spots, at) >= level)
+            hidden = dark & (here + _spot_lift(spots, entry) >= level)
             mask.ravel()[at[hidden]] = 1
     return mask
 
@@ -255,39 +256,54 @@ _SMOOTH = cv2.getGaussianKernel(round(8 * SMOOTH_PX + 1) | 1, SMOOTH_PX, cv2.CV_
 
 
 #: The spots' pixels (:func:`_spot_pixels`) and their :func:`_spot_lift` (None until
-#: asked for) of the last few whole spot images (by identity; they are read-only).
-_LIFTS: dict[int, list] = {}
+#: asked for) of the last few spot images kept (:func:`_spot_key`), with the whole image
+#: they belong to.
+_LIFTS: dict[tuple, list] = {}
+_LIFTS_KEPT = 16
 
 
-def _spot_pixels(spots: NDArray[np.uint8]) -> NDArray[np.intp]:
-    """The flat indices of the spots' pixels; a whole image of :func:`background_spots`'s
-    are worked out once (every frame's mask uses them), a patch's slice's each time."""
-    hit = _LIFTS.get(id(spots))
-    if hit is not None and hit[0] is spots:
-        return hit[1]
-    at = np.flatnonzero(spots)
+def _spot_key(spots: NDArray[np.uint8]) -> tuple[NDArray[np.uint8], tuple] | None:
+    """The whole image a spot image's numbers are kept under, and their key: a whole
+    read-only image of :func:`background_spots` by its identity (every frame's mask uses
+    it), a patch's slice of one by the whole's identity and the slice's place in it (a
+    blob that stays put is cut at the same place frame after frame); None: not kept."""
     if not spots.flags.writeable and spots.base is None:
-        while len(_LIFTS) >= 4:
-            _LIFTS.pop(next(iter(_LIFTS)))
-        _LIFTS[id(spots)] = [spots, at, None]
-    return at
+        return spots, (id(spots),)
+    whole = spots.base
+    if not isinstance(whole, np.ndarray) or whole.flags.writeable or whole.base is not None:
+        return None
+    start = spots.__array_interface__["data"][0] - whole.__array_interface__["data"][0]
+    return whole, (id(whole), start, spots.shape)
 
 
-def _spot_lift(spots: NDArray[np.uint8], at: NDArray[np.intp]) -> NDArray[np.float32]:
-    """The smoothed spot level at the spots' pixels ``at`` (:func:`_spot_pixels`), as
-    :func:`object_mask` smooths D: a whole image's worked out once, a patch's slice's
-    each time (smoothed within the slice, as the patch's D is)."""
-    hit = _LIFTS.get(id(spots))
-    kept = hit is not None and hit[0] is spots
-    if kept and hit[2] is not None:
-        return hit[2]
-    if not at.size:
-        lift = np.zeros(0, dtype=np.float32)
-    else:
-        lift = cv2.GaussianBlur(spots.astype(np.float32), (0, 0), SMOOTH_PX).ravel()[at]
-    if kept:
-        hit[2] = lift
-    return lift
+def _spot_entry(spots: NDArray[np.uint8]) -> list:
+    """[whole image, the spots' flat indices, their level or None] of a spot image, kept
+    where :func:`_spot_key` says."""
+    kept = _spot_key(spots)
+    if kept is not None:
+        hit = _LIFTS.get(kept[1])
+        if hit is not None and hit[0] is kept[0]:
+            return hit
+    entry = [None if kept is None else kept[0], np.flatnonzero(spots), None]
+    if kept is not None:
+        while len(_LIFTS) >= _LIFTS_KEPT:
+            _LIFTS.pop(next(iter(_LIFTS)), None)
+        _LIFTS[kept[1]] = entry
+    return entry
+
+
+def _spot_lift(spots: NDArray[np.uint8], entry: list) -> NDArray[np.float32]:
+    """The smoothed spot level at the spots' pixels (``entry``, :func:`_spot_entry`), as
+    :func:`object_mask` smooths D (a patch's smoothed within the slice, as its D is),
+    worked out once per entry."""
+    if entry[2] is None:
+        at = entry[1]
+        if not at.size:
+            entry[2] = np.zeros(0, dtype=np.float32)
+        else:
+            smooth = cv2.GaussianBlur(spots.astype(np.float32), (0, 0), SMOOTH_PX)
+            entry[2] = smooth.ravel()[at]
+    return entry[2]
 
 
 def patch_outline(
