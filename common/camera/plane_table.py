@@ -59,12 +59,6 @@ def warm_rays(camera: CameraModel) -> None:
         frame_rays(camera)
 
 
-#: :meth:`PlaneTable.at_pixels`: the half-pixel points' two neighbours (rows of its
-#: pixel, below, above, right, left), each read as the first plus half the difference.
-_HALF_FROM = np.array([0, 2, 0, 4])
-_HALF_TO = np.array([1, 0, 3, 0])
-
-
 class PlaneTable:
     """The plane point of every pixel centre of ``camera``'s frame on z = ``z_cm``, as
     x + iy (cm; NaN where the pixel does not see the plane)."""
@@ -78,6 +72,9 @@ class PlaneTable:
             b = back_project(r.astype(np.float64), c.astype(np.float64), camera, z_cm)
         xy = np.asarray(b.x_cm) + 1j * np.asarray(b.y_cm)
         self._xy = np.where(np.asarray(b.valid), xy, np.nan).ravel()
+        w = self.cols
+        #: :meth:`at_pixels`' flat offsets: each half-pixel point's two neighbours
+        self._around = np.array([0, -w, 0, -1, w, 0, 1, 0])[:, None]
 
     def __call__(
         self, row: ArrayLike, col: ArrayLike
@@ -120,9 +117,10 @@ class PlaneTable:
         w = self.cols
         i = np.asarray(row, dtype=np.intp) * w + np.asarray(col, dtype=np.intp)
         ok = self._whole_ok[i]
-        # the pixel, below, above, right, left (a pixel not read: one inside the frame)
-        near = self._xy[np.where(ok, i, w + 1) + np.array([0, w, -w, 1, -1])[:, None]]
-        lo, hi = near[_HALF_FROM], near[_HALF_TO]
+        # the pixel, above, the pixel, left, then below, the pixel, right, the pixel (a
+        # pixel not read: one inside the frame)
+        near = self._xy[np.where(ok, i, w + 1) + self._around]
+        lo, hi = near[:4], near[4:]
         half = lo + (hi - lo) * 0.5  # row + ½, row − ½, col + ½, col − ½
         d_row, d_col = half[0] - half[1], half[2] - half[3]
         here = near[0]

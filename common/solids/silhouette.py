@@ -178,10 +178,10 @@ def signed_distance_few(
     arithmetic —, then each point's distances to their lines in one matrix product
     (these may differ from :func:`signed_distance`'s in a float's last bits). Result
     (B, N)."""
-    fx, fy = (float(v) for v in view.foot)
-    big = view.height_cm
     if shape == "cylinder":
         return _capsules_few(theta, q1, view)
+    fx, fy = (float(v) for v in view.foot)
+    big = view.height_cm
     lines: list[list[tuple[float, float, float]]] = []  # per silhouette: (nx, ny, −c)
     for row in theta:
         s = big / (big - min(row[-1], MAX_HEIGHT_SHARE * big))  # top_scale
