@@ -28,6 +28,7 @@ front of another): the union of convex silhouettes, cut where its outline turns 
 from __future__ import annotations
 
 import functools
+import threading
 from collections.abc import Sequence
 from typing import NamedTuple, overload
 
@@ -255,11 +256,13 @@ class SmoothedDiff:
 _SMOOTH = cv2.getGaussianKernel(round(8 * SMOOTH_PX + 1) | 1, SMOOTH_PX, cv2.CV_32F)
 
 
-#: The spots' pixels (:func:`_spot_pixels`) and their :func:`_spot_lift` (None until
-#: asked for) of the last few spot images kept (:func:`_spot_key`), with the whole image
-#: they belong to.
+#: The spots' pixels and their :func:`_spot_lift` (None until asked for) of the last few
+#: spot images kept (:func:`_spot_key`), with the whole image they belong to: whole
+#: images and patches' slices apart (the patches of moving blobs come and go, the whole
+#: image stays).
 _LIFTS: dict[tuple, list] = {}
-_LIFTS_KEPT = 16
+_PATCH_LIFTS: dict[tuple, list] = {}
+_LIFTS_LOCK = threading.Lock()
 
 
 def _spot_key(spots: NDArray[np.uint8]) -> tuple[NDArray[np.uint8], tuple] | None:
@@ -280,15 +283,17 @@ def _spot_entry(spots: NDArray[np.uint8]) -> list:
     """[whole image, the spots' flat indices, their level or None] of a spot image, kept
     where :func:`_spot_key` says."""
     kept = _spot_key(spots)
+    cache, most = (_LIFTS, 4) if kept is None or len(kept[1]) == 1 else (_PATCH_LIFTS, 8)
     if kept is not None:
-        hit = _LIFTS.get(kept[1])
+        hit = cache.get(kept[1])
         if hit is not None and hit[0] is kept[0]:
             return hit
     entry = [None if kept is None else kept[0], np.flatnonzero(spots), None]
     if kept is not None:
-        while len(_LIFTS) >= _LIFTS_KEPT:
-            _LIFTS.pop(next(iter(_LIFTS)), None)
-        _LIFTS[kept[1]] = entry
+        with _LIFTS_LOCK:  # the frames' thread and the fitting thread
+            while len(cache) >= most:
+                cache.pop(next(iter(cache)))
+            cache[kept[1]] = entry
     return entry
 
 
