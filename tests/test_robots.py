@@ -198,6 +198,13 @@ def test_plane_tables_give_the_pixel_jacobian_of_a_pinhole_camera() -> None:
         for a, b in zip(got[:-1], exact[:-1], strict=True):
             assert np.abs(a - b).max() < 1e-3
         assert np.abs(got.area_cm2 / exact.area_cm2 - 1.0).max() < 1e-3
+    # at whole pixels (an outline's chain) read off neighbouring pixels: the same numbers
+    rows = np.concatenate([rng.integers(0, cam.rows, 500), [0, cam.rows - 1, 0, cam.rows - 1]])
+    cols = np.concatenate([rng.integers(0, cam.cols, 500), [0, 0, cam.cols - 1, cam.cols - 1]])
+    for z in (0.0, 7.0):
+        whole, read = tables.pixel_jacobian(rows, cols, cam, z), tables.jacobian(rows, cols, cam, z)
+        assert np.array_equal(whole.valid, read.valid)
+        assert all(np.array_equal(a, b) for a, b in zip(whole[:-1], read[:-1], strict=True))
     assert tables.table(cam, 7.0) is tables.table(cam, 7.0)  # made once per plane
     other = msgspec.structs.replace(cam, fx=cam.fx * 1.01)
     assert tables.table(other, 7.0) is not tables.table(cam, 7.0)  # a new calibration

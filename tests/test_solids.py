@@ -1,7 +1,8 @@
 """Solids seen by one camera (common/solids, vision/outline): the silhouette's closed form
 against OpenCV's convex hull, the fit recovering a known solid from its outline, the
-sub-pixel edges of a blurred step, the per-frame footprint from a centroid, and the
-height options of ``ovis detect``."""
+sub-pixel edges of a blurred step, the per-frame footprint from a centroid, a blob's
+solids followed along their union's outline and an outline's pixel chain on the floor,
+and the height options of ``ovis detect``."""
 
 from __future__ import annotations
 
@@ -11,16 +12,26 @@ import cv2
 import numpy as np
 import pytest
 
+from ovis.common.camera.plane_table import PlaneTables
 from ovis.common.config import PoseConfig, RobotSpec, load_config
 from ovis.common.physical.rigs import rig
-from ovis.common.solids.fit import MAX_OFF_SHARE, FloorOutline, fit_piece
+from ovis.common.solids.fit import (
+    LOSS_PX,
+    MAX_OFF_SHARE,
+    FloorOutline,
+    Solid,
+    fit_piece,
+    follow_union,
+)
 from ovis.common.solids.footprint import centroid_footprints
+from ovis.common.solids.outline_floor import chain_floor, floor_outline
 from ovis.common.solids.shapes import SHAPES, equal_area_radius, footprint_polygon
 from ovis.common.solids.silhouette import (
     Viewpoint,
     hull_edges,
     image_moments,
     signed_distance,
+    signed_distance_few,
     top_scale,
 )
 from ovis.common.vision.outline import (
@@ -28,6 +39,7 @@ from ovis.common.vision.outline import (
     SmoothedDiff,
     background_spots,
     blob_patches,
+    chain_normals,
     object_mask,
     subpixel_edges,
 )
@@ -75,6 +87,12 @@ def test_the_silhouette_is_the_hull_of_the_footprint_and_the_top_seen_from_the_c
         a, b = hull_edges(footprint_polygon(shape, theta), top_scale(theta[-1], VIEW), VIEW)
         shoelace = 0.5 * np.sum(a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1])
         assert shoelace == pytest.approx(cv2.contourArea(hull.astype(np.float32)), rel=1e-4)
+        # a frame's follow: a few silhouettes' edges in plain Python, the same distances
+        few = np.repeat(theta[None], 3, axis=0)
+        few[1:, 0:2] += rng.uniform(-1, 1, (2, 2))
+        q1 = np.column_stack([q, np.ones(len(q))])
+        got = signed_distance_few(shape, few.tolist(), q1, VIEW)
+        assert np.abs(got - signed_distance(shape, few, q, VIEW)).max() < 1e-9
 
 
 def test_image_moments_are_the_projected_silhouettes_area_and_centroid() -> None:
@@ -197,6 +215,79 @@ def test_a_footprint_follows_its_blobs_centroid() -> None:
     assert np.abs(found[:, 0:2] - truth[:, 0:2]).max() < 1e-3
 
 
+def test_a_blobs_solids_follow_its_outline_as_one_gauss_newton_step_puts_them() -> None:
+    """A box and a cylinder side by side, their union's outline seen, both moved off it:
+    :func:`follow_union`'s steps bring them back, each step the Gauss–Newton step of
+    the union's residuals (differences of :func:`signed_distance`, LAPACK's solve)."""
+    truth = [_theta("box", 60.0, 40.0, 8.0), _theta("cylinder", 68.0, 46.0, 15.0)]
+    points = []
+    for k, theta in enumerate(truth):
+        hull = _hull_polygon(("box", "cylinder")[k], theta, VIEW)
+        ring = np.vstack(
+            [
+                np.linspace(p, q, 40, endpoint=False)
+                for p, q in zip(hull, np.roll(hull, -1, 0), strict=True)
+            ]
+        )
+        other = truth[1 - k]
+        points.append(ring[signed_distance(("box", "cylinder")[1 - k], other, ring, VIEW) > 0])
+    q = np.vstack(points)
+    floor = FloorOutline(q, np.zeros_like(q), np.full(len(q), 3.0))
+    solids = [
+        Solid(shape, theta.copy(), np.zeros((0, 0)), 0.0, 0, np.zeros(0))
+        for shape, theta in zip(("box", "cylinder"), truth, strict=True)
+    ]
+    solids[0].theta[0:2] += [0.4, -0.3]
+    solids[1].theta[0:2] += [-0.2, 0.35]
+    offsets = np.zeros(2)
+    for _ in range(4):
+        own = []
+        for s in solids:  # here, moved in x, moved in y
+            moved = np.repeat(s.theta[None], 3, axis=0)
+            moved[1:, 0:2] += 1e-3 * np.eye(2)
+            own.append(3.0 * signed_distance(s.shape, moved, q, VIEW))
+        r = np.minimum(own[0][0], own[1][0])
+        jac = np.vstack([np.minimum(own[1 - k][0], own[k][1 + c]) for k in (0, 1) for c in (0, 1)])
+        jac = (jac - r) / 1e-3
+        w = 1.0 / np.sqrt(1.0 + (r / LOSS_PX) ** 2)
+        a = (jac * w) @ jac.T + 1e-9 * np.eye(4)
+        step = -np.linalg.solve(a, (jac * w) @ r)
+        centres = follow_union(solids, offsets, floor, VIEW)
+        expected = np.concatenate([s.theta[0:2] for s in solids]) + step
+        assert np.abs(centres.ravel() - expected).max() < 1e-9
+        solids = [
+            s._replace(theta=np.r_[c, s.theta[2:]]) for s, c in zip(solids, centres, strict=True)
+        ]
+    for s, t in zip(solids, truth, strict=True):
+        assert np.abs(s.theta[0:2] - t[0:2]).max() < 0.01
+
+
+def test_an_outlines_pixel_chain_is_read_off_the_floor_table_as_its_points_would_be() -> None:
+    """An outline's pixel chain on the floor (:func:`chain_floor`: the floor table read at
+    whole pixels) is :func:`floor_outline` of its points and normals; the floor normals
+    and pixels per cm are J⁻ᵀ·m normalised and 1 / |Jᵀ·n| of each point's Jacobian J."""
+    camera = rig("oblique", load_config())
+    image = np.zeros((camera.rows, camera.cols), np.uint8)
+    cv2.ellipse(image, (300, 200), (40, 25), 30.0, 0, 360, 255, -1)
+    image[0:30, 0:50] = 255  # one at the frame's corner: read by back-projection there
+    tables = PlaneTables()
+    for contour in cv2.findContours(image, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0]:
+        chain = contour[:, 0, :]
+        got = chain_floor(chain, camera, tables)
+        points, normals = chain_normals(chain)
+        want = floor_outline(points, normals, camera, tables)
+        assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=True))
+        j = tables.jacobian(points[:, 1], points[:, 0], camera, 0.0)
+        jac = np.array([[j.dx_dcol, j.dx_drow], [j.dy_dcol, j.dy_drow]]).transpose(2, 0, 1)
+        n = np.einsum("nji,nj->ni", np.linalg.inv(jac), normals)
+        n /= np.linalg.norm(n, axis=1)[:, None]
+        assert np.abs(got.normals - n).max() < 1e-9
+        across = np.linalg.norm(np.einsum("nji,nj->ni", jac, n), axis=1)
+        assert np.abs(got.px_per_cm * across - 1.0).max() < 1e-9
+        outward = np.sum((got.points - got.points.mean(0)) * got.normals, axis=1)
+        assert np.mean(outward > 0) > 0.9
+
+
 def test_heights_declared_on_the_command_line() -> None:
     pose = PoseConfig(
         robots=[
@@ -254,6 +345,14 @@ def test_a_floor_marks_mask_is_the_same_from_its_kept_level_and_cut_patches_are_
     for image in (frame, rough, frame):
         d = np.subtract(image, floor, dtype=np.int16)
         assert np.array_equal(frames.mask(image, floor, 20.0, spots), object_mask(d, 20.0, spots))
+    for d in (diff, np.subtract(rough, floor, dtype=np.int16)):  # the spot rule, in full
+        smooth = cv2.GaussianBlur(d.astype(np.float32), (0, 0), 0.8)
+        lift = cv2.GaussianBlur(spots.astype(np.float32), (0, 0), 0.8)
+        hidden = (spots > 0) & (np.abs(smooth) >= 20.0) & (smooth + lift >= 20.0)
+        assert np.array_equal(object_mask(d, 20.0, spots), (smooth >= 20.0) | hidden)
+        for _ in range(2):  # a patch's slice of the spots: the second time, as kept
+            here, cut = spots[12:40, 22:50], d[12:40, 22:50]
+            assert np.array_equal(object_mask(cut, 20.0, here), object_mask(cut, 20.0, +here))
     assert kept[22:28, 31:33].all() and not kept[22:28, 37:40].any()
     assert kept[47:53, 7:13].all() and kept.sum() < 200
     boxes = np.array([[20, 30, 10, 10], [45, 5, 10, 10], [0, 70, 5, 10]])

@@ -11,6 +11,7 @@ perspective division and a radial polynomial), so over one pixel it is all but l
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 from collections.abc import Iterable
@@ -71,6 +72,9 @@ class PlaneTable:
             b = back_project(r.astype(np.float64), c.astype(np.float64), camera, z_cm)
         xy = np.asarray(b.x_cm) + 1j * np.asarray(b.y_cm)
         self._xy = np.where(np.asarray(b.valid), xy, np.nan).ravel()
+        w = self.cols
+        #: :meth:`at_pixels`' flat offsets: each half-pixel point's two neighbours
+        self._around = np.array([0, -w, 0, -1, w, 0, 1, 0])[:, None]
 
     def __call__(
         self, row: ArrayLike, col: ArrayLike
@@ -89,6 +93,40 @@ class PlaneTable:
         xy = top + (lower_a + (lower_b - lower_a) * fc - top) * fr
         inside = (fr >= 0.0) & (fr <= 1.0) & (fc >= 0.0) & (fc <= 1.0)
         return xy, inside & np.isfinite(xy)
+
+    @functools.cached_property
+    def _whole_ok(self) -> NDArray[np.bool_]:
+        """Per pixel (flat), whether :meth:`at_pixels` reads it: a pixel at least 1 px
+        inside the frame whose three 2 × 2 blocks of pixels the five points fall in (its
+        own, the one above, the one to its left) all see the plane."""
+        seen = np.isfinite(self._xy).reshape(self.rows, self.cols)
+        block = seen[:-1, :-1] & seen[:-1, 1:] & seen[1:, :-1] & seen[1:, 1:]
+        ok = np.zeros_like(seen)
+        ok[1:-1, 1:-1] = block[1:, 1:] & block[:-1, 1:] & block[1:, :-1]
+        return ok.ravel()
+
+    def at_pixels(self, row: NDArray[np.integer], col: NDArray[np.integer]) -> PixelJacobian:
+        """The :class:`~ovis.common.camera.paper_model.PixelJacobian` of whole pixels of
+        the frame from this table, as :func:`~ovis.common.camera.paper_model.jacobian_of`
+        makes it from :meth:`__call__` at their five points (the same numbers), valid
+        where :attr:`_whole_ok` (elsewhere its numbers mean nothing). At a whole pixel
+        each of the five points lies on a pixel centre or halfway between two, so the
+        bilinear reading is the table's value there or the mean of two neighbours'
+        (worked out as :meth:`__call__` does, the nearer-to-the-origin one plus half
+        the difference): a few gathers instead of the weights and corners of each."""
+        w = self.cols
+        i = np.asarray(row, dtype=np.intp) * w + np.asarray(col, dtype=np.intp)
+        ok = self._whole_ok[i]
+        # the pixel, above, the pixel, left, then below, the pixel, right, the pixel (a
+        # pixel not read: one inside the frame)
+        near = self._xy[np.where(ok, i, w + 1) + self._around]
+        lo, hi = near[:4], near[4:]
+        half = lo + (hi - lo) * 0.5  # row + ½, row − ½, col + ½, col − ½
+        d_row, d_col = half[0] - half[1], half[2] - half[3]
+        here = near[0]
+        return PixelJacobian(
+            here.real, here.imag, d_row.real, d_row.imag, d_col.real, d_col.imag, ok
+        )
 
     def points(self, rc: list[list[float]]) -> list[complex]:
         """:meth:`__call__` at a few points (row, col), in plain Python (NaN where not
@@ -141,6 +179,23 @@ class PlaneTables:
                     made = self._pool.submit(PlaneTable, camera, z_cm)
                 self._tables[z_cm] = made
         return made.result() if made.done() else None
+
+    def pixel_jacobian(
+        self, row: NDArray[np.integer], col: NDArray[np.integer], camera: CameraModel, z_cm: float
+    ) -> PixelJacobian:
+        """:meth:`jacobian` at whole pixels (an outline's pixel chain), the same numbers:
+        read by :meth:`PlaneTable.at_pixels` where it can, by :meth:`jacobian` elsewhere
+        (the frame's edge, pixels not seeing the plane) and while the table is made."""
+        table = self.table(camera, z_cm)
+        if table is None:
+            return self.jacobian(row, col, camera, z_cm)
+        j = table.at_pixels(row, col)
+        if not j.valid.all():
+            rest = ~j.valid
+            theirs = self.jacobian(row[rest], col[rest], camera, z_cm)
+            for mine, other in zip(j, theirs, strict=True):
+                mine[rest] = other
+        return j
 
     def prepare(
         self, camera: CameraModel, heights_cm: Iterable[float], *, wait: bool = False

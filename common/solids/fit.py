@@ -30,6 +30,7 @@ along the stretch of its line of sight they leave it, its covariance spread over
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
@@ -49,6 +50,7 @@ from ovis.common.solids.silhouette import (
     MAX_HEIGHT_SHARE,
     Viewpoint,
     signed_distance,
+    signed_distance_few,
     top_distance,
 )
 from ovis.common.vision.outline import PROFILE_REACH_PX
@@ -880,6 +882,20 @@ def union_offsets(solids: Sequence[Solid], floor: FloorOutline, view: Viewpoint)
     )
 
 
+#: :func:`follow_union`'s difference step (cm) and a solid's three centres: where it
+#: is, moved in x, moved in y.
+_FOLLOW_STEP = 1e-3
+_FOLLOW_MOVES = ((0.0, 0.0), (_FOLLOW_STEP, 0.0), (0.0, _FOLLOW_STEP))
+
+
+@functools.lru_cache(maxsize=8)
+def _ridge(p: int) -> FloatArray:
+    """What :func:`follow_union` adds to its normal matrix's diagonal (made once)."""
+    out = 1e-9 * np.eye(p)
+    out.flags.writeable = False
+    return out
+
+
 def follow_union(
     solids: Sequence[Solid],
     offsets: FloatArray,
@@ -893,38 +909,65 @@ def follow_union(
     as they are: each solid's are worked out where it is and moved one step in x and
     in y, and the union's residuals at every step made from them."""
     start = np.concatenate([s.theta[0:2] for s in solids])
-    p = start.size
-    step = 1e-3
-    moves = step * np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    own: list[FloatArray] = [np.zeros(0)] * len(solids)  # each (3, N): here, moved in x, y
+    p, k, n = start.size, len(solids), len(floor.points)
+    own = np.empty((k, 3, n))  # each solid's residuals here, moved in x, moved in y
+    q1 = np.ones((n, 3))  # the outline's points as (x, y, 1)
+    q1[:, :2] = floor.points
     for shape in dict.fromkeys(s.shape for s in solids):  # the solids of a shape at once
-        ks = [k for k, s in enumerate(solids) if s.shape == shape]
-        theta = np.repeat(np.array([solids[k].theta for k in ks]), 3, axis=0)
-        theta[:, 0:2] = (start.reshape(-1, 2)[ks][:, None, :] + moves).reshape(-1, 2)
-        d = floor.px_per_cm * signed_distance(shape, theta, floor.points, view)
-        for n, k in enumerate(ks):
-            own[k] = d[3 * n : 3 * n + 3] - offsets[k]
-    here = np.stack([d[0] for d in own])  # (k, N)
-    r = here.min(0)
-    moved = np.empty((p, r.size))
-    for k, d in enumerate(own):
-        rest = np.delete(here, k, axis=0)
-        others = rest.min(0) if len(rest) else None  # the union of the other solids
-        for c in (0, 1):
-            if others is None:
-                moved[2 * k + c] = d[1 + c]
-            else:
-                np.minimum(others, d[1 + c], out=moved[2 * k + c])
-    jac = (moved - r) / step  # (p, N)
+        ks = [j for j, s in enumerate(solids) if s.shape == shape]
+        rows = []
+        for j in ks:
+            theta = solids[j].theta.tolist()
+            for mx, my in _FOLLOW_MOVES:
+                rows.append([theta[0] + mx, theta[1] + my, *theta[2:]])
+        d = signed_distance_few(shape, rows, q1, view)
+        d *= floor.px_per_cm
+        for i, j in enumerate(ks):
+            np.subtract(d[3 * i : 3 * i + 3], offsets[j], out=own[j])
+    m = np.empty((p + 1, n))  # the Jacobian's rows (p, N), then the residuals
+    here = own[:, 0]
+    r = here.min(0, out=m[p])
+    jac = m[:p]
+    if k == 1:
+        jac[:] = own[0, 1:3]
+    else:  # each solid moved, against the union of the others where they are
+        others = (
+            here[::-1] if k == 2 else np.stack([np.delete(here, j, 0).min(0) for j in range(k)])
+        )
+        np.minimum(others[:, None, :], own[:, 1:3], out=jac.reshape(k, 2, n))
+    jac -= r
+    jac /= _FOLLOW_STEP
     weight = 1.0 / np.sqrt(1.0 + (r / LOSS_PX) ** 2)
-    weighted = jac * weight
-    a = weighted @ jac.T
-    g = weighted @ r
-    try:
-        delta = -np.linalg.solve(a + 1e-9 * np.eye(p), g)
-    except np.linalg.LinAlgError:
+    normal = ((jac * weight) @ m.T).tolist()  # JᵀWJ (p, p) beside JᵀWr
+    for i in range(p):
+        normal[i][i] += 1e-9
+    step = _solve_small(normal)
+    if step is None:
         return start.reshape(-1, 2)
-    return (start + delta).reshape(-1, 2)
+    return (start - step).reshape(-1, 2)
+
+
+def _solve_small(rows: list[list[float]]) -> FloatArray | None:
+    """x with A·x = b, from the rows of [A | b] (a few unknowns), by Gaussian elimination
+    with partial pivoting in plain Python (for four unknowns a LAPACK call costs more
+    than the arithmetic); None where A is singular. ``rows`` are overwritten."""
+    n = len(rows)
+    for c in range(n):
+        best = max(range(c, n), key=lambda i: abs(rows[i][c]))
+        if rows[best][c] == 0.0:
+            return None
+        rows[c], rows[best] = rows[best], rows[c]
+        top = rows[c]
+        for i in range(c + 1, n):
+            f = rows[i][c] / top[c]
+            row = rows[i]
+            for j in range(c, n + 1):
+                row[j] -= f * top[j]
+    x = [0.0] * n
+    for i in reversed(range(n)):
+        row = rows[i]
+        x[i] = (row[n] - sum(row[j] * x[j] for j in range(i + 1, n))) / row[i]
+    return np.array(x)
 
 
 def _with_tops(

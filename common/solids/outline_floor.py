@@ -9,12 +9,14 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from ovis.common.camera.paper_model import PixelJacobian
 from ovis.common.camera.plane_table import PlaneTables
 from ovis.common.camera.projection import pixel_jacobian
 from ovis.common.config import CameraModel
 from ovis.common.solids.fit import FloorOutline
+from ovis.common.vision.outline import chain_normals
 
-__all__ = ["floor_outline"]
+__all__ = ["chain_floor", "floor_outline"]
 
 FloatArray = NDArray[np.float64]
 
@@ -32,16 +34,41 @@ def floor_outline(
         j = tables.jacobian(edges[:, 1], edges[:, 0], camera, 0.0)
     else:
         j = pixel_jacobian(edges[:, 1], edges[:, 0], camera, 0.0)
-    jac = np.empty((len(edges), 2, 2))  # (x, y) by (col, row)
-    jac[:, 0, 0], jac[:, 0, 1] = j.dx_dcol, j.dx_drow
-    jac[:, 1, 0], jac[:, 1, 1] = j.dy_dcol, j.dy_drow
-    det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
+    return _carried(j, normals)
+
+
+def chain_floor(
+    chain: NDArray[np.integer], camera: CameraModel, tables: PlaneTables | None = None
+) -> FloorOutline:
+    """An outline's pixel chain (n, 2) frame (col, row) itself on the floor, with its
+    normals (:func:`~ovis.common.vision.outline.chain_normals`): :func:`floor_outline`
+    of its points, the floor table read at whole pixels
+    (:meth:`~ovis.common.camera.plane_table.PlaneTables.pixel_jacobian`)."""
+    points, normals = chain_normals(chain)
+    if tables is not None:
+        j = tables.pixel_jacobian(chain[:, 1], chain[:, 0], camera, 0.0)
+    else:
+        j = pixel_jacobian(points[:, 1], points[:, 0], camera, 0.0)
+    return _carried(j, normals)
+
+
+def _carried(j: PixelJacobian, normals: FloatArray) -> FloorOutline:
+    """Points and image normals on the floor by their pixel → floor maps ``j``: with
+    J = [[∂x/∂col, ∂x/∂row], [∂y/∂col, ∂y/∂row]], the floor normal is J⁻ᵀ·m (the
+    adjugate's transpose times m over det J, normalised) and ``|Jᵀ·n|`` is
+    ``|m| · |det J| / |adj(J)ᵀ·m|``: closed forms of a 2 × 2 matrix's inverse (a batch
+    of tiny LAPACK solves costs far more)."""
+    a, b, c, d = j.dx_dcol, j.dx_drow, j.dy_dcol, j.dy_drow
+    m0, m1 = normals[:, 0], normals[:, 1]
+    det = a * d - b * c
+    size = np.hypot(m0, m1)
+    x, y = j.x_cm, j.y_cm
     # a point with no image normal (a flat profile) has no direction to carry across
-    ok = j.valid & (np.abs(det) > 1e-12) & (np.hypot(normals[:, 0], normals[:, 1]) > 1e-12)
-    jac, normals = jac[ok], normals[ok]
-    inv_t = np.linalg.inv(jac).transpose(0, 2, 1)
-    n = np.einsum("nij,nj->ni", inv_t, normals)
-    n /= np.linalg.norm(n, axis=1)[:, None]
-    across = np.linalg.norm(np.einsum("nji,nj->ni", jac, n), axis=1)
-    points = np.column_stack([j.x_cm[ok], j.y_cm[ok]])
-    return FloorOutline(points, n, 1.0 / across)
+    ok = j.valid & (np.abs(det) > 1e-12) & (size > 1e-12)
+    if not ok.all():
+        a, b, c, d, det, m0, m1, size, x, y = (v[ok] for v in (a, b, c, d, det, m0, m1, size, x, y))
+    nx, ny = d * m0 - c * m1, a * m1 - b * m0  # adj(J)ᵀ·m
+    length = np.hypot(nx, ny)
+    along = np.copysign(1.0, det) / length
+    normal = np.column_stack([nx * along, ny * along])
+    return FloorOutline(np.column_stack([x, y]), normal, length / (size * np.abs(det)))

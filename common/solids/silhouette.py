@@ -20,6 +20,8 @@ distance, :func:`capsule_distance`).
 from __future__ import annotations
 
 import functools
+import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -27,7 +29,7 @@ from numpy.typing import NDArray
 
 from ovis.common.camera.projection import camera_centre_cm, project
 from ovis.common.config import CameraModel
-from ovis.common.solids.shapes import footprint_polygon
+from ovis.common.solids.shapes import footprint_polygon, shape_sides
 
 __all__ = [
     "MAX_HEIGHT_SHARE",
@@ -36,6 +38,7 @@ __all__ = [
     "hull_edges",
     "image_moments",
     "signed_distance",
+    "signed_distance_few",
     "top_distance",
     "top_near_edges",
     "top_scale",
@@ -161,6 +164,106 @@ def signed_distance(shape: str, theta: FloatArray, q: FloatArray, view: Viewpoin
         return capsule_distance(q, c1, theta[..., 2], c2, scale * theta[..., 2])
     a, b = hull_edges(footprint_polygon(shape, theta), scale, view)
     return _segments_distance(q, a, b)
+
+
+def signed_distance_few(
+    shape: str, theta: Sequence[Sequence[float]], q1: FloatArray, view: Viewpoint
+) -> FloatArray:
+    """:func:`signed_distance` of a few parameter vectors ``theta`` (B, P), plain lists
+    of floats (a frame's follow of a blob's solids), at floor points ``q1`` (N, 3)
+    given as (x, y, 1). The silhouettes' edges (or a cylinder's axis) are worked out in
+    plain Python — the same operations in the same order as :func:`footprint_polygon`,
+    :func:`hull_edges`, :func:`_segments_distance` and :func:`capsule_distance`: for a
+    few footprints a hundred array calls on a dozen corners cost more than the
+    arithmetic —, then each point's distances to their lines in one matrix product
+    (these may differ from :func:`signed_distance`'s in a float's last bits). Result
+    (B, N)."""
+    if shape == "cylinder":
+        return _capsules_few(theta, q1, view)
+    fx, fy = (float(v) for v in view.foot)
+    big = view.height_cm
+    lines: list[list[tuple[float, float, float]]] = []  # per silhouette: (nx, ny, −c)
+    for row in theta:
+        s = big / (big - min(row[-1], MAX_HEIGHT_SHARE * big))  # top_scale
+        foot = _corners(shape, row)
+        top = [(fx + s * (x - fx), fy + s * (y - fy)) for x, y in foot]
+        k = len(foot)
+        near = []
+        for i in range(k):
+            (x0, y0), (x1, y1) = foot[i], foot[(i + 1) % k]
+            near.append((y1 - y0) * (fx - x0) - (x1 - x0) * (fy - y0) > 0)
+        edges = [
+            (foot[i], foot[(i + 1) % k]) if near[i] else (top[i], top[(i + 1) % k])
+            for i in range(k)
+        ]
+        for i in range(k):  # the radial edges: near → far (up) or far → near (down)
+            if near[i - 1] and not near[i]:
+                edges.append((foot[i], top[i]))
+            elif near[i] and not near[i - 1]:
+                edges.append((top[i], foot[i]))
+        mine = []
+        for (ax, ay), (bx, by) in edges:
+            ex, ey = bx - ax, by - ay
+            length = math.sqrt(ex * ex + ey * ey)
+            if length > 1e-12:  # an empty edge never counts
+                nx, ny = ey / length, -ex / length
+                mine.append((nx, ny, -(nx * ax + ny * ay)))
+        lines.append(mine)
+    m = max(len(mine) for mine in lines)  # each silhouette's lines, its first repeated
+    table = np.array([mine + mine[:1] * (m - len(mine)) for mine in lines]).reshape(-1, 3)
+    return (table @ q1.T).reshape(len(lines), m, -1).max(1)
+
+
+def _capsules_few(theta: Sequence[Sequence[float]], q1: FloatArray, view: Viewpoint) -> FloatArray:
+    """:func:`signed_distance_few` of cylinders (:func:`capsule_distance`; the axes'
+    lengths by ``np.hypot``, which ``math.hypot`` may differ from in the last bit)."""
+    fx, fy = (float(v) for v in view.foot)
+    big = view.height_cm
+    rows = []
+    for x, y, r, h in theta:
+        s = big / (big - min(h, MAX_HEIGHT_SHARE * big))  # top_scale
+        r2 = s * r
+        rows.append((x, y, r, r2, fx + s * (x - fx) - x, fy + s * (y - fy) - y))
+    length = np.hypot([row[4] for row in rows], [row[5] for row in rows]).tolist()
+    axes, cols = [], []
+    for (x, y, r1, r2, dx, dy), ell in zip(rows, length, strict=True):
+        if ell <= abs(r2 - r1):  # one disk holds the other: rare, left to the general case
+            return signed_distance("cylinder", np.array(theta), q1[:, :2], view)
+        safe = max(ell, 1e-12)
+        ux, uy = dx / safe, dy / safe
+        b = min(max((r1 - r2) / safe, -1.0), 1.0)
+        a = math.sqrt(1.0 - b * b)
+        axes.append((ux, uy, -(x * ux + y * uy)))  # along the axis from the near disk
+        axes.append((-uy, ux, x * uy - y * ux))  # across it
+        cols.append((b, -b, a, r1, r2, ell, a * ell))
+    along, across = (np.array(axes) @ q1.T).reshape(-1, 2, len(q1)).transpose(1, 0, 2)
+    across = np.abs(across)
+    c = np.array(cols).T[:, :, None]  # each (B, 1)
+    k = c[1] * across + c[2] * along
+    side = across * c[2] + along * c[0] - c[3]
+    near_end = np.hypot(across, along) - c[3]
+    far_end = np.hypot(across, along - c[5]) - c[4]
+    return np.where(k < 0.0, near_end, np.where(k > c[6], far_end, side))
+
+
+def _corners(shape: str, theta: Sequence[float]) -> list[tuple[float, float]]:
+    """:func:`~ovis.common.solids.shapes.footprint_polygon` of one parameter vector of a
+    polygon shape, in plain Python (the same operations in the same order)."""
+    x, y = theta[0], theta[1]
+    if shape == "box":
+        hl, hw, yaw = 0.5 * theta[2], 0.5 * theta[3], theta[4]
+        cu, su = math.cos(yaw), math.sin(yaw)
+        return [
+            (x + a * (hl * cu) + b * (hw * -su), y + a * (hl * su) + b * (hw * cu))
+            for a, b in _BOX_SIGNS
+        ]
+    n = shape_sides(shape)
+    r, yaw = theta[2], theta[3]
+    turns = [yaw + 2.0 * math.pi * j / n for j in range(n)]
+    return [(x + math.cos(t) * r, y + math.sin(t) * r) for t in turns]
+
+
+_BOX_SIGNS = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))
 
 
 def top_distance(shape: str, theta: FloatArray, q: FloatArray, view: Viewpoint) -> FloatArray:

@@ -28,6 +28,7 @@ front of another): the union of convex silhouettes, cut where its outline turns 
 from __future__ import annotations
 
 import functools
+import threading
 from collections.abc import Sequence
 from typing import NamedTuple, overload
 
@@ -199,10 +200,15 @@ def smoothed_mask(
     given."""
     mask = np.greater_equal(d, level, out=out).view(np.uint8)
     if spots is not None:
-        at, lift = _spot_lift(spots)
+        entry = _spot_entry(spots)
+        at = entry[1]
         here = d.ravel()[at]
-        hidden = (np.abs(here) >= level) & (here + lift >= level)
-        mask.ravel()[at[hidden]] = 1
+        # a spot's pixel at least ``level`` brighter is in already: only one at least
+        # ``level`` darker may be added, and only then is the spot level worked out
+        dark = here <= -level
+        if dark.any():
+            hidden = dark & (here + _spot_lift(spots, entry) >= level)
+            mask.ravel()[at[hidden]] = 1
     return mask
 
 
@@ -250,28 +256,59 @@ class SmoothedDiff:
 _SMOOTH = cv2.getGaussianKernel(round(8 * SMOOTH_PX + 1) | 1, SMOOTH_PX, cv2.CV_32F)
 
 
-#: :func:`_spot_lift` of the last few whole spot images (by identity; they are read-only).
-_LIFTS: dict[int, tuple[NDArray[np.uint8], NDArray[np.intp], NDArray[np.float32]]] = {}
+#: The spots' pixels and their :func:`_spot_lift` (None until asked for) of the last few
+#: spot images kept (:func:`_spot_key`), with the whole image they belong to: whole
+#: images and patches' slices apart (the patches of moving blobs come and go, the whole
+#: image stays).
+_LIFTS: dict[tuple, list] = {}
+_PATCH_LIFTS: dict[tuple, list] = {}
+_LIFTS_LOCK = threading.Lock()
 
 
-def _spot_lift(spots: NDArray[np.uint8]) -> tuple[NDArray[np.intp], NDArray[np.float32]]:
-    """The flat indices of the spots' pixels and the smoothed spot level there (as
-    :func:`object_mask` smooths D). A whole image of :func:`background_spots` is worked
-    out once (every frame's mask uses it); a patch's slice of it each time (smoothed
-    within the slice, as the patch's D is)."""
-    hit = _LIFTS.get(id(spots))
-    if hit is not None and hit[0] is spots:
-        return hit[1], hit[2]
-    at = np.flatnonzero(spots)
-    if not at.size:
-        lift = np.zeros(0, dtype=np.float32)
-    else:
-        lift = cv2.GaussianBlur(spots.astype(np.float32), (0, 0), SMOOTH_PX).ravel()[at]
+def _spot_key(spots: NDArray[np.uint8]) -> tuple[NDArray[np.uint8], tuple] | None:
+    """The whole image a spot image's numbers are kept under, and their key: a whole
+    read-only image of :func:`background_spots` by its identity (every frame's mask uses
+    it), a patch's slice of one by the whole's identity and the slice's place in it (a
+    blob that stays put is cut at the same place frame after frame); None: not kept."""
     if not spots.flags.writeable and spots.base is None:
-        while len(_LIFTS) >= 4:
-            _LIFTS.pop(next(iter(_LIFTS)))
-        _LIFTS[id(spots)] = (spots, at, lift)
-    return at, lift
+        return spots, (id(spots),)
+    whole = spots.base
+    if not isinstance(whole, np.ndarray) or whole.flags.writeable or whole.base is not None:
+        return None
+    start = spots.__array_interface__["data"][0] - whole.__array_interface__["data"][0]
+    return whole, (id(whole), start, spots.shape)
+
+
+def _spot_entry(spots: NDArray[np.uint8]) -> list:
+    """[whole image, the spots' flat indices, their level or None] of a spot image, kept
+    where :func:`_spot_key` says."""
+    kept = _spot_key(spots)
+    cache, most = (_LIFTS, 4) if kept is None or len(kept[1]) == 1 else (_PATCH_LIFTS, 8)
+    if kept is not None:
+        hit = cache.get(kept[1])
+        if hit is not None and hit[0] is kept[0]:
+            return hit
+    entry = [None if kept is None else kept[0], np.flatnonzero(spots), None]
+    if kept is not None:
+        with _LIFTS_LOCK:  # the frames' thread and the fitting thread
+            while len(cache) >= most:
+                cache.pop(next(iter(cache)))
+            cache[kept[1]] = entry
+    return entry
+
+
+def _spot_lift(spots: NDArray[np.uint8], entry: list) -> NDArray[np.float32]:
+    """The smoothed spot level at the spots' pixels (``entry``, :func:`_spot_entry`), as
+    :func:`object_mask` smooths D (a patch's smoothed within the slice, as its D is),
+    worked out once per entry."""
+    if entry[2] is None:
+        at = entry[1]
+        if not at.size:
+            entry[2] = np.zeros(0, dtype=np.float32)
+        else:
+            smooth = cv2.GaussianBlur(spots.astype(np.float32), (0, 0), SMOOTH_PX)
+            entry[2] = smooth.ravel()[at]
+    return entry[2]
 
 
 def patch_outline(
@@ -317,16 +354,15 @@ def patch_outline(
 
 def chain_normals(chain: NDArray[np.int32]) -> tuple[FloatArray, FloatArray]:
     """Chain points (col, row) as floats and their outward unit normals (from the
-    chain's direction over ±:data:`NORMAL_SPAN` points)."""
+    chain's direction over ±:data:`NORMAL_SPAN` points; its orientation from its signed
+    area, :func:`cv2.contourArea`: exact on whole pixels)."""
     p = chain.astype(np.float64)
-    at = np.arange(len(p))
-    k = NORMAL_SPAN
-    tangent = p[(at + k) % len(p)] - p[(at - k) % len(p)]
+    k = NORMAL_SPAN % len(p)
+    ring = np.concatenate([p[len(p) - k :], p, p[:k]])  # the chain, wrapped k each way
+    tangent = ring[2 * k :] - ring[: len(p)]
     tangent /= np.maximum(np.hypot(tangent[:, 0], tangent[:, 1]), 1e-9)[:, None]
-    ahead = p[(at + 1) % len(p)]
-    twice_area = np.sum(p[:, 0] * ahead[:, 1] - ahead[:, 0] * p[:, 1])
-    sign = 1.0 if twice_area > 0 else -1.0
-    return p, sign * np.stack([tangent[:, 1], -tangent[:, 0]], 1)
+    sign = 1.0 if cv2.contourArea(p.astype(np.float32), oriented=True) > 0 else -1.0
+    return p, tangent[:, ::-1] * np.array([sign, -sign])
 
 
 class _Steps(NamedTuple):

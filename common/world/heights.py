@@ -80,7 +80,7 @@ from ovis.common.solids.fit import (
     unplaced_covariance,
 )
 from ovis.common.solids.footprint import centroid_map
-from ovis.common.solids.outline_floor import floor_outline
+from ovis.common.solids.outline_floor import chain_floor, floor_outline
 from ovis.common.solids.shapes import equal_area_radius, size_and_yaw
 from ovis.common.solids.silhouette import Viewpoint, signed_distance, top_near_edges
 from ovis.common.vision.contrast import NEUTRAL
@@ -88,7 +88,6 @@ from ovis.common.vision.outline import (
     Outline,
     Patch,
     background_spots,
-    chain_normals,
     edges_along,
     patch_outline,
     split_outline,
@@ -640,8 +639,7 @@ class SolidTracker:
 
     def _chain_floor(self, outline: Outline) -> FloorOutline:
         """An outline's pixel chain itself on the floor (no sub-pixel edges)."""
-        points, normals = chain_normals(outline.chain)
-        return floor_outline(points, normals, self.camera, self.tables)
+        return chain_floor(outline.chain, self.camera, self.tables)
 
     def _new_tracked(self, solid: Solid, before: _Tracked | None) -> _Tracked:
         """A solid as fitted now, its height averaged with its earlier fits'."""
