@@ -54,21 +54,20 @@ def chain_floor(
 
 def _carried(j: PixelJacobian, normals: FloatArray) -> FloorOutline:
     """Points and image normals on the floor by their pixel → floor maps ``j``: with
-    J = [[∂x/∂col, ∂x/∂row], [∂y/∂col, ∂y/∂row]], the floor normal is J⁻ᵀ·m (the
-    adjugate's transpose times m over det J, normalised) and ``|Jᵀ·n|`` is
-    ``|m| · |det J| / |adj(J)ᵀ·m|``: closed forms of a 2 × 2 matrix's inverse (a batch
-    of tiny LAPACK solves costs far more)."""
-    a, b, c, d = j.dx_dcol, j.dx_drow, j.dy_dcol, j.dy_drow
-    m0, m1 = normals[:, 0], normals[:, 1]
-    det = a * d - b * c
-    size = np.hypot(m0, m1)
-    x, y = j.x_cm, j.y_cm
+    J = [[∂x/∂col, ∂x/∂row], [∂y/∂col, ∂y/∂row]], the floor normal is J⁻ᵀ·m (normalised)
+    and a pixel across the edge is ``|Jᵀ·n|`` cm. The inverse is LAPACK's, as the fits
+    were tuned with: a closed form differs in the last bits, and a fit's choices (a
+    shape, a cut) can turn on them."""
+    jac = np.empty((len(normals), 2, 2))  # (x, y) by (col, row)
+    jac[:, 0, 0], jac[:, 0, 1] = j.dx_dcol, j.dx_drow
+    jac[:, 1, 0], jac[:, 1, 1] = j.dy_dcol, j.dy_drow
+    det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
     # a point with no image normal (a flat profile) has no direction to carry across
-    ok = j.valid & (np.abs(det) > 1e-12) & (size > 1e-12)
-    if not ok.all():
-        a, b, c, d, det, m0, m1, size, x, y = (v[ok] for v in (a, b, c, d, det, m0, m1, size, x, y))
-    nx, ny = d * m0 - c * m1, a * m1 - b * m0  # adj(J)ᵀ·m
-    length = np.hypot(nx, ny)
-    along = np.copysign(1.0, det) / length
-    normal = np.column_stack([nx * along, ny * along])
-    return FloorOutline(np.column_stack([x, y]), normal, length / (size * np.abs(det)))
+    ok = j.valid & (np.abs(det) > 1e-12) & (np.hypot(normals[:, 0], normals[:, 1]) > 1e-12)
+    jac, normals = jac[ok], normals[ok]
+    inv_t = np.linalg.inv(jac).transpose(0, 2, 1)
+    n = np.einsum("nij,nj->ni", inv_t, normals)
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    across = np.linalg.norm(np.einsum("nji,nj->ni", jac, n), axis=1)
+    points = np.column_stack([j.x_cm[ok], j.y_cm[ok]])
+    return FloorOutline(points, n, 1.0 / across)
