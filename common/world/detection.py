@@ -431,6 +431,29 @@ class _MarkedFrame(NamedTuple):
                 vel[k] = robot.vx_cm_s, robot.vy_cm_s
 
 
+def _without_robots(found: SolidObjects, marked: _MarkedFrame) -> SolidObjects:
+    """``found`` less the marked robots' own solids: in each robot's blob, the solid
+    standing nearest its marker's pose within its radius (the others there are obstacles
+    its silhouette merged with); a blob still waiting for its fit is all the robot's
+    (which of its rows would be the robot cannot be told yet)."""
+    drop = np.zeros(found.blob.size, dtype=bool)
+    for robot, b in zip(marked.robots, marked.rep, strict=True):
+        rows = np.flatnonzero(found.blob == b) if b >= 0 else np.zeros(0, dtype=np.int64)
+        if not rows.size:
+            continue
+        if found.pending[rows].any():
+            drop[rows] = True
+            continue
+        d = np.hypot(found.xy[rows, 0] - robot.x_cm, found.xy[rows, 1] - robot.y_cm)
+        k = int(d.argmin())
+        if d[k] <= robot.radius_cm:
+            drop[rows[k]] = True
+    if not drop.any():
+        return found
+    keep = ~drop
+    return SolidObjects(*(column[keep] for column in found))
+
+
 def _then(first: NDArray, more: NDArray) -> NDArray:
     """``first``'s rows, then ``more``'s (most frames have none: ``first`` itself)."""
     return np.concatenate([first, more]) if len(more) else first
@@ -776,8 +799,11 @@ class Detector:
             return plane_maps(blobs.row, blobs.col, self.camera, planes, self.tables)[0]
 
         skip = marked.owner >= 0
-        found = self.solids.update(filled, patches, obstacle_plane, skip, fit_all=fit_all)
         reps = [k for k in marked.rep if k >= 0]
+        skip[reps] = False  # a robot's own blob is fitted too: an obstacle may share it
+        found = self.solids.update(filled, patches, obstacle_plane, skip, fit_all=fit_all)
+        if reps:
+            found = _without_robots(found, marked)
         blob = np.concatenate([found.blob, np.array(reps, dtype=np.int64)])
         rep = np.array(reps, dtype=np.int64)
         kept = self._kept_columns
