@@ -430,11 +430,13 @@ class SolidTracker:
 
     def _placed(self, solid: Solid) -> Solid:
         """``solid``, with :func:`~ovis.common.solids.fit.unplaced_covariance` where its
-        fit's covariance does not place it (not finite, not positive semi-definite as a
-        near-singular fit can leave it, or a σ of its footprint's or height's over the
-        camera's height: the outline pins it nowhere)."""
+        fit's covariance does not place it: a fit that does not explain its outline
+        (:attr:`~ovis.common.solids.fit.Solid.explains`: its covariance is that of a
+        model the frame contradicts), or one not finite, not positive semi-definite as a
+        near-singular fit can leave it, or with a σ of its footprint's or height's over
+        the camera's height (the outline pins it nowhere)."""
         c = solid.covariance
-        if c.size:
+        if c.size and solid.explains:
             pick = [0, 1, c.shape[0] - 1]
             block = c[np.ix_(pick, pick)]
             if np.isfinite(block).all():
