@@ -86,11 +86,16 @@ SMOOTH_PX = 0.8
 
 class Patch(NamedTuple):
     """``D`` (int16, frame − empty floor) of a blob's surroundings; its top-left pixel is
-    (``top``, ``left``) of the frame."""
+    (``top``, ``left``) of the frame. ``mask``: its object pixels cut from the whole
+    frame's mask (:class:`BlobPatches` given it), which :func:`patch_outline` then takes
+    instead of smoothing ``diff`` again: the same pixels farther than the smoothing's
+    reach from a cut edge (the patch's margin), up to the last bits of the floats; None:
+    worked out from ``diff``."""
 
     top: int
     left: int
     diff: NDArray[np.int16]
+    mask: NDArray[np.uint8] | None = None
 
 
 class Outline(NamedTuple):
@@ -127,7 +132,10 @@ def blob_patches(
 
 class BlobPatches(Sequence[Patch]):
     """:func:`blob_patches` cut when first asked for, one blob at a time: most frames of
-    a tracked scene need none (its solids are followed from their centroids)."""
+    a tracked scene need none (its solids are followed from their centroids). ``mask``:
+    the frame's :func:`object_mask` (the one its blobs come from, no region of interest
+    applied; a buffer the next frame may reuse: patches are cut within their frame),
+    cut with each patch (a copy, kept with it)."""
 
     def __init__(
         self,
@@ -135,8 +143,10 @@ class BlobPatches(Sequence[Patch]):
         background: NDArray[np.uint8],
         box: NDArray[np.int64],
         margin: int = PATCH_MARGIN_PX,
+        mask: NDArray[np.uint8] | None = None,
     ) -> None:
         self._gray, self._background, self._margin = gray, background, margin
+        self._mask = mask
         self._box = np.asarray(box, dtype=np.int64).reshape(-1, 4)
         self._cut: dict[int, Patch] = {}
 
@@ -153,7 +163,12 @@ class BlobPatches(Sequence[Patch]):
         k = range(len(self))[i]  # IndexError as a list's
         if k not in self._cut:
             box = self._box[k : k + 1].T
-            self._cut[k] = blob_patches(self._gray, self._background, *box, self._margin)[0]
+            cut = blob_patches(self._gray, self._background, *box, self._margin)[0]
+            if self._mask is not None:
+                rows, cols = cut.diff.shape
+                at = self._mask[cut.top : cut.top + rows, cut.left : cut.left + cols]
+                cut = cut._replace(mask=at.copy())
+            self._cut[k] = cut
         return self._cut[k]
 
 
@@ -321,12 +336,15 @@ def patch_outline(
     filled: the component nearest ``at`` (frame row, col; default the patch's
     centre); None when the patch has none. On the frame's bright floor spots
     (``spots``, :func:`background_spots`) an object hiding a spot may be darker than
-    the spot: there any difference from the floor image counts."""
-    rows, cols = patch.diff.shape
-    here = None
-    if spots is not None:
-        here = spots[patch.top : patch.top + rows, patch.left : patch.left + cols]
-    mask = object_mask(patch.diff, level, here)
+    the spot: there any difference from the floor image counts. The patch's ``mask``
+    when it has one (cut from the frame's, worked out at ``level`` with ``spots``)."""
+    mask = patch.mask
+    if mask is None:
+        rows, cols = patch.diff.shape
+        here = None
+        if spots is not None:
+            here = spots[patch.top : patch.top + rows, patch.left : patch.left + cols]
+        mask = object_mask(patch.diff, level, here)
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
         return None

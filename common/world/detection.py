@@ -623,7 +623,7 @@ class Detector:
         floor, top = maps if maps else (None, None)
         patches = None
         if self.solids is not None and gray is not None:
-            patches = self._patches(gray, blobs)
+            patches = self._patches(gray, blobs, None if self.image.roi else binary)
         markers = None
         if self.pose.robots and gray is not None and median3 is not None:
             at_blobs = (self.top_side_cm, top.area_cm2)
@@ -650,12 +650,16 @@ class Detector:
         self.solids.use_background(background)
         return solid_pixels(gray, background, self.image, self.solids.spots, self._smoothed)
 
-    def _patches(self, gray: NDArray[np.uint8], blobs: Blobs) -> BlobPatches:
-        """Each blob's patch of the frame less the empty floor (cut when asked for)."""
+    def _patches(
+        self, gray: NDArray[np.uint8], blobs: Blobs, mask: NDArray[np.uint8] | None
+    ) -> BlobPatches:
+        """Each blob's patch of the frame less the empty floor (cut when asked for), with
+        the frame's object mask cut with it (``mask``: :func:`solid_pixels`' without a
+        region of interest; its outline then needs no smoothing of its own)."""
         assert self.solids is not None and blobs.box is not None
         background = background_image(self.image, gray.shape)
         self.solids.use_background(background)
-        return BlobPatches(gray, background, blobs.box)
+        return BlobPatches(gray, background, blobs.box, mask=mask)
 
     def from_blobs(
         self,
@@ -776,8 +780,8 @@ class Detector:
         skip = marked.owner >= 0
         found = self.solids.update(filled, patches, obstacle_plane, skip, fit_all=fit_all)
         reps = [k for k in marked.rep if k >= 0]
-        blob = np.concatenate([found.blob, np.array(reps, dtype=np.int64)])
         rep = np.array(reps, dtype=np.int64)
+        blob = np.concatenate([found.blob, rep]) if reps else found.blob
         kept = self._kept_columns
         if kept is not None and kept.height is found.height and kept.pose is pose:
             cols = kept.columns  # the same solids as last frame: what they report is fixed
@@ -787,18 +791,19 @@ class Detector:
             # rows come with its blob)
             cacheable = not pose.robots and not found.pending.any()
             self._kept_columns = _KeptColumns(found.height, pose, cols) if cacheable else None
-        top_xy = np.zeros((0, 2))
-        if rep.size:
+        row, col, xy = found.row, found.col, found.xy
+        if reps:  # the marked robots' rows after the solids' (most frames have none)
             assert top is not None  # marked robots: worked out
-            top_xy = np.column_stack([top.x_cm[rep], top.y_cm[rep]])
+            row, col = _then(row, blobs.row[rep]), _then(col, blobs.col[rep])
+            xy = _then(xy, np.column_stack([top.x_cm[rep], top.y_cm[rep]]))
         m, n = found.blob.size, blob.size
         return _Rows(
-            _then(found.row, blobs.row[rep]),
-            _then(found.col, blobs.col[rep]),
+            row,
+            col,
             blobs.area_px[blob],
             blobs.perimeter_px[blob],
             blobs.compactness[blob],
-            _then(found.xy, top_xy),
+            xy,
             cols.z,
             cols.radius,
             cols.area_cm2,

@@ -90,7 +90,7 @@ from ovis.common.vision.outline import (
     split_outline,
     subpixel_edges,
 )
-from ovis.common.world.pose import gated_assignment
+from ovis.common.world.pose import gated_assignment, gated_pairs_few
 
 __all__ = [
     "AREA_RATIO",
@@ -694,12 +694,13 @@ class SolidTracker:
         self.frame += 1
         n = len(filled)
         self._collect()
-        matched = self._match(filled, skip)
+        rows, skips = filled.tolist(), skip.tolist()  # a frame's few blobs: plain numbers
+        matched = self._match(rows, skips)
         limit = math.inf if fit_all or self.pose.fits_per_frame == 0 else self.pose.fits_per_frame
         beside = self._pool is not None and not fit_all
         if beside:
             limit = 1 if self._job is None and patches is not None else 0
-        todo = self._queue(filled, matched, skip, patches, limit)
+        todo = self._queue(filled, matched, skips, patches, limit)
         new_groups: dict[int, _Group] = {}
         fitted = set()
         if beside:
@@ -718,20 +719,20 @@ class SolidTracker:
             if g is not None:
                 new_groups[i] = g
         for i in range(n):
-            if i in new_groups or matched[i] < 0 or skip[i]:
+            if i in new_groups or matched[i] < 0 or skips[i]:
                 continue
             g = self.groups[matched[i]]
             if i in fitted:  # its refit found nothing: keep what it was
                 pass
             new_groups[i] = g
-        self._follow(filled, new_groups, fitted)
+        self._follow(rows, new_groups, fitted)
         for i, g in new_groups.items():
             if i not in fitted and len(g.solids) > 1 and patches is not None:
                 self._follow_group(g, patches[i], filled[i])
         for i, g in new_groups.items():
-            g.area, g.row, g.col = float(filled[i, 0]), float(filled[i, 1]), float(filled[i, 2])
+            g.area, g.row, g.col = rows[i]
         self.groups = list(new_groups.values())
-        return self._objects(filled, new_groups, fallback, skip, patches)
+        return self._objects(filled, rows, new_groups, fallback, skip, patches)
 
     def close(self) -> None:
         """Stop the fitting thread (a fit running is waited for, none started again)."""
@@ -779,15 +780,20 @@ class SolidTracker:
         fitted.area, fitted.row, fitted.col = job.old.area, job.old.row, job.old.col
         self.groups = [fitted if g is job.old else g for g in self.groups]
 
-    def _match(self, filled: FloatArray, skip: NDArray[np.bool_]) -> NDArray[np.int64]:
-        """Each blob's group of last frame (−1: none)."""
-        out = np.full(len(filled), -1, dtype=np.int64)
-        if not self.groups or not len(filled):
+    def _match(self, rows: list[list[float]], skip: list[bool]) -> list[int]:
+        """Each blob's group of last frame (−1: none), from the blobs' filled (area, row,
+        col)."""
+        out = [-1] * len(rows)
+        if not self.groups or not rows:
             return out
-        last = np.array([[g.row, g.col] for g in self.groups])
-        rows, cols = gated_assignment(last, filled[:, 1:3], GATE_PX)
-        for r, c in zip(rows.tolist(), cols.tolist(), strict=True):
-            ratio = filled[c, 0] / max(self.groups[r].area, 1e-9)
+        last = [(g.row, g.col) for g in self.groups]
+        pairs = gated_pairs_few(last, [(r[1], r[2]) for r in rows], GATE_PX)
+        if pairs is None:
+            at = np.array([(r[1], r[2]) for r in rows])
+            r_, c_ = gated_assignment(np.array(last), at, GATE_PX)
+            pairs = list(zip(r_.tolist(), c_.tolist(), strict=True))
+        for r, c in pairs:
+            ratio = rows[c][0] / max(self.groups[r].area, 1e-9)
             if not skip[c] and 1.0 / AREA_RATIO <= ratio <= AREA_RATIO:
                 out[c] = r
         return out
@@ -795,8 +801,8 @@ class SolidTracker:
     def _queue(
         self,
         filled: FloatArray,
-        matched: NDArray[np.int64],
-        skip: NDArray[np.bool_],
+        matched: list[int],
+        skip: list[bool],
         patches: Sequence[Patch] | None,
         limit: float,
     ) -> list[int]:
@@ -817,7 +823,7 @@ class SolidTracker:
             new.append(min(known, key=lambda i: self.groups[matched[i]].fitted))
         return new
 
-    def _follow(self, filled: FloatArray, groups: dict[int, _Group], fitted: set[int]) -> None:
+    def _follow(self, rows: list[list[float]], groups: dict[int, _Group], fitted: set[int]) -> None:
         """Move the single solids not fitted this frame to where their blob's centroid
         says (their maps worked out again where they moved far): one linear step of
         :func:`~ovis.common.solids.footprint.solve_centres` each, in plain Python (a
@@ -835,7 +841,6 @@ class SolidTracker:
             g, j = centroid_map(shape, np.array([t.theta() for t in ts]), self.view, self.camera)
             for k, t in enumerate(ts):
                 t.map_at, t.map_g, t.map_j = t.centre.copy(), g[k], j[k]
-        rows = filled.tolist()
         for t, i in moving:
             t.centre = np.array(_solve_centre(t.linear(), rows[i][1], rows[i][2]))
 
@@ -854,14 +859,17 @@ class SolidTracker:
     def _objects(
         self,
         filled: FloatArray,
+        rows_of: list[list[float]],
         groups: dict[int, _Group],
         fallback: Callable[[], PixelJacobian],
         skip: NDArray[np.bool_],
         patches: Sequence[Patch] | None = None,
     ) -> SolidObjects:
+        """This frame's :class:`SolidObjects` from its blobs' filled (area, row, col),
+        as an array and as lists (``rows_of``), and their groups."""
         solids = [(i, t, len(g.solids) > 1) for i, g in groups.items() for t in g.solids]
         if solids and len(groups) == len(filled) - int(np.count_nonzero(skip)):
-            return self._followed(filled, sorted(solids, key=lambda s: s[0]))
+            return self._followed(rows_of, sorted(solids, key=lambda s: s[0]))
         rows: list[tuple] = []
         plane: PixelJacobian | None = None
         for i in range(len(filled)):
@@ -923,7 +931,7 @@ class SolidTracker:
         return SolidObjects(*(np.array(c, dtype=k) for c, k in zip(cols, kinds, strict=True)))
 
     def _followed(
-        self, filled: FloatArray, solids: list[tuple[int, _Tracked, bool]]
+        self, rows: list[list[float]], solids: list[tuple[int, _Tracked, bool]]
     ) -> SolidObjects:
         """:meth:`_objects` where no blob waits for its fit: ``solids`` (blob, solid,
         whether its blob holds several) in blob order. What a solid reports besides where
@@ -933,16 +941,16 @@ class SolidTracker:
         reports = self._reports
         if reports is None or not _same(ts, reports.solids):
             reports = self._reports = _Reports.of(ts)
-        blob = np.array([i for i, _, _ in solids], dtype=np.int64)
-        rc = filled[blob, 1:3]
-        for k, (_, t, several) in enumerate(solids):
-            if several and t.map_g is not None:
-                rc[k] = t.map_g
+        rc = [
+            t.map_g.tolist() if several and t.map_g is not None else rows[i][1:]
+            for i, t, several in solids
+        ]
+        row, col = zip(*rc, strict=True)
         return SolidObjects(
-            blob=blob,
+            blob=np.array([i for i, _, _ in solids], dtype=np.int64),
             xy=np.array([t.centre for t in ts], dtype=np.float64),
-            row=rc[:, 0].copy(),
-            col=rc[:, 1].copy(),
+            row=np.array(row, dtype=np.float64),
+            col=np.array(col, dtype=np.float64),
             **reports.columns,
         )
 
