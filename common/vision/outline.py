@@ -248,7 +248,7 @@ class SmoothedDiff:
             self._diff = np.empty(gray.shape, np.int16)
             self._smooth = np.empty(gray.shape, np.float32)
             self._mask = np.empty(gray.shape, bool)
-        np.subtract(gray, background, out=self._diff, dtype=np.int16)
+        cv2.subtract(gray, background, dst=self._diff, dtype=cv2.CV_16S)
         cv2.sepFilter2D(self._diff, cv2.CV_32F, _SMOOTH, _SMOOTH, dst=self._smooth)
         return self._smooth
 

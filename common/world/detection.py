@@ -397,12 +397,12 @@ class _MarkedFrame(NamedTuple):
     def none(cls, n: int) -> _MarkedFrame:
         return cls([], [], np.full(n, -1, dtype=np.int64), [], np.ones(n, dtype=bool), 0)
 
-    def in_rows(self, rows: NDArray[np.int64], has: list[bool], n: int) -> _MarkedFrame:
+    def in_rows(self, rows: Sequence[int], has: list[bool], n: int) -> _MarkedFrame:
         """The same robots with their blobs at ``rows`` of ``n`` rows (the robots that
         have a blob, ``has``, in order); every row is reported."""
         owner = np.full(n, -1, dtype=np.int64)
         rep = [-1] * len(self.robots)
-        it = iter(rows.tolist())
+        it = iter(rows)
         for k, h in enumerate(has):
             if h:
                 rep[k] = next(it)
@@ -811,7 +811,7 @@ class Detector:
             cols.elongation,
             cols.is_robot,
             cols.ok,
-            marked.in_rows(m + np.arange(rep.size), [k >= 0 for k in marked.rep], n),
+            marked.in_rows(range(m, n), [k >= 0 for k in marked.rep], n),
             cols.robot,
             cols.extra,
         )

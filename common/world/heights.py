@@ -732,7 +732,7 @@ class SolidTracker:
         for i, g in new_groups.items():
             g.area, g.row, g.col = rows[i]
         self.groups = list(new_groups.values())
-        return self._objects(filled, rows, new_groups, fallback, skip, patches)
+        return self._objects(filled, rows, new_groups, fallback, skips, patches)
 
     def close(self) -> None:
         """Stop the fitting thread (a fit running is waited for, none started again)."""
@@ -862,13 +862,13 @@ class SolidTracker:
         rows_of: list[list[float]],
         groups: dict[int, _Group],
         fallback: Callable[[], PixelJacobian],
-        skip: NDArray[np.bool_],
+        skip: list[bool],
         patches: Sequence[Patch] | None = None,
     ) -> SolidObjects:
         """This frame's :class:`SolidObjects` from its blobs' filled (area, row, col),
         as an array and as lists (``rows_of``), and their groups."""
         solids = [(i, t, len(g.solids) > 1) for i, g in groups.items() for t in g.solids]
-        if solids and len(groups) == len(filled) - int(np.count_nonzero(skip)):
+        if solids and len(groups) == len(filled) - skip.count(True):
             return self._followed(rows_of, sorted(solids, key=lambda s: s[0]))
         rows: list[tuple] = []
         plane: PixelJacobian | None = None

@@ -133,16 +133,19 @@ def gated_pairs_few(
     pairs: list[tuple[int, int]] = []
     taken: set[int] = set()
     close = 4.0 * math.ulp(gate)  # math.hypot and numpy's may differ in the last bit
+    far, sure = gate + close, gate - close
     for i, (ax, ay) in enumerate(a):
-        apart = [math.hypot(ax - bx, ay - by) for bx, by in b]
-        if any(abs(d - gate) <= close for d in apart):
-            return None
-        near = [j for j, d in enumerate(apart) if d <= gate]
-        if len(near) > 1 or (near and near[0] in taken):
-            return None
-        if near:
-            taken.add(near[0])
-            pairs.append((i, near[0]))
+        near = -1
+        for j, (bx, by) in enumerate(b):
+            d = math.hypot(ax - bx, ay - by)
+            if d > far or d != d:  # out of the gate (NaN: too)
+                continue
+            if d >= sure or near >= 0 or j in taken:
+                return None
+            near = j
+        if near >= 0:
+            taken.add(near)
+            pairs.append((i, near))
     return pairs
 
 
