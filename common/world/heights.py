@@ -162,9 +162,11 @@ class _Tracked:
     h_weight: float
     h_sum: float
     h_floor: float  # the least systematic uncertainty of one fit (does not average out)
-    centre: FloatArray
+    #: (x, y) cm: a fit's or a union's follow's array, a single solid's follow's pair of
+    #: floats; never changed in place (each move replaces it)
+    centre: FloatArray | tuple[float, float]
     bias: FloatArray = field(default_factory=lambda: np.zeros(2))
-    map_at: FloatArray | None = None
+    map_at: FloatArray | tuple[float, float] | None = None
     map_g: FloatArray | None = None
     map_j: FloatArray | None = None
     _report: tuple | None = None
@@ -185,10 +187,10 @@ class _Tracked:
         centroid there (row, col), its Jacobian (row by row) and the centroid's bias
         (row, col); kept while the map and the bias are the same."""
         kept = self._linear
-        if kept is None or kept[0] is not self.map_at or kept[1] is not self.bias:
+        if kept is None or kept[0] is not self.map_g or kept[1] is not self.bias:
             assert self.map_at is not None and self.map_g is not None and self.map_j is not None
             values = (*self.map_at, *self.map_g, *self.map_j.ravel(), *self.bias)
-            kept = self._linear = (self.map_at, self.bias, tuple(float(v) for v in values))
+            kept = self._linear = (self.map_g, self.bias, tuple(float(v) for v in values))
         return kept[2]
 
     def theta(self) -> FloatArray:
@@ -675,7 +677,7 @@ class SolidTracker:
     def _map(self, t: _Tracked) -> None:
         """Work out a solid's centroid map where it stands now."""
         g, j = centroid_map(t.solid.shape, t.theta()[None], self.view, self.camera)
-        t.map_at, t.map_g, t.map_j = t.centre.copy(), g[0], j[0]
+        t.map_at, t.map_g, t.map_j = t.centre, g[0], j[0]
 
     # ------------------------------------------------------------------ per frame
     def update(
@@ -840,9 +842,9 @@ class SolidTracker:
         for shape, ts in by_shape.items():
             g, j = centroid_map(shape, np.array([t.theta() for t in ts]), self.view, self.camera)
             for k, t in enumerate(ts):
-                t.map_at, t.map_g, t.map_j = t.centre.copy(), g[k], j[k]
+                t.map_at, t.map_g, t.map_j = t.centre, g[k], j[k]
         for t, i in moving:
-            t.centre = np.array(_solve_centre(t.linear(), rows[i][1], rows[i][2]))
+            t.centre = _solve_centre(t.linear(), rows[i][1], rows[i][2])
 
     def _follow_group(self, group: _Group, patch: Patch, blob_filled: FloatArray) -> None:
         """Move a blob's several solids to where its outline's pixel chain puts their
