@@ -36,12 +36,15 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ovis.common.vision.labeling import Borders
+
 __all__ = [
     "BlobPatches",
     "Outline",
     "Patch",
     "SmoothedDiff",
     "background_spots",
+    "blob_outline",
     "blob_patches",
     "chain_normals",
     "edges_along",
@@ -123,11 +126,17 @@ def blob_patches(
     out = []
     boxes = zip(top.tolist(), left.tolist(), height.tolist(), width.tolist(), strict=True)
     for t, lf, h, w in boxes:
-        r0, c0 = max(0, t - margin), max(0, lf - margin)
+        r0, c0 = _corner(t, lf, margin)
         r1, c1 = min(rows, t + h + margin), min(cols, lf + w + margin)
         diff = np.subtract(gray[r0:r1, c0:c1], background[r0:r1, c0:c1], dtype=np.int16)
         out.append(Patch(r0, c0, diff))
     return out
+
+
+def _corner(top: int, left: int, margin: int) -> tuple[int, int]:
+    """The top-left pixel (row, col) of the patch of a blob's box whose top-left pixel is
+    (``top``, ``left``)."""
+    return max(0, top - margin), max(0, left - margin)
 
 
 class BlobPatches(Sequence[Patch]):
@@ -135,7 +144,9 @@ class BlobPatches(Sequence[Patch]):
     a tracked scene need none (its solids are followed from their centroids). ``mask``:
     the frame's :func:`object_mask` (the one its blobs come from, no region of interest
     applied; a buffer the next frame may reuse: patches are cut within their frame),
-    cut with each patch (a copy, kept with it)."""
+    cut with each patch (a copy, kept with it); ``borders`` and ``border``: the label
+    stage's border chains of that mask and each blob's outer one among them
+    (:func:`~ovis.common.vision.labeling.label_components`)."""
 
     def __init__(
         self,
@@ -144,14 +155,37 @@ class BlobPatches(Sequence[Patch]):
         box: NDArray[np.int64],
         margin: int = PATCH_MARGIN_PX,
         mask: NDArray[np.uint8] | None = None,
+        borders: Borders | None = None,
+        border: NDArray[np.int64] | None = None,
     ) -> None:
         self._gray, self._background, self._margin = gray, background, margin
         self._mask = mask
+        #: with ``mask``: the label stage's border chains in it and each blob's outer one
+        #: (:meth:`own_outline`)
+        self._outer = (borders, border) if mask is not None and border is not None else None
         self._box = np.asarray(box, dtype=np.int64).reshape(-1, 4)
         self._cut: dict[int, Patch] = {}
 
     def __len__(self) -> int:
         return len(self._box)
+
+    def own_outline(self, k: int, at: tuple[float, float]) -> Outline | None:
+        """Blob ``k``'s :func:`patch_outline` at ``at`` from its outer border chain, where
+        that is known and holds ``at`` (the outline the patch's mask, the frame's, gives
+        then: the one component there); else None (cut the patch and ask it)."""
+        if self._outer is None or self._outer[0] is None:
+            return None
+        borders, border = self._outer
+        i = int(border[k])
+        start, length = int(borders.start[i]), int(borders.length[i])
+        if length < 3:
+            return None
+        chain = borders.points[start : start + length]
+        top, left = _corner(int(self._box[k, 0]), int(self._box[k, 1]), self._margin)
+        own = (chain - np.array([left, top], dtype=np.int32)).reshape(-1, 1, 2)
+        if cv2.pointPolygonTest(own, (at[1] - left, at[0] - top), True) < 0:
+            return None
+        return _outline_of(own, top, left)
 
     @overload
     def __getitem__(self, i: int) -> Patch: ...
@@ -362,12 +396,35 @@ def patch_outline(
             best, best_key = c, key
     if best is None:
         return None
-    m = cv2.moments(best)
+    return _outline_of(best, patch.top, patch.left)
+
+
+def _outline_of(contour: NDArray[np.int32], top: int, left: int) -> Outline | None:
+    """The :class:`Outline` of a contour (n, 1, 2) of a patch whose top-left pixel is
+    (``top``, ``left``); None when it encloses nothing."""
+    m = cv2.moments(contour)
     if m["m00"] <= 0:
         return None
-    chain = best[:, 0, :] + np.array([patch.left, patch.top], dtype=np.int32)
+    chain = contour[:, 0, :] + np.array([left, top], dtype=np.int32)
     area = float(m["m00"])
-    return Outline(chain, area, m["m01"] / area + patch.top, m["m10"] / area + patch.left)
+    return Outline(chain, area, m["m01"] / area + top, m["m10"] / area + left)
+
+
+def blob_outline(
+    patches: Sequence[Patch],
+    k: int,
+    level: float,
+    at: tuple[float, float],
+    spots: NDArray[np.uint8] | None = None,
+) -> Outline | None:
+    """:func:`patch_outline` of ``patches[k]`` at ``at`` (frame row, col), from the blob's
+    outer border chain where :class:`BlobPatches` knows it and it holds ``at``
+    (:meth:`BlobPatches.own_outline`: no patch cut, no contours traced again)."""
+    if isinstance(patches, BlobPatches):
+        own = patches.own_outline(k, at)
+        if own is not None:
+            return own
+    return patch_outline(patches[k], level, at, spots)
 
 
 def chain_normals(chain: NDArray[np.int32]) -> tuple[FloatArray, FloatArray]:

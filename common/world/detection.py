@@ -25,7 +25,7 @@ from ovis.common.camera.projection import PixelJacobian, pixel_footprint_cm2, pi
 from ovis.common.config import CameraModel, ImageParams, PinholeParams, PoseConfig
 from ovis.common.vision.contrast import NEUTRAL, ObjectWindow
 from ovis.common.vision.frames import ImageError, as_gray
-from ovis.common.vision.labeling import filter_components, label_components
+from ovis.common.vision.labeling import Borders, filter_components, label_components
 from ovis.common.vision.markers import Markers
 from ovis.common.vision.objects import background
 from ovis.common.vision.outline import BlobPatches, Patch, SmoothedDiff
@@ -180,6 +180,9 @@ class Blobs(NamedTuple):
     box: NDArray[np.int64] | None = None
     #: (n, 3) area (px²), centroid row and column of each blob with its holes filled
     filled: NDArray[np.float64] | None = None
+    #: the label stage's border chains and each blob's outer one among them, when known
+    borders: Borders | None = None
+    border: NDArray[np.int64] | None = None
 
 
 def find_blobs(
@@ -328,6 +331,8 @@ def measure_blobs_and_maps(
         comp.mu_rc,
         np.column_stack([comp.top, comp.left, comp.height, comp.width]),
         comp.filled,
+        comp.borders,
+        comp.border,
     )
     return blobs, [PixelJacobian(*(f[keep] for f in m)) for m in maps]
 
@@ -655,11 +660,14 @@ class Detector:
     ) -> BlobPatches:
         """Each blob's patch of the frame less the empty floor (cut when asked for), with
         the frame's object mask cut with it (``mask``: :func:`solid_pixels`' without a
-        region of interest; its outline then needs no smoothing of its own)."""
+        region of interest; its outline then needs no smoothing of its own) and the
+        blob's outer border as the label stage traced it in that mask."""
         assert self.solids is not None and blobs.box is not None
         background = background_image(self.image, gray.shape)
         self.solids.use_background(background)
-        return BlobPatches(gray, background, blobs.box, mask=mask)
+        return BlobPatches(
+            gray, background, blobs.box, mask=mask, borders=blobs.borders, border=blobs.border
+        )
 
     def from_blobs(
         self,

@@ -85,6 +85,7 @@ from ovis.common.vision.outline import (
     Outline,
     Patch,
     background_spots,
+    blob_outline,
     edges_along,
     patch_outline,
     split_outline,
@@ -730,7 +731,7 @@ class SolidTracker:
         self._follow(rows, new_groups, fitted)
         for i, g in new_groups.items():
             if i not in fitted and len(g.solids) > 1 and patches is not None:
-                self._follow_group(g, patches[i], filled[i])
+                self._follow_group(g, patches, i, filled[i])
         for i, g in new_groups.items():
             g.area, g.row, g.col = rows[i]
         self.groups = list(new_groups.values())
@@ -846,10 +847,13 @@ class SolidTracker:
         for t, i in moving:
             t.centre = _solve_centre(t.linear(), rows[i][1], rows[i][2])
 
-    def _follow_group(self, group: _Group, patch: Patch, blob_filled: FloatArray) -> None:
-        """Move a blob's several solids to where its outline's pixel chain puts their
-        union (shapes and heights kept)."""
-        outline = patch_outline(patch, self.level, (blob_filled[1], blob_filled[2]), self.spots)
+    def _follow_group(
+        self, group: _Group, patches: Sequence[Patch], i: int, blob_filled: FloatArray
+    ) -> None:
+        """Move a blob's several solids (blob ``i``'s) to where its outline's pixel chain
+        puts their union (shapes and heights kept)."""
+        at = (float(blob_filled[1]), float(blob_filled[2]))
+        outline = blob_outline(patches, i, self.level, at, self.spots)
         if outline is None or group.offsets is None or len(outline.chain) < MIN_EDGE_POINTS:
             return
         floor = self._chain_floor(outline)
