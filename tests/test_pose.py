@@ -9,7 +9,13 @@ from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
 from ovis.common.config import PoseConfig
-from ovis.common.world.pose import ROBOT_ID, Tracker, gated_assignment, pick_robot
+from ovis.common.world.pose import (
+    ROBOT_ID,
+    Tracker,
+    gated_assignment,
+    gated_pairs_few,
+    pick_robot,
+)
 
 
 def test_robot_is_least_compact_candidate_in_area_range() -> None:
@@ -108,6 +114,13 @@ def test_gated_assignment_is_the_dense_optimum(
     pairs, total = _dense_optimum(a, b, gate)
     assert rows.size == pairs
     assert dist.sum() == pytest.approx(total, abs=1e-9)
+    # the plain-Python pairs of a few points apart, where it answers: the same pairs
+    few = gated_pairs_few([tuple(p) for p in a.tolist()], [tuple(p) for p in b.tolist()], gate)
+    if few is not None:
+        assert few == list(zip(rows.tolist(), cols.tolist(), strict=True))
+    elif n * m <= 400 and n and m:
+        near = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1]) <= gate
+        assert near.sum(0).max() > 1 or near.sum(1).max() > 1
 
 
 def test_gated_assignment_coincident_points_and_two_hundred_obstacles() -> None:

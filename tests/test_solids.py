@@ -34,13 +34,16 @@ from ovis.common.solids.silhouette import (
     signed_distance_few,
     top_scale,
 )
+from ovis.common.vision.labeling import label_components
 from ovis.common.vision.outline import (
     BlobPatches,
     SmoothedDiff,
     background_spots,
+    blob_outline,
     blob_patches,
     chain_normals,
     object_mask,
+    patch_outline,
     subpixel_edges,
 )
 from ovis.common.world.heights import with_heights
@@ -328,7 +331,9 @@ def test_a_floor_marks_mask_is_the_same_from_its_kept_level_and_cut_patches_are_
     kept between frames (read-only, by identity) and gives the mask a fresh copy of the
     spots gives, as does a whole frame's mask in kept buffers (:class:`SmoothedDiff`, frame
     after frame, on a rough D too). Patches cut when asked for are :func:`blob_patches`' of
-    the same boxes."""
+    the same boxes; cut with the frame's mask, each keeps its slice (a copy) and outlines
+    as its own smoothing does, and with the label stage's borders a blob's outline is its
+    outer border's where that holds its centroid (the cut patch's, no patch cut)."""
     floor = np.full((60, 80), 40, np.uint8)
     floor[20:30, 30:40] = 120  # a floor mark
     spots = background_spots(floor)
@@ -364,3 +369,35 @@ def test_a_floor_marks_mask_is_the_same_from_its_kept_level_and_cut_patches_are_
         assert (a.top, a.left) == (b.top, b.left) and np.array_equal(a.diff, b.diff)
     with pytest.raises(IndexError):
         cut[3]
+    # with the frame's mask, each patch carries its slice (a copy) and its outline is
+    # the one its own smoothing gives (the frame's mask is reused by the next frame)
+    mask = frames.mask(frame, floor, 20.0, spots)
+    masked = BlobPatches(frame, floor, boxes, mask=mask)
+    for k in (0, 1):
+        a = masked[k]
+        here = spots[a.top : a.top + a.diff.shape[0], a.left : a.left + a.diff.shape[1]]
+        assert a.mask is not None and np.array_equal(a.mask, object_mask(a.diff, 20.0, here))
+        own = patch_outline(whole[k], 20.0, spots=spots)
+        assert own is not None and np.array_equal(patch_outline(a, 20.0).chain, own.chain)
+    # with the label stage's borders too, a blob's outline where its centroid lies inside
+    # it is its outer border's, the one its cut patch gives, without cutting it
+    comp = label_components(mask)
+    box = np.column_stack([comp.top, comp.left, comp.height, comp.width])
+    traced = BlobPatches(frame, floor, box, mask=mask, borders=comp.borders, border=comp.border)
+    assert comp.count == 2
+    for k in range(comp.count):
+        at = (float(comp.filled[k, 1]), float(comp.filled[k, 2]))
+        own, cut = traced.own_outline(k, at), patch_outline(traced[k], 20.0, at, spots)
+        assert own is not None and cut is not None and np.array_equal(own.chain, cut.chain)
+        assert (own.area_px, own.row, own.col) == (cut.area_px, cut.row, cut.col)
+        again = blob_outline(traced, k, 20.0, at, spots)
+        assert again is not None and np.array_equal(again.chain, own.chain)
+    away = (float(comp.top[0]) - 3.0, float(comp.left[0]) - 3.0)  # outside: the patch's
+    assert traced.own_outline(0, away) is None
+    assert np.array_equal(
+        blob_outline(traced, 0, 20.0, away, spots).chain,
+        patch_outline(traced[0], 20.0, away, spots).chain,
+    )
+    kept_mask = masked[0].mask.copy()
+    frames.mask(rough, floor, 20.0, spots)
+    assert np.array_equal(masked[0].mask, kept_mask)

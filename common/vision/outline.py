@@ -36,12 +36,15 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ovis.common.vision.labeling import Borders
+
 __all__ = [
     "BlobPatches",
     "Outline",
     "Patch",
     "SmoothedDiff",
     "background_spots",
+    "blob_outline",
     "blob_patches",
     "chain_normals",
     "edges_along",
@@ -86,11 +89,16 @@ SMOOTH_PX = 0.8
 
 class Patch(NamedTuple):
     """``D`` (int16, frame − empty floor) of a blob's surroundings; its top-left pixel is
-    (``top``, ``left``) of the frame."""
+    (``top``, ``left``) of the frame. ``mask``: its object pixels cut from the whole
+    frame's mask (:class:`BlobPatches` given it), which :func:`patch_outline` then takes
+    instead of smoothing ``diff`` again: the same pixels farther than the smoothing's
+    reach from a cut edge (the patch's margin), up to the last bits of the floats; None:
+    worked out from ``diff``."""
 
     top: int
     left: int
     diff: NDArray[np.int16]
+    mask: NDArray[np.uint8] | None = None
 
 
 class Outline(NamedTuple):
@@ -118,16 +126,27 @@ def blob_patches(
     out = []
     boxes = zip(top.tolist(), left.tolist(), height.tolist(), width.tolist(), strict=True)
     for t, lf, h, w in boxes:
-        r0, c0 = max(0, t - margin), max(0, lf - margin)
+        r0, c0 = _corner(t, lf, margin)
         r1, c1 = min(rows, t + h + margin), min(cols, lf + w + margin)
         diff = np.subtract(gray[r0:r1, c0:c1], background[r0:r1, c0:c1], dtype=np.int16)
         out.append(Patch(r0, c0, diff))
     return out
 
 
+def _corner(top: int, left: int, margin: int) -> tuple[int, int]:
+    """The top-left pixel (row, col) of the patch of a blob's box whose top-left pixel is
+    (``top``, ``left``)."""
+    return max(0, top - margin), max(0, left - margin)
+
+
 class BlobPatches(Sequence[Patch]):
     """:func:`blob_patches` cut when first asked for, one blob at a time: most frames of
-    a tracked scene need none (its solids are followed from their centroids)."""
+    a tracked scene need none (its solids are followed from their centroids). ``mask``:
+    the frame's :func:`object_mask` (the one its blobs come from, no region of interest
+    applied; a buffer the next frame may reuse: patches are cut within their frame),
+    cut with each patch (a copy, kept with it); ``borders`` and ``border``: the label
+    stage's border chains of that mask and each blob's outer one among them
+    (:func:`~ovis.common.vision.labeling.label_components`)."""
 
     def __init__(
         self,
@@ -135,13 +154,38 @@ class BlobPatches(Sequence[Patch]):
         background: NDArray[np.uint8],
         box: NDArray[np.int64],
         margin: int = PATCH_MARGIN_PX,
+        mask: NDArray[np.uint8] | None = None,
+        borders: Borders | None = None,
+        border: NDArray[np.int64] | None = None,
     ) -> None:
         self._gray, self._background, self._margin = gray, background, margin
+        self._mask = mask
+        #: with ``mask``: the label stage's border chains in it and each blob's outer one
+        #: (:meth:`own_outline`)
+        self._outer = (borders, border) if mask is not None and border is not None else None
         self._box = np.asarray(box, dtype=np.int64).reshape(-1, 4)
         self._cut: dict[int, Patch] = {}
 
     def __len__(self) -> int:
         return len(self._box)
+
+    def own_outline(self, k: int, at: tuple[float, float]) -> Outline | None:
+        """Blob ``k``'s :func:`patch_outline` at ``at`` from its outer border chain, where
+        that is known and holds ``at`` (the outline the patch's mask, the frame's, gives
+        then: the one component there); else None (cut the patch and ask it)."""
+        if self._outer is None or self._outer[0] is None:
+            return None
+        borders, border = self._outer
+        i = int(border[k])
+        start, length = int(borders.start[i]), int(borders.length[i])
+        if length < 3:
+            return None
+        chain = borders.points[start : start + length]
+        top, left = _corner(int(self._box[k, 0]), int(self._box[k, 1]), self._margin)
+        own = (chain - np.array([left, top], dtype=np.int32)).reshape(-1, 1, 2)
+        if cv2.pointPolygonTest(own, (at[1] - left, at[0] - top), True) < 0:
+            return None
+        return _outline_of(own, top, left)
 
     @overload
     def __getitem__(self, i: int) -> Patch: ...
@@ -153,7 +197,12 @@ class BlobPatches(Sequence[Patch]):
         k = range(len(self))[i]  # IndexError as a list's
         if k not in self._cut:
             box = self._box[k : k + 1].T
-            self._cut[k] = blob_patches(self._gray, self._background, *box, self._margin)[0]
+            cut = blob_patches(self._gray, self._background, *box, self._margin)[0]
+            if self._mask is not None:
+                rows, cols = cut.diff.shape
+                at = self._mask[cut.top : cut.top + rows, cut.left : cut.left + cols]
+                cut = cut._replace(mask=at.copy())
+            self._cut[k] = cut
         return self._cut[k]
 
 
@@ -233,7 +282,7 @@ class SmoothedDiff:
             self._diff = np.empty(gray.shape, np.int16)
             self._smooth = np.empty(gray.shape, np.float32)
             self._mask = np.empty(gray.shape, bool)
-        np.subtract(gray, background, out=self._diff, dtype=np.int16)
+        cv2.subtract(gray, background, dst=self._diff, dtype=cv2.CV_16S)
         cv2.sepFilter2D(self._diff, cv2.CV_32F, _SMOOTH, _SMOOTH, dst=self._smooth)
         return self._smooth
 
@@ -321,12 +370,15 @@ def patch_outline(
     filled: the component nearest ``at`` (frame row, col; default the patch's
     centre); None when the patch has none. On the frame's bright floor spots
     (``spots``, :func:`background_spots`) an object hiding a spot may be darker than
-    the spot: there any difference from the floor image counts."""
-    rows, cols = patch.diff.shape
-    here = None
-    if spots is not None:
-        here = spots[patch.top : patch.top + rows, patch.left : patch.left + cols]
-    mask = object_mask(patch.diff, level, here)
+    the spot: there any difference from the floor image counts. The patch's ``mask``
+    when it has one (cut from the frame's, worked out at ``level`` with ``spots``)."""
+    mask = patch.mask
+    if mask is None:
+        rows, cols = patch.diff.shape
+        here = None
+        if spots is not None:
+            here = spots[patch.top : patch.top + rows, patch.left : patch.left + cols]
+        mask = object_mask(patch.diff, level, here)
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
         return None
@@ -344,12 +396,35 @@ def patch_outline(
             best, best_key = c, key
     if best is None:
         return None
-    m = cv2.moments(best)
+    return _outline_of(best, patch.top, patch.left)
+
+
+def _outline_of(contour: NDArray[np.int32], top: int, left: int) -> Outline | None:
+    """The :class:`Outline` of a contour (n, 1, 2) of a patch whose top-left pixel is
+    (``top``, ``left``); None when it encloses nothing."""
+    m = cv2.moments(contour)
     if m["m00"] <= 0:
         return None
-    chain = best[:, 0, :] + np.array([patch.left, patch.top], dtype=np.int32)
+    chain = contour[:, 0, :] + np.array([left, top], dtype=np.int32)
     area = float(m["m00"])
-    return Outline(chain, area, m["m01"] / area + patch.top, m["m10"] / area + patch.left)
+    return Outline(chain, area, m["m01"] / area + top, m["m10"] / area + left)
+
+
+def blob_outline(
+    patches: Sequence[Patch],
+    k: int,
+    level: float,
+    at: tuple[float, float],
+    spots: NDArray[np.uint8] | None = None,
+) -> Outline | None:
+    """:func:`patch_outline` of ``patches[k]`` at ``at`` (frame row, col), from the blob's
+    outer border chain where :class:`BlobPatches` knows it and it holds ``at``
+    (:meth:`BlobPatches.own_outline`: no patch cut, no contours traced again)."""
+    if isinstance(patches, BlobPatches):
+        own = patches.own_outline(k, at)
+        if own is not None:
+            return own
+    return patch_outline(patches[k], level, at, spots)
 
 
 def chain_normals(chain: NDArray[np.int32]) -> tuple[FloatArray, FloatArray]:

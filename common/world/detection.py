@@ -25,7 +25,7 @@ from ovis.common.camera.projection import PixelJacobian, pixel_footprint_cm2, pi
 from ovis.common.config import CameraModel, ImageParams, PinholeParams, PoseConfig
 from ovis.common.vision.contrast import NEUTRAL, ObjectWindow
 from ovis.common.vision.frames import ImageError, as_gray
-from ovis.common.vision.labeling import filter_components, label_components
+from ovis.common.vision.labeling import Borders, filter_components, label_components
 from ovis.common.vision.markers import Markers
 from ovis.common.vision.objects import background
 from ovis.common.vision.outline import BlobPatches, Patch, SmoothedDiff
@@ -182,6 +182,9 @@ class Blobs(NamedTuple):
     box: NDArray[np.int64] | None = None
     #: (n, 3) area (px²), centroid row and column of each blob with its holes filled
     filled: NDArray[np.float64] | None = None
+    #: the label stage's border chains and each blob's outer one among them, when known
+    borders: Borders | None = None
+    border: NDArray[np.int64] | None = None
 
 
 def find_blobs(
@@ -330,6 +333,8 @@ def measure_blobs_and_maps(
         comp.mu_rc,
         np.column_stack([comp.top, comp.left, comp.height, comp.width]),
         comp.filled,
+        comp.borders,
+        comp.border,
     )
     return blobs, [PixelJacobian(*(f[keep] for f in m)) for m in maps]
 
@@ -399,12 +404,12 @@ class _MarkedFrame(NamedTuple):
     def none(cls, n: int) -> _MarkedFrame:
         return cls([], [], np.full(n, -1, dtype=np.int64), [], np.ones(n, dtype=bool), 0)
 
-    def in_rows(self, rows: NDArray[np.int64], has: list[bool], n: int) -> _MarkedFrame:
+    def in_rows(self, rows: Sequence[int], has: list[bool], n: int) -> _MarkedFrame:
         """The same robots with their blobs at ``rows`` of ``n`` rows (the robots that
         have a blob, ``has``, in order); every row is reported."""
         owner = np.full(n, -1, dtype=np.int64)
         rep = [-1] * len(self.robots)
-        it = iter(rows.tolist())
+        it = iter(rows)
         for k, h in enumerate(has):
             if h:
                 rep[k] = next(it)
@@ -648,7 +653,7 @@ class Detector:
         floor, top = maps if maps else (None, None)
         patches = None
         if self.solids is not None and gray is not None:
-            patches = self._patches(gray, blobs)
+            patches = self._patches(gray, blobs, None if self.image.roi else binary)
         markers = None
         if self.pose.robots and gray is not None and median3 is not None:
             at_blobs = (self.top_side_cm, top.area_cm2)
@@ -675,12 +680,19 @@ class Detector:
         self.solids.use_background(background)
         return solid_pixels(gray, background, self.image, self.solids.spots, self._smoothed)
 
-    def _patches(self, gray: NDArray[np.uint8], blobs: Blobs) -> BlobPatches:
-        """Each blob's patch of the frame less the empty floor (cut when asked for)."""
+    def _patches(
+        self, gray: NDArray[np.uint8], blobs: Blobs, mask: NDArray[np.uint8] | None
+    ) -> BlobPatches:
+        """Each blob's patch of the frame less the empty floor (cut when asked for), with
+        the frame's object mask cut with it (``mask``: :func:`solid_pixels`' without a
+        region of interest; its outline then needs no smoothing of its own) and the
+        blob's outer border as the label stage traced it in that mask."""
         assert self.solids is not None and blobs.box is not None
         background = background_image(self.image, gray.shape)
         self.solids.use_background(background)
-        return BlobPatches(gray, background, blobs.box)
+        return BlobPatches(
+            gray, background, blobs.box, mask=mask, borders=blobs.borders, border=blobs.border
+        )
 
     def from_blobs(
         self,
@@ -804,8 +816,8 @@ class Detector:
         found = self.solids.update(filled, patches, obstacle_plane, skip, fit_all=fit_all)
         if reps:
             found = _without_robots(found, marked)
-        blob = np.concatenate([found.blob, np.array(reps, dtype=np.int64)])
         rep = np.array(reps, dtype=np.int64)
+        blob = np.concatenate([found.blob, rep]) if reps else found.blob
         kept = self._kept_columns
         if kept is not None and kept.height is found.height and kept.pose is pose:
             cols = kept.columns  # the same solids as last frame: what they report is fixed
@@ -815,18 +827,19 @@ class Detector:
             # rows come with its blob)
             cacheable = not pose.robots and not found.pending.any()
             self._kept_columns = _KeptColumns(found.height, pose, cols) if cacheable else None
-        top_xy = np.zeros((0, 2))
-        if rep.size:
+        row, col, xy = found.row, found.col, found.xy
+        if reps:  # the marked robots' rows after the solids' (most frames have none)
             assert top is not None  # marked robots: worked out
-            top_xy = np.column_stack([top.x_cm[rep], top.y_cm[rep]])
+            row, col = _then(row, blobs.row[rep]), _then(col, blobs.col[rep])
+            xy = _then(xy, np.column_stack([top.x_cm[rep], top.y_cm[rep]]))
         m, n = found.blob.size, blob.size
         return _Rows(
-            _then(found.row, blobs.row[rep]),
-            _then(found.col, blobs.col[rep]),
+            row,
+            col,
             blobs.area_px[blob],
             blobs.perimeter_px[blob],
             blobs.compactness[blob],
-            _then(found.xy, top_xy),
+            xy,
             cols.z,
             cols.radius,
             cols.area_cm2,
@@ -834,7 +847,7 @@ class Detector:
             cols.elongation,
             cols.is_robot,
             cols.ok,
-            marked.in_rows(m + np.arange(rep.size), [k >= 0 for k in marked.rep], n),
+            marked.in_rows(range(m, n), [k >= 0 for k in marked.rep], n),
             cols.robot,
             cols.extra,
         )

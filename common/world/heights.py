@@ -88,12 +88,13 @@ from ovis.common.vision.outline import (
     Outline,
     Patch,
     background_spots,
+    blob_outline,
     edges_along,
     patch_outline,
     split_outline,
     subpixel_edges,
 )
-from ovis.common.world.pose import gated_assignment
+from ovis.common.world.pose import gated_assignment, gated_pairs_few
 
 __all__ = [
     "AREA_RATIO",
@@ -165,9 +166,11 @@ class _Tracked:
     h_weight: float
     h_sum: float
     h_floor: float  # the least systematic uncertainty of one fit (does not average out)
-    centre: FloatArray
+    #: (x, y) cm: a fit's or a union's follow's array, a single solid's follow's pair of
+    #: floats; never changed in place (each move replaces it)
+    centre: FloatArray | tuple[float, float]
     bias: FloatArray = field(default_factory=lambda: np.zeros(2))
-    map_at: FloatArray | None = None
+    map_at: FloatArray | tuple[float, float] | None = None
     map_g: FloatArray | None = None
     map_j: FloatArray | None = None
     _report: tuple | None = None
@@ -191,10 +194,10 @@ class _Tracked:
         centroid there (row, col), its Jacobian (row by row) and the centroid's bias
         (row, col); kept while the map and the bias are the same."""
         kept = self._linear
-        if kept is None or kept[0] is not self.map_at or kept[1] is not self.bias:
+        if kept is None or kept[0] is not self.map_g or kept[1] is not self.bias:
             assert self.map_at is not None and self.map_g is not None and self.map_j is not None
             values = (*self.map_at, *self.map_g, *self.map_j.ravel(), *self.bias)
-            kept = self._linear = (self.map_at, self.bias, tuple(float(v) for v in values))
+            kept = self._linear = (self.map_g, self.bias, tuple(float(v) for v in values))
         return kept[2]
 
     def theta(self) -> FloatArray:
@@ -709,7 +712,7 @@ class SolidTracker:
     def _map(self, t: _Tracked) -> None:
         """Work out a solid's centroid map where it stands now."""
         g, j = centroid_map(t.solid.shape, t.theta()[None], self.view, self.camera)
-        t.map_at, t.map_g, t.map_j = t.centre.copy(), g[0], j[0]
+        t.map_at, t.map_g, t.map_j = t.centre, g[0], j[0]
 
     # ------------------------------------------------------------------ per frame
     def update(
@@ -728,12 +731,13 @@ class SolidTracker:
         self.frame += 1
         n = len(filled)
         self._collect()
-        matched = self._match(filled, skip)
+        rows, skips = filled.tolist(), skip.tolist()  # a frame's few blobs: plain numbers
+        matched = self._match(rows, skips)
         limit = math.inf if fit_all or self.pose.fits_per_frame == 0 else self.pose.fits_per_frame
         beside = self._pool is not None and not fit_all
         if beside:
             limit = 1 if self._job is None and patches is not None else 0
-        todo = self._queue(filled, matched, skip, patches, limit)
+        todo = self._queue(filled, matched, skips, patches, limit)
         new_groups: dict[int, _Group] = {}
         fitted = set()
         if beside:
@@ -752,20 +756,20 @@ class SolidTracker:
             if g is not None:
                 new_groups[i] = g
         for i in range(n):
-            if i in new_groups or matched[i] < 0 or skip[i]:
+            if i in new_groups or matched[i] < 0 or skips[i]:
                 continue
             g = self.groups[matched[i]]
             if i in fitted:  # its refit found nothing: keep what it was
                 pass
             new_groups[i] = g
-        self._follow(filled, new_groups, fitted)
+        self._follow(rows, new_groups, fitted)
         for i, g in new_groups.items():
             if i not in fitted and len(g.solids) > 1 and patches is not None:
-                self._follow_group(g, patches[i], filled[i])
+                self._follow_group(g, patches, i, filled[i])
         for i, g in new_groups.items():
-            g.area, g.row, g.col = float(filled[i, 0]), float(filled[i, 1]), float(filled[i, 2])
+            g.area, g.row, g.col = rows[i]
         self.groups = list(new_groups.values())
-        return self._objects(filled, new_groups, fallback, skip, patches)
+        return self._objects(filled, rows, new_groups, fallback, skips, patches)
 
     def close(self) -> None:
         """Stop the fitting thread (a fit running is waited for, none started again)."""
@@ -813,15 +817,20 @@ class SolidTracker:
         fitted.area, fitted.row, fitted.col = job.old.area, job.old.row, job.old.col
         self.groups = [fitted if g is job.old else g for g in self.groups]
 
-    def _match(self, filled: FloatArray, skip: NDArray[np.bool_]) -> NDArray[np.int64]:
-        """Each blob's group of last frame (−1: none)."""
-        out = np.full(len(filled), -1, dtype=np.int64)
-        if not self.groups or not len(filled):
+    def _match(self, rows: list[list[float]], skip: list[bool]) -> list[int]:
+        """Each blob's group of last frame (−1: none), from the blobs' filled (area, row,
+        col)."""
+        out = [-1] * len(rows)
+        if not self.groups or not rows:
             return out
-        last = np.array([[g.row, g.col] for g in self.groups])
-        rows, cols = gated_assignment(last, filled[:, 1:3], GATE_PX)
-        for r, c in zip(rows.tolist(), cols.tolist(), strict=True):
-            ratio = filled[c, 0] / max(self.groups[r].area, 1e-9)
+        last = [(g.row, g.col) for g in self.groups]
+        pairs = gated_pairs_few(last, [(r[1], r[2]) for r in rows], GATE_PX)
+        if pairs is None:
+            at = np.array([(r[1], r[2]) for r in rows])
+            r_, c_ = gated_assignment(np.array(last), at, GATE_PX)
+            pairs = list(zip(r_.tolist(), c_.tolist(), strict=True))
+        for r, c in pairs:
+            ratio = rows[c][0] / max(self.groups[r].area, 1e-9)
             if not skip[c] and 1.0 / AREA_RATIO <= ratio <= AREA_RATIO:
                 out[c] = r
         return out
@@ -829,8 +838,8 @@ class SolidTracker:
     def _queue(
         self,
         filled: FloatArray,
-        matched: NDArray[np.int64],
-        skip: NDArray[np.bool_],
+        matched: list[int],
+        skip: list[bool],
         patches: Sequence[Patch] | None,
         limit: float,
     ) -> list[int]:
@@ -851,7 +860,7 @@ class SolidTracker:
             new.append(min(known, key=lambda i: self.groups[matched[i]].fitted))
         return new
 
-    def _follow(self, filled: FloatArray, groups: dict[int, _Group], fitted: set[int]) -> None:
+    def _follow(self, rows: list[list[float]], groups: dict[int, _Group], fitted: set[int]) -> None:
         """Move the single solids not fitted this frame to where their blob's centroid
         says (their maps worked out again where they moved far): one linear step of
         :func:`~ovis.common.solids.footprint.solve_centres` each, in plain Python (a
@@ -868,15 +877,17 @@ class SolidTracker:
         for shape, ts in by_shape.items():
             g, j = centroid_map(shape, np.array([t.theta() for t in ts]), self.view, self.camera)
             for k, t in enumerate(ts):
-                t.map_at, t.map_g, t.map_j = t.centre.copy(), g[k], j[k]
-        rows = filled.tolist()
+                t.map_at, t.map_g, t.map_j = t.centre, g[k], j[k]
         for t, i in moving:
-            t.centre = np.array(_solve_centre(t.linear(), rows[i][1], rows[i][2]))
+            t.centre = _solve_centre(t.linear(), rows[i][1], rows[i][2])
 
-    def _follow_group(self, group: _Group, patch: Patch, blob_filled: FloatArray) -> None:
-        """Move a blob's several solids to where its outline's pixel chain puts their
-        union (shapes and heights kept)."""
-        outline = patch_outline(patch, self.level, (blob_filled[1], blob_filled[2]), self.spots)
+    def _follow_group(
+        self, group: _Group, patches: Sequence[Patch], i: int, blob_filled: FloatArray
+    ) -> None:
+        """Move a blob's several solids (blob ``i``'s) to where its outline's pixel chain
+        puts their union (shapes and heights kept)."""
+        at = (float(blob_filled[1]), float(blob_filled[2]))
+        outline = blob_outline(patches, i, self.level, at, self.spots)
         if outline is None or group.offsets is None or len(outline.chain) < MIN_EDGE_POINTS:
             return
         floor = self._chain_floor(outline)
@@ -888,14 +899,17 @@ class SolidTracker:
     def _objects(
         self,
         filled: FloatArray,
+        rows_of: list[list[float]],
         groups: dict[int, _Group],
         fallback: Callable[[], PixelJacobian],
-        skip: NDArray[np.bool_],
+        skip: list[bool],
         patches: Sequence[Patch] | None = None,
     ) -> SolidObjects:
+        """This frame's :class:`SolidObjects` from its blobs' filled (area, row, col),
+        as an array and as lists (``rows_of``), and their groups."""
         solids = [(i, t, len(g.solids) > 1) for i, g in groups.items() for t in g.solids]
-        if solids and len(groups) == len(filled) - int(np.count_nonzero(skip)):
-            return self._followed(filled, sorted(solids, key=lambda s: s[0]))
+        if solids and len(groups) == len(filled) - skip.count(True):
+            return self._followed(rows_of, sorted(solids, key=lambda s: s[0]))
         rows: list[tuple] = []
         plane: PixelJacobian | None = None
         for i in range(len(filled)):
@@ -957,7 +971,7 @@ class SolidTracker:
         return SolidObjects(*(np.array(c, dtype=k) for c, k in zip(cols, kinds, strict=True)))
 
     def _followed(
-        self, filled: FloatArray, solids: list[tuple[int, _Tracked, bool]]
+        self, rows: list[list[float]], solids: list[tuple[int, _Tracked, bool]]
     ) -> SolidObjects:
         """:meth:`_objects` where no blob waits for its fit: ``solids`` (blob, solid,
         whether its blob holds several) in blob order. What a solid reports besides where
@@ -967,16 +981,16 @@ class SolidTracker:
         reports = self._reports
         if reports is None or not _same(ts, reports.solids):
             reports = self._reports = _Reports.of(ts)
-        blob = np.array([i for i, _, _ in solids], dtype=np.int64)
-        rc = filled[blob, 1:3]
-        for k, (_, t, several) in enumerate(solids):
-            if several and t.map_g is not None:
-                rc[k] = t.map_g
+        rc = [
+            t.map_g.tolist() if several and t.map_g is not None else rows[i][1:]
+            for i, t, several in solids
+        ]
+        row, col = zip(*rc, strict=True)
         return SolidObjects(
-            blob=blob,
+            blob=np.array([i for i, _, _ in solids], dtype=np.int64),
             xy=np.array([t.centre for t in ts], dtype=np.float64),
-            row=rc[:, 0].copy(),
-            col=rc[:, 1].copy(),
+            row=np.array(row, dtype=np.float64),
+            col=np.array(col, dtype=np.float64),
             **reports.columns,
         )
 

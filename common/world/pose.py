@@ -20,6 +20,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -28,7 +29,15 @@ from numpy.typing import NDArray
 
 from ovis.common.config import PoseConfig
 
-__all__ = ["ROBOT_ID", "TrackStep", "Tracker", "gated_assignment", "pick_robot", "robot_ids"]
+__all__ = [
+    "ROBOT_ID",
+    "TrackStep",
+    "Tracker",
+    "gated_assignment",
+    "gated_pairs_few",
+    "pick_robot",
+    "robot_ids",
+]
 
 ROBOT_ID = 0
 
@@ -108,6 +117,36 @@ def gated_assignment(
         rows = np.concatenate([rows, ri[r]])
         cols = np.concatenate([cols, rj[c]])
     return rows, cols
+
+
+def gated_pairs_few(
+    a: list[tuple[float, float]], b: list[tuple[float, float]], gate: float
+) -> list[tuple[int, int]] | None:
+    """:func:`gated_assignment` of a few points (``a``, ``b``: lists of (x, y)) where
+    each has at most one candidate within ``gate`` (obstacles apart, as most frames'):
+    its pairs (index into ``a``, into ``b``) in ``a``'s order, in plain Python (for a
+    handful of points its dozen array calls cost more than the arithmetic); None where
+    a point has several candidates, a distance is the gate's to the last bits or the
+    points are too many (ask :func:`gated_assignment`)."""
+    if len(a) * len(b) > DENSE_PAIRS:
+        return None
+    pairs: list[tuple[int, int]] = []
+    taken: set[int] = set()
+    close = 4.0 * math.ulp(gate)  # math.hypot and numpy's may differ in the last bit
+    far, sure = gate + close, gate - close
+    for i, (ax, ay) in enumerate(a):
+        near = -1
+        for j, (bx, by) in enumerate(b):
+            d = math.hypot(ax - bx, ay - by)
+            if d > far or d != d:  # out of the gate (NaN: too)
+                continue
+            if d >= sure or near >= 0 or j in taken:
+                return None
+            near = j
+        if near >= 0:
+            taken.add(near)
+            pairs.append((i, near))
+    return pairs
 
 
 def _optimal(cost: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
