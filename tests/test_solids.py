@@ -13,7 +13,7 @@ import pytest
 
 from ovis.common.config import PoseConfig, RobotSpec, load_config
 from ovis.common.physical.rigs import rig
-from ovis.common.solids.fit import MAX_OFF_SHARE, FloorOutline, fit_piece
+from ovis.common.solids.fit import MAX_OFF_SHARE, THIN_WALL_PX, FloorOutline, fit_piece
 from ovis.common.solids.footprint import centroid_footprints
 from ovis.common.solids.shapes import SHAPES, equal_area_radius, footprint_polygon
 from ovis.common.solids.silhouette import (
@@ -135,6 +135,36 @@ def test_a_fit_finds_a_solids_shape_footprint_and_height_from_its_outline(
         float(equal_area_radius(shape, truth)), abs=0.05
     )
     assert 0.0 < math.sqrt(solid.covariance[-1, -1]) < 0.5
+
+
+def test_a_fits_height_uncertainty_covers_thin_walls_found_at_the_top_s_rim() -> None:
+    """Issue 36's overhead seed 1009: a pentagonal prism 3.11 cm tall, 47 cm from the
+    camera's foot, its sides nearly along the line of sight. Where its walls are thinner
+    in the frame than THIN_WALL_PX, its edges are moved in to the top face's rim (as the
+    renders show them; 0.05 cm noise): the height found is off, and within its stated
+    1σ (counting those walls' bias: without it, 1.6σ off)."""
+    view = Viewpoint(np.array([75.0, 60.0]), 200.0)  # the overhead camera
+    truth = np.array([72.5, 13.1, 7.16, math.radians(-16.6), 3.11])
+    hull = _hull_polygon("prism5", truth, view)
+    points = np.vstack(
+        [
+            np.linspace(p, q, 30, endpoint=False)
+            for p, q in zip(hull, np.roll(hull, -1, 0), strict=True)
+        ]
+    )
+    edge = np.roll(points, -1, 0) - np.roll(points, 1, 0)
+    normals = np.column_stack([edge[:, 1], -edge[:, 0]]) / np.hypot(*edge.T)[:, None]
+    normals *= np.sign(np.sum((points - points.mean(0)) * normals))
+    px = np.full(len(points), 3.43)  # px per cm there
+    facing = -(normals * (points - view.foot)).sum(1)
+    wall = (float(top_scale(truth[-1], view)) - 1.0) * facing  # cm
+    thin = (facing > 0.0) & (wall * px < THIN_WALL_PX)
+    assert thin.sum() > 50
+    rim = points - np.where(thin, wall, 0.0)[:, None] * normals
+    rim += np.random.default_rng(11).normal(0.0, 0.05, rim.shape)
+    solid = fit_piece(FloorOutline(rim, normals, px), view)
+    error = abs(float(solid.theta[-1]) - 3.11)
+    assert 0.2 < error < math.sqrt(solid.covariance[-1, -1])
 
 
 def test_a_fit_explains_its_outline_with_a_few_points_far_off_not_with_a_wrong_shape() -> None:

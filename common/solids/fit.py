@@ -21,7 +21,9 @@ near one hiding the far one's foot: :func:`_split_along_sight`).
 
 Each solid's covariance comes from the Jacobian and the residuals (scaled for the
 correlation of neighbouring edge points, which share pixels), plus what a bias common
-to all its edges would do (:data:`EDGE_BIAS_PX`). Points of a union's outline near two
+to all its edges would do (:data:`EDGE_BIAS_PX`) and what the edges on walls too thin to
+be told from the top's edge would, found at the top face's rim (:data:`THIN_WALL_PX`:
+a low solid's sides seen nearly edge-on). Points of a union's outline near two
 silhouettes (:func:`_junctions`) count for the fit but not for the covariance: a solid
 whose walls' foot is hidden behind another is then, rightly, not measurable. Where such
 a solid stands is bounded by the others (:func:`bound_behind`): it is placed halfway
