@@ -18,6 +18,7 @@ from ovis.common.physical.rigs import rig
 from ovis.common.solids.fit import (
     LOSS_PX,
     MAX_OFF_SHARE,
+    THIN_WALL_PX,
     FloorOutline,
     Solid,
     fit_piece,
@@ -46,7 +47,7 @@ from ovis.common.vision.outline import (
     patch_outline,
     subpixel_edges,
 )
-from ovis.common.world.heights import with_heights
+from ovis.common.world.heights import SolidTracker, with_heights
 
 VIEW = Viewpoint(np.array([75.0, -60.0]), 140.0)  # the oblique tripod's centre
 
@@ -158,6 +159,36 @@ def test_a_fit_finds_a_solids_shape_footprint_and_height_from_its_outline(
     assert 0.0 < math.sqrt(solid.covariance[-1, -1]) < 0.5
 
 
+def test_a_fits_height_uncertainty_covers_thin_walls_found_at_the_top_s_rim() -> None:
+    """Issue 36's overhead seed 1009: a pentagonal prism 3.11 cm tall, 47 cm from the
+    camera's foot, its sides nearly along the line of sight. Where its walls are thinner
+    in the frame than THIN_WALL_PX, its edges are moved in to the top face's rim (as the
+    renders show them; 0.05 cm noise): the height found is off, and within its stated
+    1σ (counting those walls' bias: without it, 1.6σ off)."""
+    view = Viewpoint(np.array([75.0, 60.0]), 200.0)  # the overhead camera
+    truth = np.array([72.5, 13.1, 7.16, math.radians(-16.6), 3.11])
+    hull = _hull_polygon("prism5", truth, view)
+    points = np.vstack(
+        [
+            np.linspace(p, q, 30, endpoint=False)
+            for p, q in zip(hull, np.roll(hull, -1, 0), strict=True)
+        ]
+    )
+    edge = np.roll(points, -1, 0) - np.roll(points, 1, 0)
+    normals = np.column_stack([edge[:, 1], -edge[:, 0]]) / np.hypot(*edge.T)[:, None]
+    normals *= np.sign(np.sum((points - points.mean(0)) * normals))
+    px = np.full(len(points), 3.43)  # px per cm there
+    facing = -(normals * (points - view.foot)).sum(1)
+    wall = (float(top_scale(truth[-1], view)) - 1.0) * facing  # cm
+    thin = (facing > 0.0) & (wall * px < THIN_WALL_PX)
+    assert thin.sum() > 50
+    rim = points - np.where(thin, wall, 0.0)[:, None] * normals
+    rim += np.random.default_rng(11).normal(0.0, 0.05, rim.shape)
+    solid = fit_piece(FloorOutline(rim, normals, px), view)
+    error = abs(float(solid.theta[-1]) - 3.11)
+    assert 0.2 < error < math.sqrt(solid.covariance[-1, -1])
+
+
 def test_a_fit_explains_its_outline_with_a_few_points_far_off_not_with_a_wrong_shape() -> None:
     """A box's outline with a run of points 4 cm out (a floor mark fused to it): the fit
     passes them by and explains the outline, though they alone lift its rms residual
@@ -203,6 +234,24 @@ def test_subpixel_edges_find_the_silhouette_of_a_blurred_disc_with_or_without_a_
     assert abs(float(np.mean(off))) < 0.12
     if wall == 0.0:
         assert float(np.percentile(np.abs(off), 95)) < 0.5
+
+
+def test_walls_show_only_on_the_outline_s_side_facing_the_camera_s_foot() -> None:
+    """A square outline in the overhead camera's frame, below the camera's foot (the
+    frame's centre): walls may show along its top side (facing the foot) and its sides
+    (along the line of sight), not along its bottom side (the far side: there the
+    sub-pixel edge is one step)."""
+    config = load_config()
+    tracker = SolidTracker(rig("overhead", config), config.image, config.pose)
+    side = np.arange(310, 330)
+    top = np.column_stack([side, np.full(20, 380)])  # (col, row), clockwise in the frame
+    right = np.column_stack([np.full(20, 330), side + 70])
+    bottom = np.column_stack([side[::-1] + 1, np.full(20, 400)])
+    left = np.column_stack([np.full(20, 310), side[::-1] + 71])
+    chain = np.vstack([top, right, bottom, left]).astype(np.int32)
+    walls = tracker._walls_may_show(chain).reshape(4, 20)[:, 4:16]  # away from the corners
+    assert walls[0].all() and walls[1].all() and walls[3].all()
+    assert not walls[2].any()
 
 
 def test_a_footprint_follows_its_blobs_centroid() -> None:

@@ -21,7 +21,9 @@ near one hiding the far one's foot: :func:`_split_along_sight`).
 
 Each solid's covariance comes from the Jacobian and the residuals (scaled for the
 correlation of neighbouring edge points, which share pixels), plus what a bias common
-to all its edges would do (:data:`EDGE_BIAS_PX`). Points of a union's outline near two
+to all its edges would do (:data:`EDGE_BIAS_PX`) and what the edges on walls too thin to
+be told from the top's edge would, found at the top face's rim (:data:`THIN_WALL_PX`:
+a low solid's sides seen nearly edge-on). Points of a union's outline near two
 silhouettes (:func:`_junctions`) count for the fit but not for the covariance: a solid
 whose walls' foot is hidden behind another is then, rightly, not measurable. Where such
 a solid stands is bounded by the others (:func:`bound_behind`): it is placed halfway
@@ -52,6 +54,7 @@ from ovis.common.solids.silhouette import (
     signed_distance,
     signed_distance_few,
     top_distance,
+    top_scale,
 )
 from ovis.common.vision.outline import PROFILE_REACH_PX
 
@@ -104,6 +107,10 @@ MIN_SPREAD_PX = 0.1
 #: off, one way (px): a bias the residuals cannot show (a thin dark wall blurred into the
 #: floor), counted in the covariance.
 EDGE_BIAS_PX = 0.25
+#: A wall narrower than this in the frame (px) is not told from the top's edge: the edge
+#: found there may be the top face's rim, as far inside as the wall is wide (a bias the
+#: residuals cannot show either, counted in the covariance).
+THIN_WALL_PX = 1.0
 #: Smallest size of a footprint's side or radius (cm).
 MIN_SIZE_CM = 0.3
 #: Lowest height tried (cm).
@@ -357,11 +364,17 @@ def _price(shape: str) -> float:
     return PARAMETER_PRICE * parameter_count(shape)
 
 
-def _near_side(floor: FloorOutline, view: Viewpoint) -> FloatArray:
-    """1 for the outline's points whose outward normal faces the camera's foot (the
-    walls' feet, where a thin dark wall blurs into the floor), 0 for the rest."""
+def _near_side(floor: FloorOutline, view: Viewpoint, heights: FloatArray) -> FloatArray:
+    """Per point of the outline, how wide (px) the wall below its edge is in the frame
+    where its outward normal faces the camera's foot (the walls' feet, where a thin dark
+    wall blurs into the floor), −1 where it does not. ``heights``: per point, the height
+    (cm) of the solid whose edge it is. A wall's width across the outline is the top
+    face's offset there, ``(S − 1)`` times the distance of the point's edge line from the
+    camera's foot."""
     rel = floor.points - view.foot
-    return ((floor.normals * rel).sum(1) < 0.0).astype(np.float64)
+    facing = -(floor.normals * rel).sum(1)
+    wall = (top_scale(heights, view) - 1.0) * facing * floor.px_per_cm
+    return np.where(facing > 0.0, wall, -1.0)
 
 
 class _Spread(NamedTuple):
@@ -377,12 +390,16 @@ class _Spread(NamedTuple):
 def _covariance(
     residuals: Residuals,
     theta: FloatArray,
-    biased: FloatArray | None = None,
+    walls: FloatArray | None = None,
     evidence: NDArray[np.bool_] | None = None,
 ) -> _Spread:
     """Covariance of a solution (scaled residual spread times the inverse normal
-    matrix, plus the shift a bias of the ``biased`` edges would cause), its
-    root-mean-square residual (px), that shift and the share of points off.
+    matrix, plus the shifts two biases would cause: every edge of the walls' feet
+    :data:`EDGE_BIAS_PX` further out; every edge on a wall narrower than
+    :data:`THIN_WALL_PX` as far out as its wall is wide, found at the top face's rim),
+    its root-mean-square residual (px), the first shift and the share of points off.
+    ``walls``: the leading points' walls' widths (px; −1: no wall faces the camera's
+    foot there; default: every point biased, none thin: :func:`_near_side`);
     ``evidence``: the leading points that count for the covariance (the rest count for
     the residuals only: :func:`_junctions`)."""
     p = theta.size
@@ -404,12 +421,16 @@ def _covariance(
         # a solid no point counts for along some direction (its walls' foot hidden behind
         # another): that direction's variance without bound, the others' as they are
         inv = np.linalg.inv(a + UNPINNED * np.eye(p))
-    if biased is None:
-        biased = np.ones(r.size)
     offset = np.zeros(r.size)
-    offset[: biased.size] = biased * EDGE_BIAS_PX
+    thin = np.zeros(r.size)
+    if walls is None:
+        offset[:] = EDGE_BIAS_PX
+    else:
+        offset[: walls.size] = EDGE_BIAS_PX * (walls >= 0.0)
+        thin[: walls.size] = np.where((walls >= 0.0) & (walls < THIN_WALL_PX), walls, 0.0)
     shift = inv @ ((jac * weight) @ offset)  # those edges EDGE_BIAS_PX further out
-    cov = inv * spread * CORRELATION + np.outer(shift, shift)
+    rims = inv @ ((jac * weight) @ thin)  # the thin walls' edges at their feet
+    cov = inv * spread * CORRELATION + np.outer(shift, shift) + np.outer(rims, rims)
     return _Spread(cov, rms, shift, off)
 
 
@@ -507,7 +528,8 @@ def refit(
     residuals = _single(solid.shape, floor, view)
     theta = levenberg_marquardt(residuals, solid.theta[None], lo, hi, iterations=iterations)
     theta = theta[0][0]
-    fit = _covariance(residuals, theta, _near_side(floor, view))
+    walls = _near_side(floor, view, np.full(len(floor.points), theta[-1]))
+    fit = _covariance(residuals, theta, walls)
     return Solid(solid.shape, theta, fit.cov, fit.rms, len(floor.points), fit.shift, fit.off_share)
 
 
@@ -1042,7 +1064,14 @@ def refit_with_tops(
     start = np.concatenate([s.theta for s in solids])[None]
     theta = levenberg_marquardt(residuals, start, lo, hi, iterations=iterations)[0][0]
     evidence = None if len(solids) < 2 else ~_junctions(shapes, theta, cuts, floor, view)
-    fit = _covariance(residuals, theta, _near_side(floor, view), evidence)
+    near = np.abs(
+        [
+            signed_distance(shape, theta[cuts[k] : cuts[k + 1]], floor.points, view)
+            for k, shape in enumerate(shapes)
+        ]
+    ).argmin(0)  # the solid whose edge each point is
+    walls = _near_side(floor, view, theta[cuts[1:] - 1][near])
+    fit = _covariance(residuals, theta, walls, evidence)
     n = len(floor.points) + sum(len(t.points) for t in tops if t is not None)
     return [
         Solid(
