@@ -47,7 +47,7 @@ from ovis.common.vision.outline import (
     patch_outline,
     subpixel_edges,
 )
-from ovis.common.world.heights import SolidTracker, with_heights
+from ovis.common.world.heights import with_heights
 
 VIEW = Viewpoint(np.array([75.0, -60.0]), 140.0)  # the oblique tripod's centre
 
@@ -234,24 +234,6 @@ def test_subpixel_edges_find_the_silhouette_of_a_blurred_disc_with_or_without_a_
     assert abs(float(np.mean(off))) < 0.12
     if wall == 0.0:
         assert float(np.percentile(np.abs(off), 95)) < 0.5
-
-
-def test_walls_show_only_on_the_outline_s_side_facing_the_camera_s_foot() -> None:
-    """A square outline in the overhead camera's frame, below the camera's foot (the
-    frame's centre): walls may show along its top side (facing the foot) and its sides
-    (along the line of sight), not along its bottom side (the far side: there the
-    sub-pixel edge is one step)."""
-    config = load_config()
-    tracker = SolidTracker(rig("overhead", config), config.image, config.pose)
-    side = np.arange(310, 330)
-    top = np.column_stack([side, np.full(20, 380)])  # (col, row), clockwise in the frame
-    right = np.column_stack([np.full(20, 330), side + 70])
-    bottom = np.column_stack([side[::-1] + 1, np.full(20, 400)])
-    left = np.column_stack([np.full(20, 310), side[::-1] + 71])
-    chain = np.vstack([top, right, bottom, left]).astype(np.int32)
-    walls = tracker._walls_may_show(chain).reshape(4, 20)[:, 4:16]  # away from the corners
-    assert walls[0].all() and walls[1].all() and walls[3].all()
-    assert not walls[2].any()
 
 
 def test_a_footprint_follows_its_blobs_centroid() -> None:
