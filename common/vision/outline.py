@@ -15,10 +15,7 @@ outer step is the silhouette's edge; two steps are taken only where they fit cle
 better (a wall of its own level wide enough to be seen). Where one step is taken and a
 shelf follows it outside — D still a few levels above the floor past the step's blur (a
 wall too thin for two steps, lit only by the room) — the edge is where D falls to half
-the shelf's level. On the silhouette's far side, where the walls are turned away from
-the camera (the caller says where: ``walls``), the edge is one step: a two-step fit or a
-shelf there is only the edge's own profile differing from the model's (its outer step
-lies outside the silhouette). Points on bright spots of the empty floor (floor marks,
+the shelf's level. Points on bright spots of the empty floor (floor marks,
 :func:`background_spots`) are left out: there the object's edge is not against the
 floor. :func:`edges_along` finds an edge of either sign where one is expected inside an
 object (a top face against its wall).
@@ -538,17 +535,11 @@ def subpixel_edges(
     blur_px: float,
     noise: float,
     spots: NDArray[np.uint8] | None = None,
-    walls: NDArray[np.bool_] | None = None,
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
     """Sub-pixel silhouette edge points (frame col, row), outward normals and which are
     usable, one per chain point (see the module's docstring); ``diff`` is D around the
     chain with its top-left pixel at ``origin`` (row, col) of the frame; ``spots`` (the
-    frame's :func:`background_spots`) drop points on bright floor. ``walls``: per chain
-    point, whether a wall may show outside the top face there (default everywhere);
-    where none can (the silhouette's far side, its walls turned away from the camera),
-    the edge is one step: two steps or a shelf there are the edge's own shape (a top
-    face's rim rendered darker, a blur not quite Gaussian), whose outer step lies
-    outside the silhouette."""
+    frame's :func:`background_spots`) drop points on bright floor."""
     p, nrm = chain_normals(chain)
     prof = _profiles(diff, origin, p, nrm)
     one, two, _ = _step_models(float(blur_px))
@@ -557,7 +548,7 @@ def subpixel_edges(
     # two steps only where one leaves more than the gain they must bring
     k2 = np.zeros(len(p), dtype=np.int64)
     best2 = np.full(len(p), np.inf)
-    poor = np.flatnonzero(~(best1 <= gain) & (True if walls is None else walls))
+    poor = np.flatnonzero(~(best1 <= gain))
     if poor.size:
         ss2, c2 = _fit_steps(prof[poor], two)
         valid = (c2[..., 1] > WALL_STEP) & (np.abs(c2[..., 2]) > WALL_STEP)
@@ -565,10 +556,7 @@ def subpixel_edges(
         k2[poor] = ss2.argmin(0)
         best2[poor] = ss2[k2[poor], np.arange(poor.size)]
     take_two = best2 < best1 - gain
-    past = _past_the_wall(prof, at1)
-    if walls is not None:
-        past = np.where(walls, past, at1)
-    at = np.where(take_two, two.outer[k2], past)
+    at = np.where(take_two, two.outer[k2], _past_the_wall(prof, at1))
     edge = p + at[:, None] * nrm
     usable = np.isfinite(np.where(take_two, best2, best1)) & _off_spots(edge, spots)
     return edge, nrm, usable

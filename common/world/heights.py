@@ -58,7 +58,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.camera.plane_table import PlaneTables
-from ovis.common.camera.projection import PixelJacobian, back_project, project
+from ovis.common.camera.projection import PixelJacobian
 from ovis.common.config import CameraModel, ImageParams, PoseConfig
 from ovis.common.solids.fit import (
     HEIGHT_STARTS,
@@ -141,11 +141,6 @@ MIN_EDGE_POINTS = 12
 CLEAR_WALLS_SHARE = 0.5
 #: How closely (cm) the tallest height whose walls are too thin to show is worked out.
 THIN_STEP_CM = 0.05
-#: An outline's point is on the silhouette's far side, where no wall shows, when its
-#: outward normal points along the walls' upward direction in the frame with at least
-#: this cosine; that direction is found by lifting the point's floor point this far (cm).
-FAR_SIDE_COS = 0.1
-UP_PROBE_CM = 1.0
 
 
 def heights_unavailable(image: ImageParams) -> str | None:
@@ -383,7 +378,6 @@ class SolidTracker:
             blur_px=self.image.edge_blur_px,
             noise=self.image.noise_sigma,
             spots=self.spots,
-            walls=self._walls_may_show(outline.chain),
         )
         kept = np.flatnonzero(usable)
         if kept.size < MIN_EDGE_POINTS:
@@ -454,19 +448,6 @@ class SolidTracker:
                 if axes[0] >= -1e-9 * max(axes[-1], 1.0) and axes[-1] <= self.view.height_cm**2:
                     return solid
         return solid._replace(covariance=unplaced_covariance(solid, self.view))
-
-    def _walls_may_show(self, chain: NDArray[np.int32]) -> NDArray[np.bool_]:
-        """Per outline pixel, whether a wall may show outside the top face there: unless
-        the outline's outward normal points along the walls' upward direction in the
-        frame (cosine over :data:`FAR_SIDE_COS`), where the top face is displaced to from
-        its footprint, away from the camera's foot (the silhouette's far side: its edge
-        is the top face's against the floor, the walls there turned away)."""
-        p, normals = chain_normals(chain)
-        foot = back_project(p[:, 1], p[:, 0], self.camera)
-        up = project(foot.x_cm, foot.y_cm, np.full(len(p), UP_PROBE_CM), self.camera)
-        u = np.column_stack([up.col - p[:, 0], up.row - p[:, 1]])
-        cos = (normals * u).sum(1) / np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)
-        return ~(foot.valid & up.valid & (cos > FAR_SIDE_COS))
 
     def _placed_behind(self, solids: list[Solid], floor: FloorOutline) -> list[Solid]:
         """A blob's solids, each whose walls' foot is hidden behind the others and whose
