@@ -89,7 +89,6 @@ from ovis.common.vision.outline import (
     Patch,
     background_spots,
     blob_outline,
-    chain_normals,
     edges_along,
     patch_outline,
     split_outline,
