@@ -167,8 +167,9 @@ def test_the_store_keeps_one_epoch_and_stamps_every_version(tmp_path) -> None:
 def test_a_calibration_of_another_simulated_set_up_is_not_taken_from_the_store(tmp_path) -> None:
     """A state folder shared by runs of the light and the physical world: the light
     world's calibration (made on its simulated camera) is refused by a physical run's
-    calibrator, which calibrates anew; the same world's is taken; one saved before the
-    set-up was recorded is another run's; a real camera's run never asks."""
+    calibrator, which calibrates anew, as is one made on another seed's scene (its empty
+    floor and marks); the same set-up's is taken; one saved before the set-up was
+    recorded is another run's; a real camera's run never asks."""
     light = load_config()
     physical = load_config(preset="physical")
     calib = msgspec.structs.replace(
@@ -181,6 +182,12 @@ def test_a_calibration_of_another_simulated_set_up_is_not_taken_from_the_store(t
     assert problem is not None and "the light world's" in problem and "physical" in problem
     older = msgspec.structs.replace(calib, simulated_for="")
     assert "an earlier run's" in (validity.setup_problem(older, light) or "")
+    other_seed = msgspec.structs.replace(
+        physical, service=msgspec.structs.replace(physical.service, seed=physical.service.seed + 1)
+    )
+    ours = msgspec.structs.replace(calib, simulated_for=validity.simulated_setup(physical))
+    assert validity.setup_problem(ours, physical) is None
+    assert validity.setup_problem(ours, other_seed) is not None  # another floor, its marks
     real = msgspec.structs.replace(
         light, service=msgspec.structs.replace(light.service, source="0")
     )

@@ -107,9 +107,11 @@ def calibration_problem(calib: Calibration, config: OvisConfig) -> str | None:
 
 def simulated_setup(config: OvisConfig) -> str:
     """The simulated set-up a calibrator run on ``config`` calibrates: its world and a
-    digest of the camera that renders it ("light:3f2a…")."""
-    camera = msgspec.json.encode(config.camera)
-    return f"{config.simulator.world}:{hashlib.sha256(camera).hexdigest()[:16]}"
+    digest of the camera that renders it and of the scene's seed ("light:3f2a…"; the
+    physical world's empty floor, which a calibration names as its background, and its
+    floor marks are the seed's)."""
+    made = msgspec.json.encode([config.camera, config.service.seed])
+    return f"{config.simulator.world}:{hashlib.sha256(made).hexdigest()[:16]}"
 
 
 def setup_problem(calib: Calibration, config: OvisConfig) -> str | None:
@@ -125,6 +127,6 @@ def setup_problem(calib: Calibration, config: OvisConfig) -> str | None:
     world = calib.simulated_for.partition(":")[0]
     made = f"the {world} world's" if world else "an earlier run's"
     return (
-        f"calibration v{calib.version} is not this run's: made on {made} simulated camera, "
-        f"this run renders the {config.simulator.world} world's ({here})"
+        f"calibration v{calib.version} is not this run's: made on {made} simulated camera "
+        f"or scene, this run renders the {config.simulator.world} world's ({here})"
     )
