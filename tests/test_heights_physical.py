@@ -560,7 +560,7 @@ def test_unseen_tripod_scenes_whose_fits_turn_on_fine_choices() -> None:
     """Unseen tripod scenes where a fit's choices once went wrong: seed 1024's 8 cm box
     (cut into three prisms when the outline's normals were carried to the floor by a
     closed form differing in the last bits), seeds 1126 and 1134 (partly hidden solids,
-    lost or measured 9.5 cm off at a stated 0.11 cm with one-step far-side edges), seed
+    lost, or measured far off at a narrow stated σ, with one-step far-side edges), seed
     1124 (wrong shapes fitted to a partly hidden box, once stating no uncertainty).
     Every obstacle found; every measured height within 1 cm; every footprint within
     0.5 cm or within the 99 % bound of the uncertainty it states, which every fitted

@@ -437,10 +437,11 @@ class _MarkedFrame(NamedTuple):
 
 
 def _without_robots(found: SolidObjects, marked: _MarkedFrame) -> SolidObjects:
-    """``found`` less the marked robots' own solids: in each robot's blob, the solid
-    standing nearest its marker's pose within its radius (the others there are obstacles
-    its silhouette merged with); a blob still waiting for its fit is all the robot's
-    (which of its rows would be the robot cannot be told yet)."""
+    """``found`` less the marked robots' own solids: in each robot's blob (its centroid
+    within the robot's radius), the solid standing nearest its marker's pose (the others
+    there are obstacles its silhouette merged with; kept, the robot's own would be
+    reported as an obstacle where it stands); a blob still waiting for its fit is all
+    the robot's (which of its rows would be the robot cannot be told yet)."""
     drop = np.zeros(found.blob.size, dtype=bool)
     for robot, b in zip(marked.robots, marked.rep, strict=True):
         rows = np.flatnonzero(found.blob == b) if b >= 0 else np.zeros(0, dtype=np.int64)
@@ -450,9 +451,7 @@ def _without_robots(found: SolidObjects, marked: _MarkedFrame) -> SolidObjects:
             drop[rows] = True
             continue
         d = np.hypot(found.xy[rows, 0] - robot.x_cm, found.xy[rows, 1] - robot.y_cm)
-        k = int(d.argmin())
-        if d[k] <= robot.radius_cm:
-            drop[rows[k]] = True
+        drop[rows[int(d.argmin())]] = True
     if not drop.any():
         return found
     keep = ~drop
