@@ -250,9 +250,11 @@ def test_a_footprint_follows_its_blobs_centroid() -> None:
 
 
 def test_a_blobs_solids_follow_its_outline_as_one_gauss_newton_step_puts_them() -> None:
-    """A box and a cylinder side by side, their union's outline seen, both moved off it:
-    :func:`follow_union`'s steps bring them back, each step the Gauss–Newton step of
-    the union's residuals (differences of :func:`signed_distance`, LAPACK's solve)."""
+    """A box and a cylinder side by side, their union's outline seen, both moved off it
+    and the box turned (a robot turns as it drives): :func:`follow_union`'s steps bring
+    them back, each step the Gauss–Newton step of the union's residuals (differences of
+    :func:`signed_distance`, LAPACK's solve) in the box's centre and yaw and the
+    cylinder's centre."""
     truth = [_theta("box", 60.0, 40.0, 8.0), _theta("cylinder", 68.0, 46.0, 15.0)]
     points = []
     for k, theta in enumerate(truth):
@@ -272,28 +274,36 @@ def test_a_blobs_solids_follow_its_outline_as_one_gauss_newton_step_puts_them() 
         for shape, theta in zip(("box", "cylinder"), truth, strict=True)
     ]
     solids[0].theta[0:2] += [0.4, -0.3]
+    solids[0].theta[4] += math.radians(4.0)
     solids[1].theta[0:2] += [-0.2, 0.35]
     offsets = np.zeros(2)
+    free = ([0, 1, 4], [0, 1])  # the box's centre and yaw, the cylinder's centre
+    kept = ([2, 3, 5], [2, 3])
     for _ in range(4):
         own = []
-        for s in solids:  # here, moved in x, moved in y
-            moved = np.repeat(s.theta[None], 3, axis=0)
-            moved[1:, 0:2] += 1e-3 * np.eye(2)
+        for s, idx in zip(solids, free, strict=True):  # here, then moved in each
+            moved = np.repeat(s.theta[None], 1 + len(idx), axis=0)
+            for m, i in enumerate(idx):
+                moved[1 + m, i] += 1e-3
             own.append(3.0 * signed_distance(s.shape, moved, q, VIEW))
         r = np.minimum(own[0][0], own[1][0])
-        jac = np.vstack([np.minimum(own[1 - k][0], own[k][1 + c]) for k in (0, 1) for c in (0, 1)])
+        jac = np.vstack(
+            [np.minimum(own[1 - k][0], own[k][1 + m]) for k in (0, 1) for m in range(len(free[k]))]
+        )
         jac = (jac - r) / 1e-3
         w = 1.0 / np.sqrt(1.0 + (r / LOSS_PX) ** 2)
-        a = (jac * w) @ jac.T + 1e-9 * np.eye(4)
+        a = (jac * w) @ jac.T + 1e-9 * np.eye(len(jac))
         step = -np.linalg.solve(a, (jac * w) @ r)
-        centres = follow_union(solids, offsets, floor, VIEW)
-        expected = np.concatenate([s.theta[0:2] for s in solids]) + step
-        assert np.abs(centres.ravel() - expected).max() < 1e-9
-        solids = [
-            s._replace(theta=np.r_[c, s.theta[2:]]) for s, c in zip(solids, centres, strict=True)
-        ]
+        moved = follow_union(solids, offsets, floor, VIEW)
+        expected = np.concatenate([s.theta[idx] for s, idx in zip(solids, free, strict=True)])
+        got = np.concatenate([t[idx] for t, idx in zip(moved, free, strict=True)])
+        assert np.abs(got - (expected + step)).max() < 1e-9
+        for s, t, idx in zip(solids, moved, kept, strict=True):  # sizes and heights kept
+            assert np.array_equal(t[idx], s.theta[idx])
+        solids = [s._replace(theta=t) for s, t in zip(solids, moved, strict=True)]
     for s, t in zip(solids, truth, strict=True):
         assert np.abs(s.theta[0:2] - t[0:2]).max() < 0.01
+    assert abs(math.degrees(solids[0].theta[4] - truth[0][4])) < 0.1
 
 
 def test_an_outlines_pixel_chain_is_read_off_the_floor_table_as_its_points_would_be() -> None:

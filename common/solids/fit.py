@@ -32,7 +32,6 @@ along the stretch of its line of sight they leave it, its covariance spread over
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
@@ -904,18 +903,16 @@ def union_offsets(solids: Sequence[Solid], floor: FloorOutline, view: Viewpoint)
     )
 
 
-#: :func:`follow_union`'s difference step (cm) and a solid's three centres: where it
-#: is, moved in x, moved in y.
+#: :func:`follow_union`'s difference step (cm, and rad for a yaw) and a solid's moves:
+#: where it is, moved in x, moved in y (and turned, where it has a yaw).
 _FOLLOW_STEP = 1e-3
-_FOLLOW_MOVES = ((0.0, 0.0), (_FOLLOW_STEP, 0.0), (0.0, _FOLLOW_STEP))
+_FOLLOW_MOVES = ((0.0, 0.0, 0.0), (_FOLLOW_STEP, 0.0, 0.0), (0.0, _FOLLOW_STEP, 0.0))
+_FOLLOW_TURNS = (*_FOLLOW_MOVES, (0.0, 0.0, _FOLLOW_STEP))
 
 
-@functools.lru_cache(maxsize=8)
-def _ridge(p: int) -> FloatArray:
-    """What :func:`follow_union` adds to its normal matrix's diagonal (made once)."""
-    out = 1e-9 * np.eye(p)
-    out.flags.writeable = False
-    return out
+def yaw_index(shape: str) -> int | None:
+    """Where a shape's parameter vector holds its yaw (None: a cylinder has none)."""
+    return None if shape == "cylinder" else parameter_count(shape) - 2
 
 
 def follow_union(
@@ -923,50 +920,86 @@ def follow_union(
     offsets: FloatArray,
     floor: FloorOutline,
     view: Viewpoint,
-) -> FloatArray:
-    """The centres (k, 2) that put the union of ``solids`` (shapes and heights kept) on an
-    outline, each solid's edge ``offsets`` px further out (:func:`union_offsets`): one
-    Gauss–Newton step from where they are (they moved little since the last frame), the
-    Jacobian by differences. A step of one solid's centre leaves the others' distances
-    as they are: each solid's are worked out where it is and moved one step in x and
-    in y, and the union's residuals at every step made from them."""
-    start = np.concatenate([s.theta[0:2] for s in solids])
-    p, k, n = start.size, len(solids), len(floor.points)
-    own = np.empty((k, 3, n))  # each solid's residuals here, moved in x, moved in y
+) -> list[FloatArray]:
+    """The parameter vectors that put the union of ``solids`` (shapes, sizes and heights
+    kept) on an outline, each solid's edge ``offsets`` px further out
+    (:func:`union_offsets`): their centres moved and every polygon turned (a robot turns
+    as it drives; a solid that does not stays as it was), one Gauss–Newton step from
+    where they are (they moved little since the last frame), the Jacobian by
+    differences. A move of one solid leaves the others' distances as they are: each
+    solid's are worked out where it is and moved one step in each of its free
+    parameters, and the union's residuals at every step made from them."""
+    k, n = len(solids), len(floor.points)
+    moves = [_FOLLOW_MOVES if s.shape == "cylinder" else _FOLLOW_TURNS for s in solids]
     q1 = np.ones((n, 3))  # the outline's points as (x, y, 1)
     q1[:, :2] = floor.points
+    own: list[FloatArray] = [np.empty(0)] * k  # each solid's residuals here, then moved
     for shape in dict.fromkeys(s.shape for s in solids):  # the solids of a shape at once
         ks = [j for j, s in enumerate(solids) if s.shape == shape]
+        yi = yaw_index(shape)
         rows = []
         for j in ks:
             theta = solids[j].theta.tolist()
-            for mx, my in _FOLLOW_MOVES:
-                rows.append([theta[0] + mx, theta[1] + my, *theta[2:]])
+            for mx, my, mt in moves[j]:
+                row = [theta[0] + mx, theta[1] + my, *theta[2:]]
+                if yi is not None:
+                    row[yi] += mt
+                rows.append(row)
         d = signed_distance_few(shape, rows, q1, view)
         d *= floor.px_per_cm
-        for i, j in enumerate(ks):
-            np.subtract(d[3 * i : 3 * i + 3], offsets[j], out=own[j])
-    m = np.empty((p + 1, n))  # the Jacobian's rows (p, N), then the residuals
-    here = own[:, 0]
-    r = here.min(0, out=m[p])
-    jac = m[:p]
+        at = 0
+        for j in ks:
+            m = len(moves[j])
+            own[j] = d[at : at + m] - offsets[j]
+            at += m
+    here = np.stack([o[0] for o in own])
+    r = here.min(0)
     if k == 1:
-        jac[:] = own[0, 1:3]
+        jac = own[0][1:]
     else:  # each solid moved, against the union of the others where they are
         others = (
             here[::-1] if k == 2 else np.stack([np.delete(here, j, 0).min(0) for j in range(k)])
         )
-        np.minimum(others[:, None, :], own[:, 1:3], out=jac.reshape(k, 2, n))
-    jac -= r
-    jac /= _FOLLOW_STEP
+        jac = np.vstack([np.minimum(others[j], own[j][1:]) for j in range(k)])
+    jac = (jac - r) / _FOLLOW_STEP
     weight = 1.0 / np.sqrt(1.0 + (r / LOSS_PX) ** 2)
-    normal = ((jac * weight) @ m.T).tolist()  # JᵀWJ (p, p) beside JᵀWr
+    p = len(jac)
+    normal = ((jac * weight) @ np.vstack([jac, r]).T).tolist()  # JᵀWJ (p, p) beside JᵀWr
     for i in range(p):
         normal[i][i] += 1e-9
     step = _solve_small(normal)
+    out = [s.theta.copy() for s in solids]
     if step is None:
-        return start.reshape(-1, 2)
-    return (start - step).reshape(-1, 2)
+        return out
+    at = 0
+    for j, s in enumerate(solids):
+        out[j][0:2] -= step[at : at + 2]
+        if len(moves[j]) == 4:
+            out[j][yaw_index(s.shape)] -= step[at + 2]
+        at += len(moves[j]) - 1
+    return out
+
+
+def follow_union_steps(
+    solids: Sequence[Solid],
+    offsets: FloatArray,
+    floor: FloorOutline,
+    view: Viewpoint,
+    steps: int,
+    tol_cm: float,
+) -> list[Solid]:
+    """:func:`follow_union` repeated from where each step puts the solids, at most
+    ``steps`` times, until a step moves no centre more than ``tol_cm``."""
+    now = list(solids)
+    for _ in range(steps):
+        moved = follow_union(now, offsets, floor, view)
+        shift = max(
+            float(np.abs(m[0:2] - s.theta[0:2]).max()) for m, s in zip(moved, now, strict=True)
+        )
+        now = [s._replace(theta=m) for s, m in zip(now, moved, strict=True)]
+        if shift <= tol_cm:
+            break
+    return now
 
 
 def _solve_small(rows: list[list[float]]) -> FloatArray | None:

@@ -54,22 +54,24 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.camera.plane_table import PlaneTables
-from ovis.common.camera.projection import PixelJacobian
+from ovis.common.camera.projection import PixelJacobian, project
 from ovis.common.config import CameraModel, ImageParams, PoseConfig
 from ovis.common.solids.fit import (
     HEIGHT_STARTS,
     ITERATIONS,
+    MAX_OFF_SHARE,
     FloorOutline,
     Solid,
     bound_behind,
     feet_hidden,
     fit_blob,
     fit_piece,
-    follow_union,
+    follow_union_steps,
     height_spread,
     held_covariance,
     held_height,
@@ -78,6 +80,7 @@ from ovis.common.solids.fit import (
     rough_footprint,
     union_offsets,
     unplaced_covariance,
+    yaw_index,
 )
 from ovis.common.solids.footprint import centroid_map
 from ovis.common.solids.outline_floor import chain_floor, floor_outline
@@ -138,6 +141,19 @@ MIN_EDGE_POINTS = 12
 #: for its top's edge to be decisive where walls too thin to show stop below this share
 #: of that height (twice :data:`MIN_WALL_PX` tall, the walls growing with the height).
 CLEAR_WALLS_SHARE = 0.5
+#: A blob's several solids are followed in at most this many Gauss–Newton steps, fewer
+#: where a step moves none of them more than this (cm).
+FOLLOW_STEPS = 3
+FOLLOW_TOL_CM = 0.02
+#: Known solids carried into a blob where they met or parted (:meth:`SolidTracker._carry`)
+#: are followed onto its outline in at most this many steps, and kept where no more than
+#: ``MAX_OFF_SHARE`` of its pixel chain is over this far (px) from their union.
+CARRY_STEPS = 6
+CARRY_OFF_PX = 1.5
+#: A carried solid that was alone in its blob is tried turned by these (deg) too.
+CARRY_TURNS_DEG = (20.0, -20.0, 40.0, -40.0, 60.0, -60.0, 90.0)
+#: A followed solid's reported yaw is updated when it turned by more than this (deg).
+REPORTED_TURN_DEG = 0.1
 #: How closely (cm) the tallest height whose walls are too thin to show is worked out.
 THIN_STEP_CM = 0.05
 
@@ -174,6 +190,13 @@ class _Tracked:
     map_g: FloatArray | None = None
     map_j: FloatArray | None = None
     _report: tuple | None = None
+    _reported_yaw: float = math.nan  # the yaw (rad) its report was made at
+    #: how far out (px) its blob's pixel chain lay from its silhouette at its fit
+    #: (:func:`~ovis.common.solids.fit.union_offsets`)
+    chain_offset: float = 0.0
+    #: in a blob of several, how its parameters changed from the last frame's follow to
+    #: this one's (its centre moved, its yaw turned; None: not followed yet)
+    motion: FloatArray | None = None
     _linear: tuple | None = None
     #: the σ (cm) of a height known only within the range a fit allows (reported where
     #: none is measured: :func:`~ovis.common.solids.fit.height_spread`)
@@ -200,6 +223,29 @@ class _Tracked:
             kept = self._linear = (self.map_g, self.bias, tuple(float(v) for v in values))
         return kept[2]
 
+    def turn(self, theta: FloatArray) -> bool:
+        """Take the yaw of ``theta`` (a follow turned it); whether what it reports
+        changed (its yaw by over :data:`REPORTED_TURN_DEG`)."""
+        k = yaw_index(self.solid.shape)
+        if k is None or theta[k] == self.solid.theta[k]:
+            return False
+        self.solid = self.solid._replace(theta=self.solid.theta.copy())
+        self.solid.theta[k] = theta[k]
+        if self._report is None or abs(theta[k] - self._reported_yaw) <= math.radians(
+            REPORTED_TURN_DEG
+        ):
+            return False
+        self._report = None
+        return True
+
+    def ahead(self) -> FloatArray:
+        """Its parameter vector where it would be were it to move (and turn) as it did
+        from the last frame to this one."""
+        t = self.theta()
+        if self.motion is not None:
+            t += self.motion
+        return t
+
     def theta(self) -> FloatArray:
         t = self.solid.theta.copy()
         t[0:2] = self.centre
@@ -215,6 +261,8 @@ class _Tracked:
             shape = self.solid.shape
             radius = float(equal_area_radius(shape, theta))
             length, width, yaw = size_and_yaw(shape, theta)
+            k = yaw_index(shape)
+            self._reported_yaw = math.nan if k is None else float(theta[k])
             cov = self.solid.covariance
             sigma = self.height_sigma
             if cov.size:
@@ -253,6 +301,9 @@ class _Group:
     fitted: int  # the frame of the last fit
     #: several solids: how far out their outline's pixel chain lies from each (px)
     offsets: FloatArray | None = None
+    #: its solids were carried in from other blobs (:meth:`SolidTracker._carry`), not
+    #: fitted to it: fitted again as soon as no new blob waits
+    carried: bool = False
 
 
 def _sigma(solid: Solid) -> float:
@@ -691,14 +742,15 @@ class SolidTracker:
         ]
         for t in tracked:
             self._map(t)
-        offsets = None
+        now = [t.solid._replace(theta=t.theta()) for t in tracked]
+        offsets = union_offsets(now, self._chain_floor(outline), self.view)
+        for t, offset in zip(tracked, offsets.tolist(), strict=True):
+            t.chain_offset = offset
         if len(tracked) == 1:
             t = tracked[0]
             assert t.map_g is not None
             t.bias = t.map_g - np.array([row, col])
-        else:
-            now = [t.solid._replace(theta=t.theta()) for t in tracked]
-            offsets = union_offsets(now, self._chain_floor(outline), self.view)
+            offsets = None
         return _Group(tracked, float(blob_filled[0]), row, col, frame, offsets)
 
     def _measured_height(self, group: _Group | None) -> float | None:
@@ -733,6 +785,8 @@ class SolidTracker:
         self._collect()
         rows, skips = filled.tolist(), skip.tolist()  # a frame's few blobs: plain numbers
         matched = self._match(rows, skips)
+        if patches is not None:
+            self._carry(rows, matched, skips, patches)
         limit = math.inf if fit_all or self.pose.fits_per_frame == 0 else self.pose.fits_per_frame
         beside = self._pool is not None and not fit_all
         if beside:
@@ -835,6 +889,102 @@ class SolidTracker:
                 out[c] = r
         return out
 
+    def _carry(
+        self,
+        rows: list[list[float]],
+        matched: list[int],
+        skip: list[bool],
+        patches: Sequence[Patch],
+    ) -> None:
+        """Known solids into the blobs that are new this frame because solids met or
+        parted in the image: each solid of a group no blob matched goes to the new blob
+        whose outline holds its image (its footprint centre at half its height, where it
+        moved to), and the solids of a blob are followed onto its outline
+        (:meth:`_placed_union`); a blob whose outline they do not explain (a solid new to
+        the view among them) waits for its fit. Carried blobs join the groups and
+        ``matched`` (their heights, measured over their tracks, are kept)."""
+        taken = set(matched)
+        lost = [g for r, g in enumerate(self.groups) if r not in taken]
+        new = [i for i, m in enumerate(matched) if m < 0 and not skip[i]]
+        if not lost or not new:
+            return
+        solids = [t for g in lost for t in g.solids]
+        ahead = np.array([t.ahead()[[0, 1, -1]] for t in solids])
+        seen = project(ahead[:, 0], ahead[:, 1], 0.5 * ahead[:, -1], self.camera)
+        outlines = {}
+        best: dict[int, tuple[float, int]] = {}  # solid → (depth inside, blob)
+        for i in new:
+            outline = blob_outline(patches, i, self.level, (rows[i][1], rows[i][2]), self.spots)
+            if outline is None or len(outline.chain) < MIN_EDGE_POINTS:
+                continue
+            outlines[i] = outline
+            contour = outline.chain.reshape(-1, 1, 2).astype(np.float32)
+            for k in range(len(solids)):
+                if not seen.valid[k]:
+                    continue
+                at = (float(seen.col[k]), float(seen.row[k]))
+                depth = cv2.pointPolygonTest(contour, at, True)
+                if depth >= 0.0 and depth > best.get(k, (-1.0, -1))[0]:
+                    best[k] = (depth, i)
+        by_blob: dict[int, list[int]] = {}
+        for k, (_, i) in best.items():
+            by_blob.setdefault(i, []).append(k)
+        fitted = min((g.fitted for g in lost), default=self.frame)
+        for i, ks in by_blob.items():
+            group = self._placed_union([solids[k] for k in ks], outlines[i], rows[i], fitted)
+            if group is not None:
+                self.groups.append(group)
+                matched[i] = len(self.groups) - 1
+
+    def _placed_union(
+        self, solids: list[_Tracked], outline: Outline, at: list[float], fitted: int
+    ) -> _Group | None:
+        """A group of known solids carried into a blob (:meth:`_carry`): followed from
+        where they would be now onto its outline's pixel chain, each edge as far out as
+        at its fit; a solid that was alone in its blob (its yaw not followed since its
+        fit: a robot may have turned) tried at other yaws too (:data:`CARRY_TURNS_DEG`)
+        where they do not fit as they were. None where the union leaves over
+        :data:`~ovis.common.solids.fit.MAX_OFF_SHARE` of the chain more than
+        :data:`CARRY_OFF_PX` off (they are not all that blob holds)."""
+        floor = self._chain_floor(outline)
+        offsets = np.array([t.chain_offset for t in solids])
+        ahead = [t.solid._replace(theta=t.ahead()) for t in solids]
+        starts = [ahead]
+        for k, t in enumerate(solids):
+            yi = yaw_index(t.solid.shape)
+            if yi is None or t.motion is not None:
+                continue
+            for turn in CARRY_TURNS_DEG:
+                theta = ahead[k].theta.copy()
+                theta[yi] += math.radians(turn)
+                starts.append([*ahead[:k], ahead[k]._replace(theta=theta), *ahead[k + 1 :]])
+        for start in starts:
+            now = follow_union_steps(start, offsets, floor, self.view, CARRY_STEPS, FOLLOW_TOL_CM)
+            d = np.stack(
+                [
+                    floor.px_per_cm * signed_distance(s.shape, s.theta, floor.points, self.view)
+                    - offsets[k]
+                    for k, s in enumerate(now)
+                ]
+            ).min(0)
+            if np.mean(np.abs(d) > CARRY_OFF_PX) <= MAX_OFF_SHARE:
+                break
+        else:
+            return None
+        for t, s in zip(solids, now, strict=True):
+            t.centre = s.theta[0:2]
+            t.motion = None
+            t.turn(s.theta)
+            self._map(t)
+        self._reports = None
+        row, col = at[1], at[2]
+        if len(solids) == 1:
+            t = solids[0]
+            assert t.map_g is not None
+            t.bias = t.map_g - np.array([row, col])
+            return _Group(solids, at[0], row, col, fitted, carried=True)
+        return _Group(solids, at[0], row, col, fitted, offsets, carried=True)
+
     def _queue(
         self,
         filled: FloatArray,
@@ -846,8 +996,9 @@ class SolidTracker:
         """The blobs to fit this frame, first first: new blobs — where more wait than
         ``limit`` fits this frame, the one most like the unmarked robot first (until its
         fit lands the robot is reported as an obstacle: :meth:`_robot_misfit`), the
-        larger first among equals —, then, every :data:`REFIT_FRAMES` frames, the known
-        blob fitted longest ago."""
+        larger first among equals —, then blobs whose solids were carried in
+        (:meth:`_carry`), then, every :data:`REFIT_FRAMES` frames, the known blob fitted
+        longest ago."""
         new = [i for i in range(len(filled)) if matched[i] < 0 and not skip[i]]
         if 0 < limit < len(new) and patches is not None and not self.pose.robots:
             misfit = [self._robot_misfit(patches[i], filled[i]) for i in new]
@@ -856,8 +1007,12 @@ class SolidTracker:
         else:
             new.sort(key=lambda i: -filled[i, 0])
         known = [i for i in range(len(filled)) if matched[i] >= 0]
+        carried = [i for i in known if self.groups[matched[i]].carried]
+        new.extend(sorted(carried, key=lambda i: self.groups[matched[i]].fitted))
         if known and self.frame % REFIT_FRAMES == 0:
-            new.append(min(known, key=lambda i: self.groups[matched[i]].fitted))
+            oldest = min(known, key=lambda i: self.groups[matched[i]].fitted)
+            if oldest not in carried:
+                new.append(oldest)
         return new
 
     def _follow(self, rows: list[list[float]], groups: dict[int, _Group], fitted: set[int]) -> None:
@@ -891,10 +1046,14 @@ class SolidTracker:
         if outline is None or group.offsets is None or len(outline.chain) < MIN_EDGE_POINTS:
             return
         floor = self._chain_floor(outline)
-        now = [t.solid._replace(theta=t.theta()) for t in group.solids]
-        centres = follow_union(now, group.offsets, floor, self.view)
-        for t, c in zip(group.solids, centres, strict=True):
-            t.centre = c
+        was = [t.theta() for t in group.solids]
+        now = [t.solid._replace(theta=t.ahead()) for t in group.solids]
+        now = follow_union_steps(now, group.offsets, floor, self.view, FOLLOW_STEPS, FOLLOW_TOL_CM)
+        for t, s, before in zip(group.solids, now, was, strict=True):
+            t.centre = s.theta[0:2]
+            t.motion = s.theta - before
+            if t.turn(s.theta):
+                self._reports = None
 
     def _objects(
         self,
