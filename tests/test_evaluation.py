@@ -37,3 +37,42 @@ def test_match_objects_takes_detections_and_truth_directly() -> None:
     acc = match_objects(truth.objects, truth.objects)
     assert acc.missed == acc.spurious == 0 and acc.kind_correct.all()
     assert acc.position_error_cm.max() == 0.0 and acc.truth_index.size == len(truth.objects)
+
+
+def test_a_runs_score_finds_a_position_not_measurable_within_the_uncertainty_it_states() -> None:
+    """A solid whose foot is hidden is reported 7 cm along the line of sight from where it
+    stands, stating 1σ of 4 cm that way: the run's score counts it found within its
+    stated uncertainty, apart (not missed, not spurious, not in the position errors);
+    the same detection stating 1 cm, or 7 cm off across its long axis, is missed and
+    spurious as before."""
+    from ovis.common.analysis.evaluation import TrackingScore
+    from ovis.common.sim.arena import SimObject
+    from ovis.common.world.detection import DetectedObject
+
+    def det(x: float, y: float, cov: list[float] | None) -> DetectedObject:
+        return DetectedObject(
+            id=1, kind="obstacle", row=0.0, col=0.0, area_px=100.0, perimeter_px=40.0,
+            compactness=1.0, x_cm=x, y_cm=y, z_cm=7.0, radius_cm=3.0, area_cm2=28.3,
+            covariance_cm2=cov,
+        )  # fmt: skip
+
+    def solid(k: int, x: float, y: float) -> SimObject:
+        return SimObject(
+            id=k, kind="obstacle", x_cm=x, y_cm=y, z_cm=7.0, radius_cm=3.0, heading_deg=0.0,
+            shape="disk", length_cm=6.0, width_cm=6.0,
+        )  # fmt: skip
+
+    truth = [solid(0, 10.0, 10.0), solid(1, 60.0, 40.0)]
+    along = [16.0, 0.0, 0.0, 0.0, 0.25, 0.0, 0.0, 0.0, 4.0]  # 4 cm along x, 0.5 across
+    near = det(10.2, 10.1, [0.01, 0, 0, 0, 0.01, 0, 0, 0, 1.0])
+    score = TrackingScore()
+    score.add([near, det(67.0, 40.0, along)], truth)
+    assert (score.matched, score.missed, score.spurious, score.within_stated) == (1, 0, 0, 1)
+    assert score.stated_error_cm == pytest.approx([7.0])
+    assert score.stated_sigma_cm == pytest.approx([4.0])
+    assert max(score.position_error_cm) < 0.3
+    for wrong in (det(67.0, 40.0, [1.0, 0, 0, 0, 1.0, 0, 0, 0, 4.0]), det(60.0, 47.0, along)):
+        score = TrackingScore()
+        score.add([near, wrong], truth)
+        assert (score.missed, score.spurious, score.within_stated) == (1, 1, 0)
+        assert score.stated_error_cm == []

@@ -18,15 +18,13 @@ import pytest
 from physical_helpers import needs_physical
 
 from ovis.common.analysis.footprints import (
-    STATED_CHI2,
     _detector_config,
     _score,
     evaluate_rig,
     physical_config,
-    position_sigma,
-    stated_distance,
     summarise,
 )
+from ovis.common.analysis.stated import STATED_CHI2, position_sigma, stated_distance
 from ovis.common.calibration.file import calibration_from_config
 from ovis.common.config import config_from_dict, load_config
 from ovis.common.messages import BinaryFrame, BlobList, Frame, ObstacleFrame, decode, encode

@@ -1,8 +1,10 @@
 """Accuracy against ground truth: detections matched to known objects.
 
-Used by the demo, the tests and (later) the services' end-of-run summary: each true
-object is matched to the nearest detection by an optimal assignment on floor position;
-an unmatched true object is *missed*, an unmatched detection is *spurious*.
+Used by the demo, the tests and the services' end-of-run summary: each true object is
+matched to the nearest detection by an optimal assignment on floor position; an
+unmatched true object is *missed*, an unmatched detection is *spurious*. A run's score
+(:class:`TrackingScore`) matches a detection whose position is not measurable within the
+uncertainty it states (:mod:`~ovis.common.analysis.stated`) and counts it apart.
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ from typing import NamedTuple, Protocol
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
+
+from ovis.common.analysis.stated import POSITION_SIGMA_CM, position_sigma, within_stated
 
 __all__ = ["FrameAccuracy", "TrackingScore", "height_basis", "match_objects", "match_to_truth"]
 
@@ -105,7 +109,11 @@ class TrackingScore:
     and height errors of the matched objects (height: the detection's ``z_cm`` less the
     true top's) and what each matched detection's height rests on (:func:`height_basis`),
     missed, spurious and mislabelled ones, and identity switches (a true object whose
-    matched detection changes id)."""
+    matched detection changes id). A detection whose position is not measurable (its
+    stated 1σ over :data:`~ovis.common.analysis.stated.POSITION_SIGMA_CM`), left over by
+    the gate, is matched within its stated uncertainty: counted in ``within_stated``, its
+    error and stated 1σ kept apart (``stated_error_cm``, ``stated_sigma_cm``), not in
+    the position errors, nor missed or spurious."""
 
     def __init__(self) -> None:
         self.position_error_cm: list[float] = []
@@ -114,6 +122,9 @@ class TrackingScore:
         self.height_basis: list[str] = []
         self.kind_correct: list[bool] = []
         self.matched = self.missed = self.spurious = self.wrong_kind = self.id_switches = 0
+        self.within_stated = 0
+        self.stated_error_cm: list[float] = []
+        self.stated_sigma_cm: list[float] = []
         self._id_of: dict[int, int] = {}  # true id -> the detection id it was matched to
 
     def add(
@@ -130,8 +141,9 @@ class TrackingScore:
         self.height_basis.extend(height_basis(detected[di]) for di in acc.detection_index)
         self.kind_correct.extend(acc.kind_correct.tolist())
         self.matched += int(acc.truth_index.size)
-        self.missed += acc.missed
-        self.spurious += acc.spurious
+        stated = self._within_stated(detected, truth, acc)
+        self.missed += acc.missed - len(stated)
+        self.spurious += acc.spurious - len(stated)
         self.wrong_kind += int((~acc.kind_correct).sum())
         for ti, di in zip(acc.truth_index, acc.detection_index, strict=True):
             true_id, det_id = truth[ti].id, detected[di].id
@@ -139,3 +151,30 @@ class TrackingScore:
                 self.id_switches += 1
                 self._id_of[true_id] = det_id
         return acc
+
+    def _within_stated(
+        self, detected: Sequence[TrackedObject], truth: Sequence[TrackedObject], acc: FrameAccuracy
+    ) -> dict[int, int]:
+        """The gate's leftovers whose position is not measurable, matched within their
+        stated uncertainty (true index → detection index), counted."""
+        if not acc.missed or not acc.spurious:
+            return {}
+        taken = set(acc.detection_index.tolist())
+        vague = [
+            j
+            for j, d in enumerate(detected)
+            if j not in taken
+            and getattr(d, "covariance_cm2", None) is not None
+            and position_sigma(d) > POSITION_SIGMA_CM
+        ]
+        if not vague:
+            return {}
+        found = set(acc.truth_index.tolist())
+        left = [i for i in range(len(truth)) if i not in found]
+        stated = within_stated(detected, truth, vague, left)
+        for i, j in stated.items():
+            d, t = detected[j], truth[i]
+            self.stated_error_cm.append(float(np.hypot(d.x_cm - t.x_cm, d.y_cm - t.y_cm)))
+            self.stated_sigma_cm.append(position_sigma(d))
+        self.within_stated += len(stated)
+        return stated

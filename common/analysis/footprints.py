@@ -16,14 +16,9 @@
   the size filter's old 30 cm² on the 7 cm plane.
 
 Each true object is matched to the detection nearest its footprint centre (an optimal
-assignment within :data:`GATE_CM`). A detection whose stated footprint uncertainty (its
-covariance's longest axis, 1σ) is over :data:`POSITION_SIGMA_CM` says its position is
-not measurable (a solid whose foot is hidden behind another: the frame bounds where it
-stands, it does not show it), and :data:`GATE_CM` cannot judge it: left unmatched, it is
-matched to a true object left unmatched within its stated uncertainty (the truth's
-Mahalanobis distance under that covariance, :data:`STATED_FLOOR_CM` added, within
-:data:`STATED_CHI2`; no farther than :data:`STATED_CAP_CM`, its 1σ at most half that)
-rather than counted spurious. Such detections are counted
+assignment within :data:`~ovis.common.analysis.stated.GATE_CM`); a detection whose
+position is not measurable is matched within its stated uncertainty instead
+(:mod:`~ovis.common.analysis.stated`). Such detections are counted
 in a row of their own, and their footprint errors are kept out of the footprint's. An
 obstacle must be found unless most of its silhouette is hidden by others (more than
 :data:`HIDDEN_SHARE` of the pixels it covers alone,
@@ -48,9 +43,14 @@ from typing import Literal
 import cv2
 import msgspec
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from ovis.common.analysis.evaluation import match_objects
+from ovis.common.analysis.stated import (
+    GATE_CM,
+    POSITION_SIGMA_CM,
+    position_sigma,
+    within_stated,
+)
 from ovis.common.config import OvisConfig, RobotSpec, config_from_dict
 from ovis.common.physical.rigs import rig
 from ovis.common.physical.scene import random_scene
@@ -65,8 +65,6 @@ __all__ = [
     "SceneResult",
     "evaluate_rig",
     "physical_config",
-    "position_sigma",
-    "stated_distance",
     "summarise",
 ]
 
@@ -77,20 +75,6 @@ ARENA_X_CM = (0.0, 150.0)
 ARENA_Y_CM = (0.0, 120.0)
 #: Objects are this many grey levels brighter than the empty floor (measured heights).
 LEVEL = 3
-#: A detection more than this far (cm) from a true footprint centre is not it.
-GATE_CM = 5.0
-#: A detection whose footprint's stated 1σ (its covariance's longest axis) is over this
-#: (cm) has a position not measurable: its 99 % ellipse (:data:`STATED_CHI2`) reaches
-#: beyond :data:`GATE_CM`.
-STATED_CHI2 = 9.21  # χ² of 2 degrees of freedom at 99 %
-POSITION_SIGMA_CM = GATE_CM / math.sqrt(STATED_CHI2)
-#: Whatever its stated uncertainty, a detection is no true object farther than this
-#: (cm), and one stating a 1σ over half of it is none (it says too little).
-STATED_CAP_CM = 4.0 * GATE_CM
-#: Added (1σ, cm) across every direction to a stated covariance matched against the
-#: truth: the footprint's target (issue 36), which a fit's covariance does not include
-#: (it leaves out how far the shape fitted may be off).
-STATED_FLOOR_CM = 0.5
 #: An obstacle more hidden than this share of its silhouette need not be found.
 HIDDEN_SHARE = 0.5
 #: "About 7 cm" and "about 20 cm" tall: within this of it (cm).
@@ -225,55 +209,6 @@ def _one_scene(
     return _score(seed, det.objects, truth.objects, visible, alone, seconds)
 
 
-def position_sigma(detection: DetectedObject) -> float:
-    """A detection's stated footprint uncertainty: its covariance's longest axis in the
-    floor's plane (1σ, cm); NaN where it states none."""
-    if detection.covariance_cm2 is None:
-        return math.nan
-    xy = np.array(detection.covariance_cm2, dtype=np.float64).reshape(3, 3)[:2, :2]
-    return float(math.sqrt(max(float(np.linalg.eigvalsh(xy)[-1]), 0.0)))
-
-
-def stated_distance(detection: DetectedObject, x_cm: float, y_cm: float) -> float:
-    """How far a floor point is from a detection's footprint under its stated uncertainty:
-    the squared Mahalanobis distance under its covariance with :data:`STATED_FLOOR_CM`
-    added across every direction (a fit's covariance leaves out how far its shape's
-    footprint may be off); inf beyond :data:`STATED_CAP_CM`, with no covariance, or
-    where the stated 1σ is over half that cap (it says too little to be one object)."""
-    e = np.array([x_cm - detection.x_cm, y_cm - detection.y_cm])
-    too_vague = not position_sigma(detection) <= 0.5 * STATED_CAP_CM  # NaN: none stated
-    if too_vague or math.hypot(*e) > STATED_CAP_CM:
-        return math.inf
-    cov = np.array(detection.covariance_cm2, dtype=np.float64).reshape(3, 3)[:2, :2]
-    return float(e @ np.linalg.solve(cov + STATED_FLOOR_CM**2 * np.eye(2), e))
-
-
-def _within_stated(
-    objects: Sequence[DetectedObject],
-    truth: Sequence[SimObject],
-    detections: list[int],
-    truths: list[int],
-) -> dict[int, int]:
-    """Detections whose position is not measurable matched (optimally) to true objects
-    within their stated uncertainty (:func:`stated_distance` within
-    :data:`STATED_CHI2`): true index → detection index."""
-    if not detections or not truths:
-        return {}
-    cost = np.array(
-        [
-            [stated_distance(objects[j], truth[i].x_cm, truth[i].y_cm) for j in detections]
-            for i in truths
-        ]
-    )
-    cost[cost > STATED_CHI2] = np.inf
-    if not np.isfinite(cost).any():
-        return {}
-    rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e12))
-    return {
-        truths[a]: detections[b] for a, b in zip(rows, cols, strict=True) if np.isfinite(cost[a, b])
-    }
-
-
 def _score(
     seed: int,
     objects: Sequence[DetectedObject],
@@ -287,7 +222,7 @@ def _score(
     sigma = [position_sigma(d) for d in objects]
     unmeasurable = [j for j, s in enumerate(sigma) if s > POSITION_SIGMA_CM]
     left = set(range(len(objects))) - set(matched.values())
-    matched |= _within_stated(
+    matched |= within_stated(
         objects,
         truth,
         [j for j in unmeasurable if j in left],

@@ -179,6 +179,13 @@ class RunSummary(msgspec.Struct):
     #: matched objects reported as the other kind (an obstacle as the robot, or the
     #: robot as an obstacle)
     objects_wrong_kind: int = 0
+    #: detections whose position is not measurable (a solid whose foot is hidden), found
+    #: within the uncertainty they state (:mod:`~ovis.common.analysis.stated`; not in
+    #: the matched, missed or spurious counts nor the position error): how many, their
+    #: largest error and their largest stated 1σ (cm)
+    objects_within_stated: int = 0
+    within_stated_error_cm_max: float | None = None
+    within_stated_sigma_cm_max: float | None = None
     #: measured heights: capture seconds from the first frame processed to the last one
     #: in which an object still waited for its fit ("pending"; None: none waited), and
     #: the latency of the frames after it (ms: median, 99th percentile)
@@ -350,6 +357,9 @@ class LiveScore:
             latency_after_fits_ms_p50=float(np.percentile(after, 50)) if after.size else None,
             latency_after_fits_ms_p99=float(np.percentile(after, 99)) if after.size else None,
             objects_wrong_kind=score.wrong_kind,
+            objects_within_stated=score.within_stated,
+            within_stated_error_cm_max=max(score.stated_error_cm, default=None),
+            within_stated_sigma_cm_max=max(score.stated_sigma_cm, default=None),
             frames_refused=self.refused,
             refused_because=self.refused_because,
         )

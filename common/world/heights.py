@@ -14,15 +14,17 @@ fit is not repeated every frame: :class:`SolidTracker` keeps each blob's fitted 
   one frame to the next while the solid stays within :data:`RELINEARISE_CM`);
 * a blob of several solids (overlapping in the image) gets their footprints from its
   outline's pixel chain (:func:`~ovis.common.solids.fit.follow_union`: their centres
-  moved, shapes and heights kept, each edge offset as at the fit);
-* a new blob, or one whose area changed (solids met or parted in the image), is
-  fitted; the periodic refit of a known blob (every :data:`REFIT_FRAMES` frames, the
-  one fitted longest ago) averages its heights over its track (inverse-variance
-  weights). At most ``pose.fits_per_frame`` fits run
-  per frame (0: all); a blob that waits is said ``pending``, at the configured
-  height, its footprint rough (:func:`~ovis.common.solids.fit.rough_footprint`, from
-  its outline's pixel chain) or, where that cannot be had, its centroid on its class's
-  plane.
+  moved and polygons turned from where their last motion puts them, shapes and heights
+  kept, each edge offset as at the fit);
+* a blob that is new because solids met or parted in the image gets the known solids
+  whose images it holds, followed onto its outline (:meth:`SolidTracker._carry`), and is
+  fitted again as soon as no new blob waits;
+* a new blob they do not explain is fitted; the periodic refit of a known blob (every
+  :data:`REFIT_FRAMES` frames, the one fitted longest ago) averages its heights over
+  its track (inverse-variance weights). At most ``pose.fits_per_frame`` fits run per
+  frame (0: all); a blob that waits is said ``pending``, at the configured height, its
+  footprint rough (:func:`~ovis.common.solids.fit.rough_footprint`, from its outline's
+  pixel chain) or, where that cannot be had, its centroid on its class's plane.
 
 A live stage (``background``) never waits for a fit: one blob at a time is fitted on a
 thread of its own while the frames go on (its blob said ``pending`` meanwhile), and the

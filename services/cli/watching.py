@@ -379,6 +379,13 @@ def summary_table(s: RunSummary):
             f"{s.objects_matched} ({s.objects_missed} missed, {s.objects_spurious} spurious, "
             f"{s.objects_wrong_kind} of the wrong kind)",
         )
+        if s.objects_within_stated:
+            t.add_row(
+                "positions not measurable",
+                f"{s.objects_within_stated} found within the uncertainty they state (up to "
+                f"{fmt(s.within_stated_error_cm_max, 'cm')} off, stated 1σ up to "
+                f"{fmt(s.within_stated_sigma_cm_max, 'cm')}); not in the position error",
+            )
         error = (
             f"{fmt(s.position_error_cm_mean, 'cm', 3)} / {fmt(s.position_error_cm_max, 'cm', 3)}"
         )
