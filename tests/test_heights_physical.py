@@ -582,7 +582,8 @@ def test_solids_that_meet_or_part_in_the_frame_are_followed_without_waiting_for_
     drives) and part again. Once every blob has had its fit, no frame has a blob waiting
     for one: the known solids are carried into the merged blob and followed there, the
     robot turned with its path; every obstacle and the robot are found within 0.5 cm
-    in every frame."""
+    in every frame, and the robot's heading (its long axis) within 2° of where it
+    faces, alone or in a merged blob."""
     times = [k / 5.0 for k in range(58, 100)]
     cfg, camera, frames, truths, floor = _scene_frames("oblique", 1003, times)
     with tempfile.TemporaryDirectory() as tmp:
@@ -603,6 +604,11 @@ def test_solids_that_meet_or_part_in_the_frame_are_followed_without_waiting_for_
                 assert len(det.objects) == len(truth.objects), k
                 errors = _nearest_error(det.objects, truth)
                 assert max(errors) < 0.5, (k, errors)
+                (robot,) = [o for o in det.objects if o.kind == "robot"]
+                (true_robot,) = [o for o in truth.objects if o.kind == "robot"]
+                assert robot.heading_deg is not None
+                off = (robot.heading_deg - true_robot.heading_deg + 90.0) % 180.0 - 90.0
+                assert abs(off) < 2.0, (k, robot.heading_deg, true_robot.heading_deg)
         finally:
             detector.close()
     assert settled >= 30

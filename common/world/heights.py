@@ -125,6 +125,8 @@ REFIT_FRAMES = 60
 #: A solid's centroid map is worked out again when it moved this far (cm) from where it
 #: was worked out.
 RELINEARISE_CM = 2.0
+#: … or turned this far (rad: 1°).
+RELINEARISE_RAD = math.radians(1.0)
 #: Chain points left out at each end of a cut outline's piece (the cut's corner).
 CUT_TRIM = 3
 #: How far (px) from where the fit puts it the top face's inner edge is looked for:
@@ -189,6 +191,7 @@ class _Tracked:
     centre: FloatArray | tuple[float, float]
     bias: FloatArray = field(default_factory=lambda: np.zeros(2))
     map_at: FloatArray | tuple[float, float] | None = None
+    map_yaw: float = math.nan  # its yaw (rad) where its map was worked out
     map_g: FloatArray | None = None
     map_j: FloatArray | None = None
     _report: tuple | None = None
@@ -239,6 +242,12 @@ class _Tracked:
             return False
         self._report = None
         return True
+
+    @property
+    def yaw(self) -> float:
+        """Its yaw (rad; NaN: a cylinder has none)."""
+        k = yaw_index(self.solid.shape)
+        return math.nan if k is None else float(self.solid.theta[k])
 
     def ahead(self) -> FloatArray:
         """Its parameter vector where it would be were it to move (and turn) as it did
@@ -378,6 +387,7 @@ class SolidTracker:
         self._job: _Job | None = None
         self._reports: _Reports | None = None
         self._pool = ThreadPoolExecutor(1, "solid-fit") if background else None
+        self._robot: _Tracked | None = None  # the unmarked robot's solid, last frame
         self.reconfigure(camera, image, pose)
 
     def reconfigure(self, camera: CameraModel, image: ImageParams, pose: PoseConfig) -> None:
@@ -766,7 +776,7 @@ class SolidTracker:
     def _map(self, t: _Tracked) -> None:
         """Work out a solid's centroid map where it stands now."""
         g, j = centroid_map(t.solid.shape, t.theta()[None], self.view, self.camera)
-        t.map_at, t.map_g, t.map_j = t.centre, g[0], j[0]
+        t.map_at, t.map_g, t.map_j, t.map_yaw = t.centre, g[0], j[0], t.yaw
 
     # ------------------------------------------------------------------ per frame
     def update(
@@ -818,6 +828,14 @@ class SolidTracker:
             if i in fitted:  # its refit found nothing: keep what it was
                 pass
             new_groups[i] = g
+        turning = {
+            i
+            for i, g in new_groups.items()
+            if i not in fitted and patches is not None and self._turns(g)
+        }
+        for i in turning:  # its yaw from its outline, then its centre from its centroid
+            assert patches is not None
+            self._follow_group(new_groups[i], patches, i, filled[i])
         self._follow(rows, new_groups, fitted)
         for i, g in new_groups.items():
             if i not in fitted and len(g.solids) > 1 and patches is not None:
@@ -825,7 +843,30 @@ class SolidTracker:
         for i, g in new_groups.items():
             g.area, g.row, g.col = rows[i]
         self.groups = list(new_groups.values())
-        return self._objects(filled, rows, new_groups, fallback, skips, patches)
+        found = self._objects(filled, rows, new_groups, fallback, skips, patches)
+        self._note_robot(found)
+        return found
+
+    def _turns(self, group: _Group) -> bool:
+        """Whether a blob's one solid is followed with its yaw, from its outline: the
+        unmarked robot (last frame's, :func:`robot_row`), which turns as it drives; any
+        other lone solid follows its blob's centroid (it does not turn)."""
+        return len(group.solids) == 1 and group.solids[0] is self._robot
+
+    def _note_robot(self, found: SolidObjects) -> None:
+        """Keep which solid is the unmarked robot this frame (none with marked robots)."""
+        self._robot = None
+        if self.pose.robots:
+            return
+        row = robot_row(found, self.pose)
+        if row < 0 or found.pending[row]:
+            return
+        at = found.xy[row].tolist()
+        for g in self.groups:
+            for t in g.solids:
+                if [float(v) for v in t.centre] == at:
+                    self._robot = t
+                    return
 
     def close(self) -> None:
         """Stop the fitting thread (a fit running is waited for, none started again)."""
@@ -1029,12 +1070,16 @@ class SolidTracker:
             return
         by_shape: dict[str, list[_Tracked]] = {}
         for t, _ in moving:
-            if t.map_at is None or math.dist(t.centre, t.map_at) > RELINEARISE_CM:
+            if (
+                t.map_at is None
+                or math.dist(t.centre, t.map_at) > RELINEARISE_CM
+                or abs(t.yaw - t.map_yaw) > RELINEARISE_RAD
+            ):
                 by_shape.setdefault(t.solid.shape, []).append(t)
         for shape, ts in by_shape.items():
             g, j = centroid_map(shape, np.array([t.theta() for t in ts]), self.view, self.camera)
             for k, t in enumerate(ts):
-                t.map_at, t.map_g, t.map_j = t.centre, g[k], j[k]
+                t.map_at, t.map_g, t.map_j, t.map_yaw = t.centre, g[k], j[k], t.yaw
         for t, i in moving:
             t.centre = _solve_centre(t.linear(), rows[i][1], rows[i][2])
 
@@ -1045,12 +1090,15 @@ class SolidTracker:
         puts their union (shapes and heights kept)."""
         at = (float(blob_filled[1]), float(blob_filled[2]))
         outline = blob_outline(patches, i, self.level, at, self.spots)
-        if outline is None or group.offsets is None or len(outline.chain) < MIN_EDGE_POINTS:
+        if outline is None or len(outline.chain) < MIN_EDGE_POINTS:
             return
+        offsets = group.offsets
+        if offsets is None:  # one solid (the robot): its edge as far out as at its fit
+            offsets = np.array([t.chain_offset for t in group.solids])
         floor = self._chain_floor(outline)
         was = [t.theta() for t in group.solids]
         now = [t.solid._replace(theta=t.ahead()) for t in group.solids]
-        now = follow_union_steps(now, group.offsets, floor, self.view, FOLLOW_STEPS, FOLLOW_TOL_CM)
+        now = follow_union_steps(now, offsets, floor, self.view, FOLLOW_STEPS, FOLLOW_TOL_CM)
         for t, s, before in zip(group.solids, now, was, strict=True):
             t.centre = s.theta[0:2]
             t.motion = s.theta - before
