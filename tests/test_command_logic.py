@@ -221,6 +221,35 @@ def test_live_score_matches_frames_to_truth_in_any_order_and_summarises() -> Non
     assert (s.dropped, s.restarts, s.exit_codes) == ({"capture": 1}, {"pose": 1}, {"capture": 0})
 
 
+def test_a_live_score_gives_the_frames_after_the_last_fit_apart() -> None:
+    """Measured heights: the first frames hold an object waiting for its fit (reported
+    roughly, 3 cm off here, one obstacle missing); the summary's ``after_fits`` scores
+    only the frames after the last such frame, so the steady state shows apart from the
+    start."""
+    run = _truth_run(5, seed=5)
+    live = LiveScore()
+    base = time.time_ns()
+    for k, (objects, truth) in enumerate(run):
+        stamp = base + k * 200_000_000
+        if k < 2:  # one obstacle waits for its fit, 3 cm off; another is not found yet
+            first, *rest = [o for o in objects if o.kind == "obstacle"]
+            waiting = msgspec.structs.replace(
+                first, x_cm=first.x_cm + 3.0, z_source="configured", z_unmeasured="pending"
+            )
+            objects = [o for o in objects if o.kind == "robot"] + [waiting, *rest[1:]]
+        live.add_truth(TruthFrame(seq=k, objects=truth))
+        live.add_obstacles(_frame(k, objects, stamp), stamp + 5_000_000)
+    s = live.summary({}, {}, 1.0)
+    assert s.fits_pending_s == pytest.approx(0.2)
+    assert s.objects_missed == 2 and s.position_error_cm_max >= 3.0
+    after = s.after_fits
+    assert after is not None and after.frames == 3
+    assert (after.objects_missed, after.objects_spurious) == (0, 0)
+    assert after.objects_matched == sum(len(t) for _, t in run[2:])
+    assert after.position_error_cm_max < 1.0
+    assert LiveScore().summary({}, {}, 1.0).after_fits is None
+
+
 def test_a_closed_live_score_counts_no_frame_that_came_after_the_capture_count() -> None:
     """`ovis up` closes its score before it asks the capture for its count: a frame
     processed after that is not counted, so processed never exceeds captured."""

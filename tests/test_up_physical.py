@@ -170,6 +170,11 @@ def test_up_physical_calibrates_on_the_marks_and_scores_against_the_physics(
     # frames after it have every height measured
     assert summary["fits_pending_s"] is None or summary["fits_pending_s"] <= 12.0, summary
     assert summary["latency_after_fits_ms_p50"] is not None
+    after = summary["after_fits"]  # once every blob has had its fit
+    if summary["fits_pending_s"] is not None:
+        assert after["frames"] > 0, summary
+        assert (after["objects_missed"], after["objects_spurious"]) == (0, 0), summary
+        assert after["position_error_cm_max"] <= 0.5, summary
     assert measured["objects"] >= 0.25 * summary["objects_matched"], by
     calibrator = (Path(up_log_dir(err)) / "calibrator.log").read_text()
     assert "on the floor marks" in calibrator

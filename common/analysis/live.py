@@ -7,7 +7,7 @@ from __future__ import annotations
 import collections
 import threading
 from collections.abc import Mapping
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import msgspec
 import numpy as np
@@ -28,6 +28,7 @@ __all__ = [
     "IDLE_STATES",
     "SOURCE_LOST",
     "UNSCORED_SHARE",
+    "AfterFits",
     "BasisErrors",
     "CpuUse",
     "LiveScore",
@@ -126,6 +127,33 @@ def navigation_run(last: Mapping[int, RobotDrive]) -> NavigationRun:
     )
 
 
+class AfterFits(msgspec.Struct, kw_only=True):
+    """The score of the frames after the last one in which an object waited for its
+    fit (measured heights; ``RunSummary.after_fits``): how many frames, objects matched,
+    missed and spurious, found within their stated uncertainty, and the matched ones'
+    position error (cm: mean and largest)."""
+
+    frames: int
+    objects_matched: int
+    objects_missed: int
+    objects_spurious: int
+    objects_within_stated: int
+    position_error_cm_mean: float | None
+    position_error_cm_max: float | None
+
+
+class _FrameScore(NamedTuple):
+    """One scored frame: its capture stamp (ns), what it added to the run's score, and
+    its matched objects' position errors (cm)."""
+
+    stamp_ns: int
+    matched: int
+    missed: int
+    spurious: int
+    within_stated: int
+    errors: list[float]
+
+
 class RunSummary(msgspec.Struct):
     """The end-of-run summary of `ovis up`."""
 
@@ -192,6 +220,9 @@ class RunSummary(msgspec.Struct):
     fits_pending_s: float | None = None
     latency_after_fits_ms_p50: float | None = None
     latency_after_fits_ms_p99: float | None = None
+    #: measured heights, where an object waited for its fit: the score of the frames
+    #: after (the run's steady state once every blob has had its fit)
+    after_fits: AfterFits | None = None
     #: ``ovis up --drive``: each driven robot's outcome
     navigation: NavigationRun | None = None
 
@@ -243,6 +274,7 @@ class LiveScore:
         #: in which an object waited for its fit
         self._stamps: list[int] = []
         self._waited_ns: int | None = None
+        self._frame_scores: list[_FrameScore] = []
 
     def refuse(self, why: str) -> None:
         """An obstacle frame that arrived but could not be decoded: counted, and why."""
@@ -284,7 +316,19 @@ class LiveScore:
         for seq in [s for s in self._pending if s in self._truth]:
             msg = self._pending.pop(seq)
             objects = ([msg.robot] if msg.robot else []) + msg.obstacles
-            self.score.add(objects, self._truth[seq].objects)
+            sc = self.score
+            was = (sc.matched, sc.missed, sc.spurious, sc.within_stated, len(sc.position_error_cm))
+            sc.add(objects, self._truth[seq].objects)
+            self._frame_scores.append(
+                _FrameScore(
+                    msg.stamp_ns,
+                    sc.matched - was[0],
+                    sc.missed - was[1],
+                    sc.spurious - was[2],
+                    sc.within_stated - was[3],
+                    sc.position_error_cm[was[4] :],
+                )
+            )
 
     def _after_fits(self) -> tuple[float | None, np.ndarray]:
         """Seconds until the last frame with an object waiting for its fit (None: none
@@ -293,6 +337,23 @@ class LiveScore:
         if self._waited_ns is None or not stamps.size:
             return None, lat
         return (self._waited_ns - int(stamps.min())) / 1e9, lat[stamps > self._waited_ns]
+
+    def _score_after_fits(self) -> AfterFits | None:
+        """The score of the frames after the last one with an object waiting for its
+        fit (None: none waited)."""
+        if self._waited_ns is None:
+            return None
+        after = [f for f in self._frame_scores if f.stamp_ns > self._waited_ns]
+        err = np.array([e for f in after for e in f.errors])
+        return AfterFits(
+            frames=len(after),
+            objects_matched=sum(f.matched for f in after),
+            objects_missed=sum(f.missed for f in after),
+            objects_spurious=sum(f.spurious for f in after),
+            objects_within_stated=sum(f.within_stated for f in after),
+            position_error_cm_mean=float(err.mean()) if err.size else None,
+            position_error_cm_max=float(err.max()) if err.size else None,
+        )
 
     def recent(self, n: int = 200) -> tuple[ObstacleFrame | None, list[float]]:
         """The newest frame and the latencies of the last ``n``."""
@@ -320,6 +381,7 @@ class LiveScore:
             basis = np.asarray(self.score.height_basis, dtype=object)
             right = np.asarray(self.score.kind_correct, dtype=bool)
             waited, after = self._after_fits()
+            after_fits = self._score_after_fits()
             score = self.score
         versions = [s.calibration_version for s in statuses.values()]
         counts: dict[str, Counts] = {**statuses, **(totals or {})}
@@ -357,6 +419,7 @@ class LiveScore:
             latency_after_fits_ms_p50=float(np.percentile(after, 50)) if after.size else None,
             latency_after_fits_ms_p99=float(np.percentile(after, 99)) if after.size else None,
             objects_wrong_kind=score.wrong_kind,
+            after_fits=after_fits,
             objects_within_stated=score.within_stated,
             within_stated_error_cm_max=max(score.stated_error_cm, default=None),
             within_stated_sigma_cm_max=max(score.stated_sigma_cm, default=None),

@@ -920,17 +920,22 @@ def follow_union(
     offsets: FloatArray,
     floor: FloorOutline,
     view: Viewpoint,
+    turning: Sequence[bool] | None = None,
 ) -> list[FloatArray]:
     """The parameter vectors that put the union of ``solids`` (shapes, sizes and heights
     kept) on an outline, each solid's edge ``offsets`` px further out
-    (:func:`union_offsets`): their centres moved and every polygon turned (a robot turns
-    as it drives; a solid that does not stays as it was), one Gauss–Newton step from
+    (:func:`union_offsets`): their centres moved and the polygons ``turning`` says
+    (None: every one) turned (a robot turns as it drives), one Gauss–Newton step from
     where they are (they moved little since the last frame), the Jacobian by
     differences. A move of one solid leaves the others' distances as they are: each
     solid's are worked out where it is and moved one step in each of its free
     parameters, and the union's residuals at every step made from them."""
     k, n = len(solids), len(floor.points)
-    moves = [_FOLLOW_MOVES if s.shape == "cylinder" else _FOLLOW_TURNS for s in solids]
+    turns = [True] * k if turning is None else turning
+    moves = [
+        _FOLLOW_TURNS if turn and s.shape != "cylinder" else _FOLLOW_MOVES
+        for s, turn in zip(solids, turns, strict=True)
+    ]
     q1 = np.ones((n, 3))  # the outline's points as (x, y, 1)
     q1[:, :2] = floor.points
     own: list[FloatArray] = [np.empty(0)] * k  # each solid's residuals here, then moved
@@ -987,12 +992,13 @@ def follow_union_steps(
     view: Viewpoint,
     steps: int,
     tol_cm: float,
+    turning: Sequence[bool] | None = None,
 ) -> list[Solid]:
     """:func:`follow_union` repeated from where each step puts the solids, at most
     ``steps`` times, until a step moves no centre more than ``tol_cm``."""
     now = list(solids)
     for _ in range(steps):
-        moved = follow_union(now, offsets, floor, view)
+        moved = follow_union(now, offsets, floor, view, turning)
         shift = max(
             float(np.abs(m[0:2] - s.theta[0:2]).max()) for m, s in zip(moved, now, strict=True)
         )

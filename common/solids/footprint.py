@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from ovis.common.config import CameraModel
 from ovis.common.solids.silhouette import Viewpoint, image_moments
 
-__all__ = ["centroid_footprints", "centroid_map", "solve_centres"]
+__all__ = ["centroid_at", "centroid_footprints", "centroid_map", "solve_centres"]
 
 FloatArray = NDArray[np.float64]
 
@@ -36,6 +36,14 @@ def centroid_map(
     g = np.stack([row, col], -1)  # (3, m, 2)
     jac = np.stack([(g[1] - g[0]) / STEP_CM, (g[2] - g[0]) / STEP_CM], -1)
     return g[0], jac
+
+
+def centroid_at(shape: str, theta: FloatArray, view: Viewpoint, camera: CameraModel) -> FloatArray:
+    """Each silhouette's image centroid (m, 2) (row, col): :func:`centroid_map` without
+    its Jacobian (a solid that turned where it stands: the Jacobian in its centre is
+    all but the same)."""
+    _, row, col = image_moments(shape, np.asarray(theta, dtype=np.float64), view, camera)
+    return np.stack([row, col], -1)
 
 
 def solve_centres(

@@ -812,7 +812,10 @@ class Detector:
         skip = marked.owner >= 0
         reps = [k for k in marked.rep if k >= 0]
         skip[reps] = False  # a robot's own blob is fitted too: an obstacle may share it
-        found = self.solids.update(filled, patches, obstacle_plane, skip, fit_all=fit_all)
+        moments = np.column_stack([blobs.mu_rr, blobs.mu_cc, blobs.mu_rc])
+        found = self.solids.update(
+            filled, patches, obstacle_plane, skip, fit_all=fit_all, moments=moments
+        )
         if reps:
             found = _without_robots(found, marked)
         rep = np.array(reps, dtype=np.int64)

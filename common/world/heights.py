@@ -84,7 +84,7 @@ from ovis.common.solids.fit import (
     unplaced_covariance,
     yaw_index,
 )
-from ovis.common.solids.footprint import centroid_map
+from ovis.common.solids.footprint import centroid_at, centroid_map
 from ovis.common.solids.outline_floor import chain_floor, floor_outline
 from ovis.common.solids.shapes import equal_area_radius, size_and_yaw
 from ovis.common.solids.silhouette import Viewpoint, signed_distance, top_near_edges
@@ -125,6 +125,9 @@ REFIT_FRAMES = 60
 #: A solid's centroid map is worked out again when it moved this far (cm) from where it
 #: was worked out.
 RELINEARISE_CM = 2.0
+#: The unmarked robot is turned to its outline when its blob's axis in the frame turned
+#: more than this (deg) since it last was.
+TURN_CHECK_DEG = 0.5
 #: … or turned this far (rad: 1°).
 RELINEARISE_RAD = math.radians(1.0)
 #: Chain points left out at each end of a cut outline's piece (the cut's corner).
@@ -192,6 +195,8 @@ class _Tracked:
     bias: FloatArray = field(default_factory=lambda: np.zeros(2))
     map_at: FloatArray | tuple[float, float] | None = None
     map_yaw: float = math.nan  # its yaw (rad) where its map was worked out
+    #: its blob's axis in the frame (deg) when it was last turned to its outline
+    turned_at: float = math.nan
     map_g: FloatArray | None = None
     map_j: FloatArray | None = None
     _report: tuple | None = None
@@ -787,14 +792,17 @@ class SolidTracker:
         skip: NDArray[np.bool_],
         *,
         fit_all: bool = False,
+        moments: FloatArray | None = None,
     ) -> SolidObjects:
         """This frame's solids from its blobs' filled (area, row, col) (n, 3), their
         patches, their centroids on their class's plane (``fallback``, asked for when a
         blob waits for its fit) and the blobs that are no solid to fit (marked
-        robots')."""
+        robots'); ``moments``: the blobs' central second moments (n, 3: row-row,
+        col-col, row-col; px²), whose axis tells when the unmarked robot turned."""
         self.frame += 1
         n = len(filled)
         self._collect()
+        self._relink_robot()
         rows, skips = filled.tolist(), skip.tolist()  # a frame's few blobs: plain numbers
         matched = self._match(rows, skips)
         if patches is not None:
@@ -831,7 +839,7 @@ class SolidTracker:
         turning = {
             i
             for i, g in new_groups.items()
-            if i not in fitted and patches is not None and self._turns(g)
+            if i not in fitted and patches is not None and self._turns(g, i, moments)
         }
         for i in turning:  # its yaw from its outline, then its centre from its centroid
             assert patches is not None
@@ -847,11 +855,38 @@ class SolidTracker:
         self._note_robot(found)
         return found
 
-    def _turns(self, group: _Group) -> bool:
-        """Whether a blob's one solid is followed with its yaw, from its outline: the
-        unmarked robot (last frame's, :func:`robot_row`), which turns as it drives; any
-        other lone solid follows its blob's centroid (it does not turn)."""
-        return len(group.solids) == 1 and group.solids[0] is self._robot
+    def _turns(self, group: _Group, i: int, moments: FloatArray | None) -> bool:
+        """Whether a blob's one solid is turned to its outline this frame: the unmarked
+        robot (last frame's, :func:`robot_row`), which turns as it drives, when its
+        blob's axis in the frame (from ``moments``; every frame without them) turned
+        over :data:`TURN_CHECK_DEG` since it last was; any other lone solid follows its
+        blob's centroid (it does not turn)."""
+        if len(group.solids) != 1 or group.solids[0] is not self._robot:
+            return False
+        t = group.solids[0]
+        if moments is None:
+            return True
+        m_rr, m_cc, m_rc = moments[i].tolist()
+        axis = math.degrees(0.5 * math.atan2(2.0 * m_rc, m_cc - m_rr))
+        if abs((axis - t.turned_at + 90.0) % 180.0 - 90.0) <= TURN_CHECK_DEG:
+            return False
+        t.turned_at = axis
+        return True
+
+    def _relink_robot(self) -> None:
+        """After a refit replaced the unmarked robot's group: the refitted solid standing
+        where the robot stood (within :data:`RELINEARISE_CM`) is the robot."""
+        robot = self._robot
+        if robot is None or any(t is robot for g in self.groups for t in g.solids):
+            return
+        near = [
+            t
+            for g in self.groups
+            for t in g.solids
+            if t.solid.shape == robot.solid.shape
+            and math.dist(t.centre, robot.centre) <= RELINEARISE_CM
+        ]
+        self._robot = min(near, key=lambda t: math.dist(t.centre, robot.centre), default=None)
 
     def _note_robot(self, found: SolidObjects) -> None:
         """Keep which solid is the unmarked robot this frame (none with marked robots)."""
@@ -1070,12 +1105,11 @@ class SolidTracker:
             return
         by_shape: dict[str, list[_Tracked]] = {}
         for t, _ in moving:
-            if (
-                t.map_at is None
-                or math.dist(t.centre, t.map_at) > RELINEARISE_CM
-                or abs(t.yaw - t.map_yaw) > RELINEARISE_RAD
-            ):
+            if t.map_at is None or math.dist(t.centre, t.map_at) > RELINEARISE_CM:
                 by_shape.setdefault(t.solid.shape, []).append(t)
+            elif abs(t.yaw - t.map_yaw) > RELINEARISE_RAD:  # turned where it stands
+                g = centroid_at(t.solid.shape, t.theta()[None], self.view, self.camera)
+                t.map_at, t.map_g, t.map_yaw = t.centre, g[0], t.yaw
         for shape, ts in by_shape.items():
             g, j = centroid_map(shape, np.array([t.theta() for t in ts]), self.view, self.camera)
             for k, t in enumerate(ts):
@@ -1098,7 +1132,11 @@ class SolidTracker:
         floor = self._chain_floor(outline)
         was = [t.theta() for t in group.solids]
         now = [t.solid._replace(theta=t.ahead()) for t in group.solids]
-        now = follow_union_steps(now, offsets, floor, self.view, FOLLOW_STEPS, FOLLOW_TOL_CM)
+        # only a robot turns: the unmarked one, or any solid where marked robots stand
+        turning = [bool(self.pose.robots) or t is self._robot for t in group.solids]
+        now = follow_union_steps(
+            now, offsets, floor, self.view, FOLLOW_STEPS, FOLLOW_TOL_CM, turning
+        )
         for t, s, before in zip(group.solids, now, was, strict=True):
             t.centre = s.theta[0:2]
             t.motion = s.theta - before

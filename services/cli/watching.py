@@ -379,6 +379,15 @@ def summary_table(s: RunSummary):
             f"{s.objects_matched} ({s.objects_missed} missed, {s.objects_spurious} spurious, "
             f"{s.objects_wrong_kind} of the wrong kind)",
         )
+        if s.after_fits is not None:
+            a = s.after_fits
+            t.add_row(
+                "after the fits",
+                f"{a.frames} frames: {a.objects_matched} matched ({a.objects_missed} missed, "
+                f"{a.objects_spurious} spurious, {a.objects_within_stated} within their "
+                f"stated uncertainty); position error {fmt(a.position_error_cm_mean, 'cm', 3)}"
+                f" / {fmt(a.position_error_cm_max, 'cm', 3)}",
+            )
         if s.objects_within_stated:
             t.add_row(
                 "positions not measurable",
