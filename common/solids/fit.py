@@ -979,7 +979,7 @@ def follow_union(
     at = 0
     for j, s in enumerate(solids):
         out[j][0:2] -= step[at : at + 2]
-        if len(moves[j]) == 4:
+        if moves[j] is _FOLLOW_TURNS:
             out[j][yaw_index(s.shape)] -= step[at + 2]
         at += len(moves[j]) - 1
     return out

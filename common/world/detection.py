@@ -829,6 +829,8 @@ class Detector:
             # rows come with its blob)
             cacheable = not pose.robots and not found.pending.any()
             self._kept_columns = _KeptColumns(found.height, pose, cols) if cacheable else None
+        if not pose.robots:  # the unmarked robot turns: its solid is followed so
+            self.solids.note_robot(found, cols.robot)
         row, col, xy = found.row, found.col, found.xy
         if reps:  # the marked robots' rows after the solids' (most frames have none)
             assert top is not None  # marked robots: worked out

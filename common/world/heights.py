@@ -99,6 +99,7 @@ from ovis.common.vision.outline import (
     split_outline,
     subpixel_edges,
 )
+from ovis.common.vision.shape import orientation
 from ovis.common.world.pose import gated_assignment, gated_pairs_few
 
 __all__ = [
@@ -851,9 +852,7 @@ class SolidTracker:
         for i, g in new_groups.items():
             g.area, g.row, g.col = rows[i]
         self.groups = list(new_groups.values())
-        found = self._objects(filled, rows, new_groups, fallback, skips, patches)
-        self._note_robot(found)
-        return found
+        return self._objects(filled, rows, new_groups, fallback, skips, patches)
 
     def _turns(self, group: _Group, i: int, moments: FloatArray | None) -> bool:
         """Whether a blob's one solid is turned to its outline this frame: the unmarked
@@ -866,8 +865,7 @@ class SolidTracker:
         t = group.solids[0]
         if moments is None:
             return True
-        m_rr, m_cc, m_rc = moments[i].tolist()
-        axis = math.degrees(0.5 * math.atan2(2.0 * m_rc, m_cc - m_rr))
+        axis = math.degrees(float(orientation(*moments[i])[0]))
         if abs((axis - t.turned_at + 90.0) % 180.0 - 90.0) <= TURN_CHECK_DEG:
             return False
         t.turned_at = axis
@@ -888,13 +886,12 @@ class SolidTracker:
         ]
         self._robot = min(near, key=lambda t: math.dist(t.centre, robot.centre), default=None)
 
-    def _note_robot(self, found: SolidObjects) -> None:
-        """Keep which solid is the unmarked robot this frame (none with marked robots)."""
+    def note_robot(self, found: SolidObjects, row: int) -> None:
+        """Keep which solid is the unmarked robot this frame: row ``row`` of ``found``
+        (:func:`robot_row`, as the detection found it; −1: none; none kept with marked
+        robots)."""
         self._robot = None
-        if self.pose.robots:
-            return
-        row = robot_row(found, self.pose)
-        if row < 0 or found.pending[row]:
+        if self.pose.robots or row < 0 or found.pending[row]:
             return
         at = found.xy[row].tolist()
         for g in self.groups:
