@@ -46,6 +46,7 @@ from ovis.common.solids.shapes import (
     footprint_polygon,
     parameter_count,
     shape_sides,
+    yaw_index,
 )
 from ovis.common.solids.silhouette import (
     MAX_HEIGHT_SHARE,
@@ -908,11 +909,6 @@ def union_offsets(solids: Sequence[Solid], floor: FloorOutline, view: Viewpoint)
 _FOLLOW_STEP = 1e-3
 _FOLLOW_MOVES = ((0.0, 0.0, 0.0), (_FOLLOW_STEP, 0.0, 0.0), (0.0, _FOLLOW_STEP, 0.0))
 _FOLLOW_TURNS = (*_FOLLOW_MOVES, (0.0, 0.0, _FOLLOW_STEP))
-
-
-def yaw_index(shape: str) -> int | None:
-    """Where a shape's parameter vector holds its yaw (None: a cylinder has none)."""
-    return None if shape == "cylinder" else parameter_count(shape) - 2
 
 
 def follow_union(

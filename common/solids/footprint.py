@@ -8,18 +8,29 @@ Jacobian by differences. A moving solid's map is kept and reused while it stays 
 
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
 import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.config import CameraModel
-from ovis.common.solids.silhouette import Viewpoint, image_moments
+from ovis.common.solids.shapes import yaw_index
+from ovis.common.solids.silhouette import Viewpoint, image_axis, image_moments
 
-__all__ = ["centroid_at", "centroid_footprints", "centroid_map", "solve_centres"]
+__all__ = [
+    "PoseMap",
+    "centroid_footprints",
+    "centroid_map",
+    "solve_centres",
+    "turn_between",
+]
 
 FloatArray = NDArray[np.float64]
 
-#: Step (cm) of the difference Jacobian, and Newton steps per frame.
+#: Step (cm, and rad for a yaw) of the difference Jacobian, and Newton steps per frame.
 STEP_CM = 0.05
+STEP_RAD = 0.005
 NEWTON_STEPS = 2
 
 
@@ -38,12 +49,68 @@ def centroid_map(
     return g[0], jac
 
 
-def centroid_at(shape: str, theta: FloatArray, view: Viewpoint, camera: CameraModel) -> FloatArray:
-    """Each silhouette's image centroid (m, 2) (row, col): :func:`centroid_map` without
-    its Jacobian (a solid that turned where it stands: the Jacobian in its centre is
-    all but the same)."""
-    _, row, col = image_moments(shape, np.asarray(theta, dtype=np.float64), view, camera)
-    return np.stack([row, col], -1)
+class PoseMap(NamedTuple):
+    """A turning polygon's silhouette's image centroid and major axis and how they move
+    with its footprint centre and yaw: where the map was worked out (x, y, yaw), the
+    centroid and axis there (row, col, rad: :func:`~ovis.common.solids.silhouette.
+    image_axis`) and their Jacobian (row by row) with respect to (x, y, yaw), by
+    differences. Its blob's centroid and axis then put it (x, y and yaw) in each frame
+    by one linear step (a robot that turns as it drives), as
+    :func:`solve_centres` puts a solid that does not turn."""
+
+    at: tuple[float, float, float]
+    image: tuple[float, float, float]
+    jac: tuple[tuple[float, float, float], ...]
+
+    @classmethod
+    def of(cls, shape: str, theta: FloatArray, view: Viewpoint, camera: CameraModel) -> PoseMap:
+        """The map of a solid (parameter vector ``theta``): one projection."""
+        theta = np.asarray(theta, dtype=np.float64)
+        k = yaw_index(shape)
+        if k is None:
+            raise ValueError(f"a {shape} has no yaw to follow")
+        trial = np.repeat(theta[None], 4, axis=0)
+        trial[1, 0] += STEP_CM
+        trial[2, 1] += STEP_CM
+        trial[3, k] += STEP_RAD
+        row, col, axis = image_axis(shape, trial, view, camera)
+        f = np.stack([row, col, axis], -1)  # (4, 3)
+        d = f[1:] - f[0]
+        d[:, 2] = turn_between(f[0, 2], f[1:, 2])
+        jac = (d / np.array([STEP_CM, STEP_CM, STEP_RAD])[:, None]).T
+        at = (float(theta[0]), float(theta[1]), float(theta[k]))
+        return cls(at, tuple(f[0].tolist()), tuple(tuple(r) for r in jac.tolist()))
+
+    def solve(
+        self, target: tuple[float, float, float | None], yaw: float
+    ) -> tuple[float, float, float] | None:
+        """(x, y, yaw) whose silhouette's image centroid and axis are ``target`` (row,
+        col, rad; the axis None: the yaw kept at ``yaw``), by one linear step; None
+        where the map is singular."""
+        (r0, c0, a0), (x0, y0, w0) = self.image, self.at
+        jac = np.array(self.jac)
+        rhs = [target[0] - r0, target[1] - c0]
+        if target[2] is None:
+            rhs = [v - jac[k, 2] * (yaw - w0) for k, v in enumerate(rhs)]
+            jac = jac[:2, :2]
+        else:
+            rhs.append(float(turn_between(a0, target[2])))
+        det = float(np.linalg.det(jac))
+        if not math.isfinite(det) or abs(det) < 1e-9:
+            return None
+        d = np.linalg.solve(jac, np.array(rhs)).tolist()
+        return x0 + d[0], y0 + d[1], (w0 + d[2]) if target[2] is not None else yaw
+
+    @property
+    def slope(self) -> float:
+        """How fast the silhouette's axis turns with the yaw (rad per rad)."""
+        return abs(self.jac[2][2])
+
+
+def turn_between(a: FloatArray | float, b: FloatArray | float) -> FloatArray:
+    """How far (rad) axis ``b`` is turned from axis ``a`` (axes: angles modulo π), in
+    [−π/2, π/2)."""
+    return (np.asarray(b) - a + 0.5 * np.pi) % np.pi - 0.5 * np.pi
 
 
 def solve_centres(

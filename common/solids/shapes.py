@@ -29,6 +29,7 @@ __all__ = [
     "parameter_count",
     "shape_sides",
     "size_and_yaw",
+    "yaw_index",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -49,6 +50,11 @@ _PARAMETERS = {"cylinder": 4, "box": 6, "prism3": 5, "prism5": 5, "prism6": 5}
 def parameter_count(shape: str) -> int:
     """Length of the shape's parameter vector."""
     return _PARAMETERS[shape]
+
+
+def yaw_index(shape: str) -> int | None:
+    """Where a shape's parameter vector holds its yaw (None: a cylinder has none)."""
+    return None if shape == "cylinder" else parameter_count(shape) - 2
 
 
 def shape_sides(shape: str) -> int:

@@ -36,6 +36,7 @@ __all__ = [
     "Viewpoint",
     "capsule_distance",
     "hull_edges",
+    "image_axis",
     "image_moments",
     "signed_distance",
     "signed_distance_few",
@@ -332,6 +333,24 @@ def top_near_edges(
     return np.vstack(pts), np.vstack(nrm)
 
 
+def _image_edges(
+    shape: str, theta: FloatArray, view: Viewpoint, camera: CameraModel, steps: int
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, tuple[int, ...]]:
+    """Each silhouette's (..., P) hull edges cut into ``steps`` pieces, projected into
+    the frame: the pieces' starts and ends (row, col) and the axes that run over them."""
+    theta = np.asarray(theta, dtype=np.float64)
+    a, b = hull_edges(footprint_polygon(shape, theta), top_scale(theta[..., -1], view), view)
+    if steps > 1:
+        s = np.arange(steps + 1) / steps
+        pts = a[..., None, :] + s[:, None] * (b - a)[..., None, :]  # (..., m, steps+1, 2)
+    else:
+        pts = np.stack([a, b], axis=-2)
+    p = project(pts[..., 0], pts[..., 1], np.zeros(pts.shape[:-1]), camera)
+    r, c = p.row, p.col
+    axes = tuple(range(-(r.ndim - theta.ndim + 1), 0))
+    return r[..., :-1], c[..., :-1], r[..., 1:], c[..., 1:], axes
+
+
 def image_moments(
     shape: str,
     theta: FloatArray,
@@ -343,20 +362,34 @@ def image_moments(
     """Area (px²) and centroid (row, col) of each silhouette (..., P) in the camera's
     frame: its hull edges cut into ``steps`` pieces each and projected (straight lines
     on the floor bend a little under lens distortion), by the shoelace formula."""
-    theta = np.asarray(theta, dtype=np.float64)
-    a, b = hull_edges(footprint_polygon(shape, theta), top_scale(theta[..., -1], view), view)
-    if steps > 1:
-        s = np.arange(steps + 1) / steps
-        pts = a[..., None, :] + s[:, None] * (b - a)[..., None, :]  # (..., m, steps+1, 2)
-    else:
-        pts = np.stack([a, b], axis=-2)
-    p = project(pts[..., 0], pts[..., 1], np.zeros(pts.shape[:-1]), camera)
-    r, c = p.row, p.col
-    r0, c0 = r[..., :-1], c[..., :-1]
-    r1, c1 = r[..., 1:], c[..., 1:]
+    r0, c0, r1, c1, axes = _image_edges(shape, theta, view, camera, steps)
     cross = c0 * r1 - c1 * r0
-    axes = tuple(range(-(cross.ndim - theta.ndim + 1), 0))
     area2 = cross.sum(axis=axes)
     row = ((r0 + r1) * cross).sum(axis=axes) / (3.0 * area2)
     col = ((c0 + c1) * cross).sum(axis=axes) / (3.0 * area2)
     return np.abs(0.5 * area2), row, col
+
+
+def image_axis(
+    shape: str, theta: FloatArray, view: Viewpoint, camera: CameraModel
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Centroid (row, col) and major axis (rad, as :func:`~ovis.common.vision.shape.
+    orientation` gives a blob's) of each silhouette (..., P) in the camera's frame: the
+    polygon's second moments by Green's theorem, about its first corner (fewer digits
+    lost than about the frame's origin)."""
+    r0, c0, r1, c1, axes = _image_edges(shape, theta, view, camera, 1)
+    first = tuple(slice(None) for _ in range(r0.ndim - len(axes))) + (0,) * len(axes)
+    ref_r, ref_c = r0[first], c0[first]
+    ex = (...,) + (None,) * len(axes)
+    r0, r1 = r0 - ref_r[ex], r1 - ref_r[ex]
+    c0, c1 = c0 - ref_c[ex], c1 - ref_c[ex]
+    cross = c0 * r1 - c1 * r0
+    area2 = cross.sum(axis=axes)
+    row = ((r0 + r1) * cross).sum(axis=axes) / (3.0 * area2)
+    col = ((c0 + c1) * cross).sum(axis=axes) / (3.0 * area2)
+    rr = ((r0 * r0 + r0 * r1 + r1 * r1) * cross).sum(axis=axes) / (6.0 * area2) - row * row
+    cc = ((c0 * c0 + c0 * c1 + c1 * c1) * cross).sum(axis=axes) / (6.0 * area2) - col * col
+    rc = ((c0 * r1 + 2.0 * c0 * r0 + 2.0 * c1 * r1 + c1 * r0) * cross).sum(axis=axes) / (
+        12.0 * area2
+    ) - row * col
+    return row + ref_r, col + ref_c, 0.5 * np.arctan2(2.0 * rc, rr - cc)

@@ -516,9 +516,10 @@ class _HeightColumns(NamedTuple):
 class _KeptColumns(NamedTuple):
     """The last frame's :class:`_HeightColumns`, kept while the solid tracker reports
     the same solids (its reports' ``height`` array, the same object) under the same
-    ``[pose]``."""
+    ``[pose]``; their headings taken again when its ``yaw_deg`` array is another."""
 
     height: NDArray[np.float64]
+    yaw: NDArray[np.float64]
     pose: PoseConfig
     columns: _HeightColumns
 
@@ -823,12 +824,16 @@ class Detector:
         kept = self._kept_columns
         if kept is not None and kept.height is found.height and kept.pose is pose:
             cols = kept.columns  # the same solids as last frame: what they report is fixed
+            if kept.yaw is not found.yaw_deg:  # … but a follow turned one
+                cols = cols._replace(heading=found.yaw_deg)
+                self._kept_columns = kept._replace(yaw=found.yaw_deg, columns=cols)
         else:
             cols = self._height_columns(found, marked, blobs, top, rep)
             # without marked robots the columns depend only on the solids (a robot's
             # rows come with its blob)
             cacheable = not pose.robots and not found.pending.any()
-            self._kept_columns = _KeptColumns(found.height, pose, cols) if cacheable else None
+            kept = _KeptColumns(found.height, found.yaw_deg, pose, cols) if cacheable else None
+            self._kept_columns = kept
         if not pose.robots:  # the unmarked robot turns: its solid is followed so
             self.solids.note_robot(found, cols.robot)
         row, col, xy = found.row, found.col, found.xy

@@ -82,11 +82,10 @@ from ovis.common.solids.fit import (
     rough_footprint,
     union_offsets,
     unplaced_covariance,
-    yaw_index,
 )
-from ovis.common.solids.footprint import centroid_at, centroid_map
+from ovis.common.solids.footprint import PoseMap, centroid_map, turn_between
 from ovis.common.solids.outline_floor import chain_floor, floor_outline
-from ovis.common.solids.shapes import equal_area_radius, size_and_yaw
+from ovis.common.solids.shapes import equal_area_radius, size_and_yaw, yaw_index
 from ovis.common.solids.silhouette import Viewpoint, signed_distance, top_near_edges
 from ovis.common.vision.contrast import NEUTRAL
 from ovis.common.vision.outline import (
@@ -126,10 +125,23 @@ REFIT_FRAMES = 60
 #: A solid's centroid map is worked out again when it moved this far (cm) from where it
 #: was worked out.
 RELINEARISE_CM = 2.0
-#: The unmarked robot is turned to its outline when its blob's axis in the frame turned
-#: more than this (deg) since it last was.
+#: The unmarked robot's yaw comes from its blob's axis in the frame (its
+#: :class:`~ovis.common.solids.footprint.PoseMap`) while that axis stays within this
+#: (deg) of where it was when the robot was last turned to its outline, and while the
+#: silhouette's axis turns with the yaw at least this much and at most this much (deg
+#: per deg: elsewhere the axis tells the yaw poorly) …
+AXIS_REACH_DEG = 5.0
+AXIS_SLOPE = (0.75, 5.0)
+#: … else the robot is turned to its outline again when its blob moved (:data:`STILL_PX`)
+#: or its axis turned since it last was as far as a turn of this much (deg) would turn
+#: it (the axis taken to turn at least this much with the yaw).
 TURN_CHECK_DEG = 0.5
-#: … or turned this far (rad: 1°).
+AXIS_SLOPE_LEAST = 0.1
+#: Where it turned at most this much (deg) a frame when last turned to its outline (a
+#: high frame rate), every other such turn is left out: it turns on at that rate.
+COAST_TURN_DEG = 1.0
+#: Any other lone solid's centroid map is worked out again where it turned this far
+#: (rad: 1°; a carry into a new blob turns one).
 RELINEARISE_RAD = math.radians(1.0)
 #: Chain points left out at each end of a cut outline's piece (the cut's corner).
 CUT_TRIM = 3
@@ -153,6 +165,12 @@ CLEAR_WALLS_SHARE = 0.5
 #: where a step moves none of them more than this (cm).
 FOLLOW_STEPS = 3
 FOLLOW_TOL_CM = 0.02
+#: … and are left where they are while its centroid stays within this (px), its filled
+#: area within this share and its axis in the frame within :data:`TURN_CHECK_DEG` of
+#: where they were last followed (solids standing still: a follow would move them by
+#: the frame's noise alone).
+STILL_PX = 0.25
+STILL_AREA_SHARE = 0.01
 #: Known solids carried into a blob where they met or parted (:meth:`SolidTracker._carry`)
 #: are followed onto its outline in at most this many steps, and kept where no more than
 #: ``MAX_OFF_SHARE`` of its pixel chain is over this far (px) from their union.
@@ -196,8 +214,15 @@ class _Tracked:
     bias: FloatArray = field(default_factory=lambda: np.zeros(2))
     map_at: FloatArray | tuple[float, float] | None = None
     map_yaw: float = math.nan  # its yaw (rad) where its map was worked out
-    #: its blob's axis in the frame (deg) when it was last turned to its outline
-    turned_at: float = math.nan
+    #: its blob's axis in the frame (deg) and centroid (row, col) when it was last
+    #: turned to its outline (the unmarked robot), and the silhouette's axis less the
+    #: blob's then (rad)
+    turned_at: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    axis_bias: float = math.nan
+    #: whether its last frame turned it on at its turn rate instead of to its outline
+    coasted: bool = False
+    #: the unmarked robot's pose map (:func:`pose_map`) and where it was worked out
+    pose_map: PoseMap | None = None
     map_g: FloatArray | None = None
     map_j: FloatArray | None = None
     _report: tuple | None = None
@@ -321,6 +346,9 @@ class _Group:
     #: its solids were carried in from other blobs (:meth:`SolidTracker._carry`), not
     #: fitted to it: fitted again as soon as no new blob waits
     carried: bool = False
+    #: several solids: the blob (filled area, row, col, axis in the frame in deg) when
+    #: they were last followed onto its outline
+    followed_at: tuple[float, float, float, float] | None = None
 
 
 def _sigma(solid: Solid) -> float:
@@ -392,6 +420,7 @@ class SolidTracker:
         self._generation = 0
         self._job: _Job | None = None
         self._reports: _Reports | None = None
+        self._turned = False  # a follow turned a solid since its reports were stacked
         self._pool = ThreadPoolExecutor(1, "solid-fit") if background else None
         self._robot: _Tracked | None = None  # the unmarked robot's solid, last frame
         self.reconfigure(camera, image, pose)
@@ -837,38 +866,114 @@ class SolidTracker:
             if i in fitted:  # its refit found nothing: keep what it was
                 pass
             new_groups[i] = g
-        turning = {
-            i
-            for i, g in new_groups.items()
-            if i not in fitted and patches is not None and self._turns(g, i, moments)
-        }
-        for i in turning:  # its yaw from its outline, then its centre from its centroid
+        axes = _axes(moments, n)
+        robot = self._lone_robot(new_groups, fitted, patches)
+        if robot >= 0:
             assert patches is not None
-            self._follow_group(new_groups[i], patches, i, filled[i])
-        self._follow(rows, new_groups, fitted)
+            self._follow_robot(new_groups[robot], patches, robot, rows[robot], axes[robot])
+        self._follow(rows, new_groups, fitted | {robot})
         for i, g in new_groups.items():
-            if i not in fitted and len(g.solids) > 1 and patches is not None:
+            several = i not in fitted and len(g.solids) > 1 and patches is not None
+            if several and self._moved(g, rows[i], axes[i]):
+                assert patches is not None
                 self._follow_group(g, patches, i, filled[i])
         for i, g in new_groups.items():
             g.area, g.row, g.col = rows[i]
         self.groups = list(new_groups.values())
         return self._objects(filled, rows, new_groups, fallback, skips, patches)
 
-    def _turns(self, group: _Group, i: int, moments: FloatArray | None) -> bool:
-        """Whether a blob's one solid is turned to its outline this frame: the unmarked
-        robot (last frame's, :func:`robot_row`), which turns as it drives, when its
-        blob's axis in the frame (from ``moments``; every frame without them) turned
-        over :data:`TURN_CHECK_DEG` since it last was; any other lone solid follows its
-        blob's centroid (it does not turn)."""
-        if len(group.solids) != 1 or group.solids[0] is not self._robot:
-            return False
+    def _lone_robot(
+        self, groups: dict[int, _Group], fitted: set[int], patches: Sequence[Patch] | None
+    ) -> int:
+        """The blob (not fitted this frame) that holds the unmarked robot alone, or −1."""
+        if self._robot is None or patches is None:
+            return -1
+        for i, g in groups.items():
+            if i not in fitted and len(g.solids) == 1 and g.solids[0] is self._robot:
+                return i
+        return -1
+
+    def _follow_robot(
+        self,
+        group: _Group,
+        patches: Sequence[Patch],
+        i: int,
+        blob: list[float],
+        axis: float,
+    ) -> None:
+        """The unmarked robot alone in blob ``i`` (its filled area, row, col: ``blob``),
+        which turns as it drives. Its yaw comes from its blob's axis in the frame
+        (``axis``, deg; NaN: not known) by its pose map while that axis stays within
+        :data:`AXIS_REACH_DEG` of where the robot was last turned to its outline (and
+        tells its yaw well: :data:`AXIS_SLOPE`). Else it is turned to its outline again
+        (the axis's bias noted then) when the blob moved or its axis turned as far as a
+        turn of :data:`TURN_CHECK_DEG` would turn it since it last was (every frame
+        without an axis). Its centre then comes from its blob's centroid (less its
+        bias) at that yaw."""
         t = group.solids[0]
-        if moments is None:
-            return True
-        axis = math.degrees(float(orientation(*moments[i])[0]))
-        if abs((axis - t.turned_at + 90.0) % 180.0 - 90.0) <= TURN_CHECK_DEG:
+        target_axis: float | None = None
+        m = t.pose_map
+        was, row, col = t.turned_at
+        turned = abs(_degrees_between(was, axis))  # NaN: not known
+        if m is not None and turned <= AXIS_REACH_DEG and AXIS_SLOPE[0] <= m.slope <= AXIS_SLOPE[1]:
+            target_axis = math.radians(axis) + t.axis_bias
+        elif (
+            m is None
+            or not turned <= TURN_CHECK_DEG * max(m.slope, AXIS_SLOPE_LEAST)
+            or math.hypot(blob[1] - row, blob[2] - col) > STILL_PX
+        ):
+            rate = math.nan if t.motion is None else float(t.motion[yaw_index(t.solid.shape)])  # type: ignore[index]
+            if not t.coasted and abs(rate) <= math.radians(COAST_TURN_DEG):
+                t.coasted = True  # this frame at its last turn rate, the next to its outline
+                theta = t.solid.theta.copy()
+                theta[yaw_index(t.solid.shape)] += rate  # type: ignore[index]
+                if t.turn(theta):
+                    self._turned = True
+            else:
+                t.coasted = False
+                t.turned_at = (axis, blob[1], blob[2])
+                self._follow_group(group, patches, i, np.array(blob))
+                m = self._pose_map(t)
+                t.axis_bias = float(turn_between(math.radians(axis), m.image[2]))
+        m = t.pose_map
+        if (
+            m is None
+            or math.dist(t.centre, m.at[:2]) > RELINEARISE_CM
+            or abs(t.yaw - m.at[2]) > math.radians(AXIS_REACH_DEG)
+        ):
+            m = self._pose_map(t)
+        bias = t.bias.tolist()
+        got = m.solve((blob[1] + bias[0], blob[2] + bias[1], target_axis), t.yaw)
+        if got is None:
+            return
+        t.centre = got[0:2]
+        if target_axis is not None:
+            theta = t.solid.theta.copy()
+            theta[yaw_index(t.solid.shape)] = got[2]  # type: ignore[index]
+            if t.turn(theta):
+                self._turned = True
+
+    def _pose_map(self, t: _Tracked) -> PoseMap:
+        """Work out the robot's pose map where it stands now."""
+        t.pose_map = PoseMap.of(t.solid.shape, t.theta(), self.view, self.camera)
+        return t.pose_map
+
+    @staticmethod
+    def _moved(group: _Group, blob: list[float], axis: float) -> bool:
+        """Whether a blob of several solids moved (area, centroid or axis: ``blob`` is
+        its filled (area, row, col)) beyond :data:`STILL_PX`, :data:`STILL_AREA_SHARE`
+        and :data:`TURN_CHECK_DEG` since its solids were last followed; if so, it is
+        noted as followed now."""
+        now = (blob[0], blob[1], blob[2], axis)
+        was = group.followed_at
+        if (
+            was is not None
+            and math.hypot(now[1] - was[1], now[2] - was[2]) <= STILL_PX
+            and abs(now[0] - was[0]) <= STILL_AREA_SHARE * was[0]
+            and abs(_degrees_between(was[3], now[3])) <= TURN_CHECK_DEG
+        ):
             return False
-        t.turned_at = axis
+        group.followed_at = now
         return True
 
     def _relink_robot(self) -> None:
@@ -1050,6 +1155,7 @@ class SolidTracker:
             t.centre = s.theta[0:2]
             t.motion = None
             t.turn(s.theta)
+            t.turned_at = (math.nan,) * 3  # a robot among them: turned to its outline next
             self._map(t)
         self._reports = None
         row, col = at[1], at[2]
@@ -1102,11 +1208,12 @@ class SolidTracker:
             return
         by_shape: dict[str, list[_Tracked]] = {}
         for t, _ in moving:
-            if t.map_at is None or math.dist(t.centre, t.map_at) > RELINEARISE_CM:
+            if (
+                t.map_at is None
+                or math.dist(t.centre, t.map_at) > RELINEARISE_CM
+                or abs(t.yaw - t.map_yaw) > RELINEARISE_RAD  # turned where it stands
+            ):
                 by_shape.setdefault(t.solid.shape, []).append(t)
-            elif abs(t.yaw - t.map_yaw) > RELINEARISE_RAD:  # turned where it stands
-                g = centroid_at(t.solid.shape, t.theta()[None], self.view, self.camera)
-                t.map_at, t.map_g, t.map_yaw = t.centre, g[0], t.yaw
         for shape, ts in by_shape.items():
             g, j = centroid_map(shape, np.array([t.theta() for t in ts]), self.view, self.camera)
             for k, t in enumerate(ts):
@@ -1138,7 +1245,7 @@ class SolidTracker:
             t.centre = s.theta[0:2]
             t.motion = s.theta - before
             if t.turn(s.theta):
-                self._reports = None
+                self._turned = True
 
     def _objects(
         self,
@@ -1219,12 +1326,15 @@ class SolidTracker:
     ) -> SolidObjects:
         """:meth:`_objects` where no blob waits for its fit: ``solids`` (blob, solid,
         whether its blob holds several) in blob order. What a solid reports besides where
-        it stands is fixed from its fit on: stacked once (:class:`_Reports`) and kept
-        while the frames hold the same solids."""
+        it stands is fixed from its fit on but its yaw: stacked once (:class:`_Reports`)
+        and kept while the frames hold the same solids, the yaws again where one turned."""
         ts = [t for _, t, _ in solids]
         reports = self._reports
         if reports is None or not _same(ts, reports.solids):
             reports = self._reports = _Reports.of(ts)
+        elif self._turned:
+            reports = self._reports = reports.turned()
+        self._turned = False
         rc = [
             t.map_g.tolist() if several and t.map_g is not None else rows[i][1:]
             for i, t, several in solids
@@ -1237,6 +1347,20 @@ class SolidTracker:
             col=np.array(col, dtype=np.float64),
             **reports.columns,
         )
+
+
+def _degrees_between(a: float, b: float) -> float:
+    """How far (deg) axis ``b`` is turned from axis ``a`` (axes: modulo 180°; NaN where
+    either is)."""
+    return (b - a + 90.0) % 180.0 - 90.0
+
+
+def _axes(moments: FloatArray | None, n: int) -> list[float]:
+    """The blobs' axes in the frame (deg) from their central second moments (n, 3), all
+    at once (NaN: none given)."""
+    if moments is None:
+        return [math.nan] * n
+    return np.degrees(orientation(moments[:, 0], moments[:, 1], moments[:, 2])[0]).tolist()
 
 
 def _solve_centre(linear: tuple[float, ...], row: float, col: float) -> tuple[float, float]:
@@ -1265,6 +1389,7 @@ def _same(a: list[_Tracked], b: list[_Tracked]) -> bool:
 _REPORTED = ("height", "height_sigma", "covariance", "shape", "radius", "area_cm2",
              "yaw_deg", "size")  # fmt: skip
 _REPORTED_KINDS = (*[np.float64] * 3, object, *[np.float64] * 4)
+_YAW = _REPORTED.index("yaw_deg")
 
 
 class _Reports(NamedTuple):
@@ -1284,6 +1409,13 @@ class _Reports(NamedTuple):
         for a in columns.values():
             a.flags.writeable = False
         return cls(solids, columns)
+
+    def turned(self) -> _Reports:
+        """These reports with each solid's yaw as it reports it now (a follow turned
+        one); the other columns are the same arrays."""
+        yaw = np.array([t.report()[_YAW] for t in self.solids], dtype=np.float64)
+        yaw.flags.writeable = False
+        return _Reports(self.solids, {**self.columns, "yaw_deg": yaw})
 
 
 #: The unmarked robot's footprint is within this share of its configured length and
