@@ -675,7 +675,38 @@ def _cut_pieces(
         if cost >= best_cost:
             break
         best, best_cost, parts = solids, cost, merged_parts
+    best, best_cost = _without_redundant(best, best_cost, floor, view, height)
     return best if best_cost < _total_cost([whole], floor, view) else [whole]
+
+
+def _without_redundant(
+    solids: list[Solid],
+    cost: float,
+    floor: FloorOutline,
+    view: Viewpoint,
+    height: float | None,
+) -> tuple[list[Solid], float]:
+    """A union's solids (of total cost ``cost``) less those it does not need: one at a
+    time, the solid without which the others, fitted again together, explain the
+    outline at the least cost (residuals plus a price per parameter) is dropped while
+    that cost is less and no more of the outline's points are left unexplained
+    (:data:`OFF_PX`). A union fitted from pieces that each hold parts of two solids
+    (a near tall solid's top seen over a far one's) can settle where one solid of its
+    own, low and wide, covers what the others placed right would: a solid too many."""
+    while len(solids) > 1:
+        trials = []
+        for k in range(len(solids)):
+            others = [s for j, s in enumerate(solids) if j != k]
+            rest = fit_union(others, floor, view, height=height)
+            if rest[0].off_share <= solids[0].off_share:
+                trials.append((_total_cost(rest, floor, view), rest))
+        if not trials:
+            break
+        least, rest = min(trials, key=lambda t: t[0])
+        if least >= cost:
+            break
+        solids, cost = rest, least
+    return solids, cost
 
 
 def _split_along_sight(
