@@ -15,9 +15,11 @@ edges: along them the far end over the near end's distance from the camera's foo
 yaw from the footprint's n-fold symmetry —, the shape of least cost (plus a small
 price per parameter) is kept and started again from several heights. A blob of several
 (:func:`fit_union`) is cut where its outline turns inward, each piece fitted alone,
-then all together against the whole outline; one whose single solid does not explain its
-outline is also cut across the line of sight (two solids in line with the camera, the
-near one hiding the far one's foot: :func:`_split_along_sight`).
+then all together against the whole outline, and a solid dropped where the others, fitted
+again without it, explain the outline as well (:func:`_without_redundant`); one whose
+single solid does not explain its outline is also cut across the line of sight (two
+solids in line with the camera, the near one hiding the far one's foot:
+:func:`_split_along_sight`).
 
 Each solid's covariance comes from the Jacobian and the residuals (scaled for the
 correlation of neighbouring edge points, which share pixels), plus what a bias common
@@ -636,8 +638,9 @@ def fit_blob(
     was cut into ``pieces`` (index arrays into ``floor``), one solid per piece fitted
     together (:func:`fit_union`), then two pieces merged into one solid while that
     explains the outline at less cost (a cut at a dent of one solid, between its top
-    face and its walls, is undone); whichever of these costs least (residuals plus a
-    price per parameter). One solid that still does not explain its outline may be two
+    face and its walls, is undone), then a solid dropped while the others do without it
+    (:func:`_without_redundant`); whichever of these costs least (residuals plus a price
+    per parameter). One solid that still does not explain its outline may be two
     in line with the camera (:func:`_split_along_sight`)."""
     whole = fit_piece(floor, view, shapes, height=height)
     best = _cut_pieces(whole, floor, pieces, view, shapes, height)
