@@ -15,9 +15,11 @@ edges: along them the far end over the near end's distance from the camera's foo
 yaw from the footprint's n-fold symmetry —, the shape of least cost (plus a small
 price per parameter) is kept and started again from several heights. A blob of several
 (:func:`fit_union`) is cut where its outline turns inward, each piece fitted alone,
-then all together against the whole outline; one whose single solid does not explain its
-outline is also cut across the line of sight (two solids in line with the camera, the
-near one hiding the far one's foot: :func:`_split_along_sight`).
+then all together against the whole outline, and a solid dropped where the others, fitted
+again without it, explain the outline as well (:func:`_without_redundant`); one whose
+single solid does not explain its outline is also cut across the line of sight (two
+solids in line with the camera, the near one hiding the far one's foot:
+:func:`_split_along_sight`).
 
 Each solid's covariance comes from the Jacobian and the residuals (scaled for the
 correlation of neighbouring edge points, which share pixels), plus what a bias common
@@ -637,8 +639,9 @@ def fit_blob(
     was cut into ``pieces`` (index arrays into ``floor``), one solid per piece fitted
     together (:func:`fit_union`), then two pieces merged into one solid while that
     explains the outline at less cost (a cut at a dent of one solid, between its top
-    face and its walls, is undone); whichever of these costs least (residuals plus a
-    price per parameter). One solid that still does not explain its outline may be two
+    face and its walls, is undone), then a solid dropped while the others do without it
+    (:func:`_without_redundant`); whichever of these costs least (residuals plus a price
+    per parameter). One solid that still does not explain its outline may be two
     in line with the camera (:func:`_split_along_sight`)."""
     whole = fit_piece(floor, view, shapes, height=height)
     best = _cut_pieces(whole, floor, pieces, view, shapes, height)
@@ -676,7 +679,38 @@ def _cut_pieces(
         if cost >= best_cost:
             break
         best, best_cost, parts = solids, cost, merged_parts
+    best, best_cost = _without_redundant(best, best_cost, floor, view, height)
     return best if best_cost < _total_cost([whole], floor, view) else [whole]
+
+
+def _without_redundant(
+    solids: list[Solid],
+    cost: float,
+    floor: FloorOutline,
+    view: Viewpoint,
+    height: float | None,
+) -> tuple[list[Solid], float]:
+    """A union's solids (of total cost ``cost``) less those it does not need: one at a
+    time, the solid without which the others, fitted again together, explain the
+    outline at the least cost (residuals plus a price per parameter) is dropped while
+    that cost is less and no more of the outline's points are left unexplained
+    (:data:`OFF_PX`). A union fitted from pieces that each hold parts of two solids
+    (a near tall solid's top seen over a far one's) can settle where one solid of its
+    own, low and wide, covers what the others placed right would: a solid too many."""
+    while len(solids) > 1:
+        trials = []
+        for k in range(len(solids)):
+            others = [s for j, s in enumerate(solids) if j != k]
+            rest = fit_union(others, floor, view, height=height)
+            if rest[0].off_share <= solids[0].off_share:
+                trials.append((_total_cost(rest, floor, view), rest))
+        if not trials:
+            break
+        least, rest = min(trials, key=lambda t: t[0])
+        if least >= cost:
+            break
+        solids, cost = rest, least
+    return solids, cost
 
 
 def _split_along_sight(
