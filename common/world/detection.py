@@ -735,7 +735,7 @@ class Detector:
         if self.solids is not None:
             if patches is not None and frame_shape is not None:
                 self.solids.use_background(background_image(self.image, frame_shape))
-            rows = self._solid_rows(blobs, floor, top, marked, patches, fit_all)
+            rows = self._solid_rows(blobs, floor, top, marked, patches, fit_all, dt)
         else:
             rows = self._blob_rows(blobs, floor, top, marked)
         return self._report(rows, now, dt, stamp_s, goal_xy, goal_angle_deg)
@@ -793,6 +793,7 @@ class Detector:
         marked: _MarkedFrame,
         patches: Sequence[Patch] | None,
         fit_all: bool,
+        dt_s: float,
     ) -> _Rows:
         """One row per solid (measured heights, :mod:`ovis.common.world.heights`), then
         one per marked robot's blob (on its marker's plane, as configured). ``floor``,
@@ -815,7 +816,7 @@ class Detector:
         skip[reps] = False  # a robot's own blob is fitted too: an obstacle may share it
         moments = np.column_stack([blobs.mu_rr, blobs.mu_cc, blobs.mu_rc])
         found = self.solids.update(
-            filled, patches, obstacle_plane, skip, fit_all=fit_all, moments=moments
+            filled, patches, obstacle_plane, skip, fit_all=fit_all, moments=moments, dt_s=dt_s
         )
         if reps:
             found = _without_robots(found, marked)

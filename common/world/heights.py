@@ -126,19 +126,23 @@ REFIT_FRAMES = 60
 #: was worked out.
 RELINEARISE_CM = 2.0
 #: The unmarked robot's yaw comes from its blob's axis in the frame (its
-#: :class:`~ovis.common.solids.footprint.PoseMap`) while that axis stays within this
-#: (deg) of where it was when the robot was last turned to its outline, and while the
-#: silhouette's axis turns with the yaw at least this much and at most this much (deg
-#: per deg: elsewhere the axis tells the yaw poorly) …
-AXIS_REACH_DEG = 5.0
+#: :class:`~ovis.common.solids.footprint.PoseMap`) while that axis stays within what a
+#: turn of this much (deg) turns it from where it was when the robot was last turned to
+#: its outline, and while the silhouette's axis turns with the yaw at least this much
+#: and at most this much (deg per deg: elsewhere the axis tells the yaw poorly) …
+AXIS_REACH_DEG = 3.0
 AXIS_SLOPE = (0.75, 5.0)
+#: … and puts its yaw within this (deg) of where its last turn rate does.
+AXIS_CHECK_DEG = 1.0
 #: … else the robot is turned to its outline again when its blob moved (:data:`STILL_PX`)
 #: or its axis turned since it last was as far as a turn of this much (deg) would turn
 #: it (the axis taken to turn at least this much with the yaw).
 TURN_CHECK_DEG = 0.5
 AXIS_SLOPE_LEAST = 0.1
-#: Where it turned at most this much (deg) a frame when last turned to its outline (a
-#: high frame rate), every other such turn is left out: it turns on at that rate.
+#: Where frames are at most this far apart (s) and it turned at most this much (deg) a
+#: frame when last turned to its outline, every other such turn is left out: it turns
+#: on at that rate (over so short a time a robot's turn rate holds).
+COAST_MAX_S = 0.05
 COAST_TURN_DEG = 1.0
 #: Any other lone solid's centroid map is worked out again where it turned this far
 #: (rad: 1°; a carry into a new blob turns one).
@@ -273,6 +277,22 @@ class _Tracked:
             return False
         self._report = None
         return True
+
+    def turn_to(self, yaw: float) -> bool:
+        """:meth:`turn` to this yaw (rad)."""
+        theta = self.solid.theta.copy()
+        k = yaw_index(self.solid.shape)
+        if k is None:
+            return False
+        theta[k] = yaw
+        return self.turn(theta)
+
+    @property
+    def yaw_rate(self) -> float:
+        """How far (rad) it turned from the last frame to this one as last followed onto
+        its outline (NaN: not followed yet, or a cylinder)."""
+        k = yaw_index(self.solid.shape)
+        return math.nan if k is None or self.motion is None else float(self.motion[k])
 
     @property
     def yaw(self) -> float:
@@ -823,12 +843,14 @@ class SolidTracker:
         *,
         fit_all: bool = False,
         moments: FloatArray | None = None,
+        dt_s: float = math.inf,
     ) -> SolidObjects:
         """This frame's solids from its blobs' filled (area, row, col) (n, 3), their
         patches, their centroids on their class's plane (``fallback``, asked for when a
         blob waits for its fit) and the blobs that are no solid to fit (marked
         robots'); ``moments``: the blobs' central second moments (n, 3: row-row,
-        col-col, row-col; px²), whose axis tells when the unmarked robot turned."""
+        col-col, row-col; px²), whose axis tells how the unmarked robot turned; ``dt_s``:
+        the time since the last frame."""
         self.frame += 1
         n = len(filled)
         self._collect()
@@ -870,7 +892,8 @@ class SolidTracker:
         robot = self._lone_robot(new_groups, fitted, patches)
         if robot >= 0:
             assert patches is not None
-            self._follow_robot(new_groups[robot], patches, robot, rows[robot], axes[robot])
+            blob = rows[robot]
+            self._follow_robot(new_groups[robot], patches, robot, blob, axes[robot], dt_s)
         self._follow(rows, new_groups, fitted | {robot})
         for i, g in new_groups.items():
             several = i not in fitted and len(g.solids) > 1 and patches is not None
@@ -900,41 +923,41 @@ class SolidTracker:
         i: int,
         blob: list[float],
         axis: float,
+        dt_s: float,
     ) -> None:
-        """The unmarked robot alone in blob ``i`` (its filled area, row, col: ``blob``),
-        which turns as it drives. Its yaw comes from its blob's axis in the frame
-        (``axis``, deg; NaN: not known) by its pose map while that axis stays within
-        :data:`AXIS_REACH_DEG` of where the robot was last turned to its outline (and
-        tells its yaw well: :data:`AXIS_SLOPE`). Else it is turned to its outline again
-        (the axis's bias noted then) when the blob moved or its axis turned as far as a
-        turn of :data:`TURN_CHECK_DEG` would turn it since it last was (every frame
-        without an axis). Its centre then comes from its blob's centroid (less its
-        bias) at that yaw."""
+        """The unmarked robot alone in blob ``i`` (its filled area, row, col: ``blob``;
+        its axis in the frame ``axis``, deg, NaN: not known), which turns as it drives:
+        its yaw as :meth:`_robot_turn` says (by its axis only where that puts it within
+        :data:`AXIS_CHECK_DEG` of where its last turn rate does: else a blob's axis
+        thrown by something else, turned to its outline), and its centre from its
+        blob's centroid (less its bias) at that yaw, by its pose map."""
         t = group.solids[0]
-        target_axis: float | None = None
-        m = t.pose_map
-        was, row, col = t.turned_at
-        turned = abs(_degrees_between(was, axis))  # NaN: not known
-        if m is not None and turned <= AXIS_REACH_DEG and AXIS_SLOPE[0] <= m.slope <= AXIS_SLOPE[1]:
-            target_axis = math.radians(axis) + t.axis_bias
-        elif (
-            m is None
-            or not turned <= TURN_CHECK_DEG * max(m.slope, AXIS_SLOPE_LEAST)
-            or math.hypot(blob[1] - row, blob[2] - col) > STILL_PX
-        ):
-            rate = math.nan if t.motion is None else float(t.motion[yaw_index(t.solid.shape)])  # type: ignore[index]
-            if not t.coasted and abs(rate) <= math.radians(COAST_TURN_DEG):
-                t.coasted = True  # this frame at its last turn rate, the next to its outline
-                theta = t.solid.theta.copy()
-                theta[yaw_index(t.solid.shape)] += rate  # type: ignore[index]
-                if t.turn(theta):
-                    self._turned = True
-            else:
-                t.coasted = False
-                t.turned_at = (axis, blob[1], blob[2])
-                self._follow_group(group, patches, i, np.array(blob))
-                m = self._pose_map(t)
-                t.axis_bias = float(turn_between(math.radians(axis), m.image[2]))
+        how = self._robot_turn(t, blob, axis, dt_s)
+        bias = t.bias.tolist()
+        target = (blob[1] + bias[0], blob[2] + bias[1])
+        if how == "axis":
+            got = self._robot_map(t).solve((*target, math.radians(axis) + t.axis_bias), t.yaw)
+            ahead = t.yaw + (t.yaw_rate if math.isfinite(t.yaw_rate) else 0.0)
+            if got is not None and abs(got[2] - ahead) <= math.radians(AXIS_CHECK_DEG):
+                t.centre = got[0:2]
+                self._turned |= t.turn_to(got[2])
+                return
+            how = "outline"  # the axis tells a turn the robot cannot have made
+        if how == "coast":
+            t.coasted = True
+            self._turned |= t.turn_to(t.yaw + t.yaw_rate)
+        elif how == "outline":
+            t.coasted = False
+            t.turned_at = (axis, blob[1], blob[2])
+            self._follow_group(group, patches, i, np.array(blob))
+            t.axis_bias = float(turn_between(math.radians(axis), self._pose_map(t).image[2]))
+        got = self._robot_map(t).solve((*target, None), t.yaw)
+        if got is not None:
+            t.centre = got[0:2]
+
+    def _robot_map(self, t: _Tracked) -> PoseMap:
+        """The robot's pose map, worked out again where it moved or turned far from where
+        it was."""
         m = t.pose_map
         if (
             m is None
@@ -942,16 +965,36 @@ class SolidTracker:
             or abs(t.yaw - m.at[2]) > math.radians(AXIS_REACH_DEG)
         ):
             m = self._pose_map(t)
-        bias = t.bias.tolist()
-        got = m.solve((blob[1] + bias[0], blob[2] + bias[1], target_axis), t.yaw)
-        if got is None:
-            return
-        t.centre = got[0:2]
-        if target_axis is not None:
-            theta = t.solid.theta.copy()
-            theta[yaw_index(t.solid.shape)] = got[2]  # type: ignore[index]
-            if t.turn(theta):
-                self._turned = True
+        return m
+
+    @staticmethod
+    def _robot_turn(t: _Tracked, blob: list[float], axis: float, dt_s: float) -> str:
+        """How the lone unmarked robot's yaw is found this frame:
+
+        - "axis": from its blob's axis by its pose map, while that axis tells its yaw
+          well (:data:`AXIS_SLOPE`) and stays within what a turn of
+          :data:`AXIS_REACH_DEG` turns it from where the robot was last turned to its
+          outline (the map is linear that far);
+        - else, where its blob moved (:data:`STILL_PX`) or its axis turned as far as a
+          turn of :data:`TURN_CHECK_DEG` would turn it since then (or no axis is
+          known): "coast", on at its last turn rate, every other frame while frames come
+          fast and it turns slowly (:data:`COAST_MAX_S`, :data:`COAST_TURN_DEG`), or
+          "outline", turned to its outline;
+        - else "keep"."""
+        m = t.pose_map
+        if m is None:
+            return "outline"
+        was, row, col = t.turned_at
+        turned = abs(_degrees_between(was, axis))  # NaN: not known
+        if turned <= AXIS_REACH_DEG * m.slope and AXIS_SLOPE[0] <= m.slope <= AXIS_SLOPE[1]:
+            return "axis"
+        if (
+            turned <= TURN_CHECK_DEG * max(m.slope, AXIS_SLOPE_LEAST)
+            and math.hypot(blob[1] - row, blob[2] - col) <= STILL_PX
+        ):
+            return "keep"
+        slow = abs(t.yaw_rate) <= math.radians(COAST_TURN_DEG)  # NaN: no rate known
+        return "coast" if not t.coasted and dt_s <= COAST_MAX_S and slow else "outline"
 
     def _pose_map(self, t: _Tracked) -> PoseMap:
         """Work out the robot's pose map where it stands now."""
