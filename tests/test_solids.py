@@ -130,7 +130,8 @@ def test_a_turning_box_is_put_where_it_stands_by_its_blobs_centroid_and_axis() -
     """A box moved 0.4 cm and turned 3° from where its pose map was worked out: one
     linear step from its silhouette's image centroid and axis puts its centre within
     0.02 cm and its yaw within 0.1° (the axis turns with the yaw at a rate the map
-    knows); told the yaw instead, the centroid alone puts its centre as well."""
+    knows), and the map itself says where that centroid and axis are; told the yaw
+    instead, the centroid alone puts its centre as well."""
     for rig_name, yaw in (("oblique", 0.4), ("oblique", 2.0), ("overhead", 1.0)):
         camera = rig(rig_name, load_config())
         view = Viewpoint.of(camera)
@@ -139,6 +140,9 @@ def test_a_turning_box_is_put_where_it_stands_by_its_blobs_centroid_and_axis() -
         assert pose.slope > 0.3
         truth = start + np.array([0.3, -0.27, 0.0, 0.0, math.radians(3.0), 0.0])
         row, col, axis = image_axis("box", truth[None], view, camera)
+        seen = pose.image_at(truth[:2], float(truth[4]))  # the map's own linear guess
+        assert seen[:2] == pytest.approx((row[0], col[0]), abs=0.02)
+        assert math.degrees(seen[2] - axis[0]) == pytest.approx(0.0, abs=0.1)
         x, y, got = pose.solve((float(row[0]), float(col[0]), float(axis[0])), yaw)
         assert math.hypot(x - truth[0], y - truth[1]) < 0.02, rig_name
         assert abs(math.degrees(got - truth[4])) < 0.1, rig_name

@@ -101,6 +101,18 @@ class PoseMap(NamedTuple):
         d = np.linalg.solve(jac, np.array(rhs)).tolist()
         return x0 + d[0], y0 + d[1], (w0 + d[2]) if target[2] is not None else yaw
 
+    def image_at(
+        self, centre: tuple[float, float] | FloatArray, yaw: float
+    ) -> tuple[float, float, float]:
+        """The silhouette's image centroid and axis (row, col, rad) with its footprint
+        centre and yaw there, by the map (linear)."""
+        d = (float(centre[0]) - self.at[0], float(centre[1]) - self.at[1], yaw - self.at[2])
+        r, c, a = (
+            v + sum(j * e for j, e in zip(row, d, strict=True))
+            for v, row in zip(self.image, self.jac, strict=True)
+        )
+        return r, c, a
+
     @property
     def slope(self) -> float:
         """How fast the silhouette's axis turns with the yaw (rad per rad)."""

@@ -950,7 +950,8 @@ class SolidTracker:
             t.coasted = False
             t.turned_at = (axis, blob[1], blob[2])
             self._follow_group(group, patches, i, np.array(blob))
-            t.axis_bias = float(turn_between(math.radians(axis), self._pose_map(t).image[2]))
+            seen = self._robot_map(t).image_at(t.centre, t.yaw)[2]
+            t.axis_bias = float(turn_between(math.radians(axis), seen))
         got = self._robot_map(t).solve((*target, None), t.yaw)
         if got is not None:
             t.centre = got[0:2]
