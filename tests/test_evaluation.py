@@ -76,3 +76,33 @@ def test_a_runs_score_finds_a_position_not_measurable_within_the_uncertainty_it_
         score.add([near, wrong], truth)
         assert (score.missed, score.spurious, score.within_stated) == (1, 1, 0)
         assert score.stated_error_cm == []
+
+
+def test_a_fused_position_not_measurable_is_scored_within_the_uncertainty_it_states() -> None:
+    """Several cameras' world frame (issue 36's fused scoring): a solid whose foot every
+    camera has hidden, fused 7 cm from where it stands with a 4 cm σ, is found within
+    its stated uncertainty (flagged so, not spurious); stating 1 cm it is missed and
+    its fused object spurious."""
+    from ovis.common.analysis.fused_heights import score_fused
+    from ovis.common.fusion.merge import Fused
+    from ovis.common.sim.arena import SimObject
+
+    truth = [
+        SimObject(
+            id=0, kind="obstacle", x_cm=60.0, y_cm=40.0, z_cm=12.0, radius_cm=3.0,
+            heading_deg=0.0, shape="disk", length_cm=6.0, width_cm=6.0,
+        )
+    ]  # fmt: skip
+
+    def fused(sigma: float) -> Fused:
+        return Fused(
+            kind="obstacle", x_cm=67.0, y_cm=40.0, z_cm=12.0, radius_cm=3.0, sigma_cm=sigma,
+            cameras=["cam00", "cam01"],
+        )  # fmt: skip
+
+    scene = score_fused(7, [fused(4.0)], truth, {"cam00": [True], "cam01": [True]})
+    (o,) = scene.obstacles
+    assert o.found and o.within_stated and scene.spurious == 0
+    assert o.footprint_error_cm == pytest.approx(7.0)
+    scene = score_fused(7, [fused(1.0)], truth, {"cam00": [True], "cam01": [True]})
+    assert not scene.obstacles[0].found and scene.spurious == 1

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
-from ovis.common.analysis.stated import POSITION_SIGMA_CM, position_sigma, within_stated
+from ovis.common.analysis.stated import leftovers_within_stated, position_sigma
 
 __all__ = ["FrameAccuracy", "TrackingScore", "height_basis", "match_objects", "match_to_truth"]
 
@@ -159,19 +159,8 @@ class TrackingScore:
         stated uncertainty (true index → detection index), counted."""
         if not acc.missed or not acc.spurious:
             return {}
-        taken = set(acc.detection_index.tolist())
-        vague = [
-            j
-            for j, d in enumerate(detected)
-            if j not in taken
-            and getattr(d, "covariance_cm2", None) is not None
-            and position_sigma(d) > POSITION_SIGMA_CM
-        ]
-        if not vague:
-            return {}
-        found = set(acc.truth_index.tolist())
-        left = [i for i in range(len(truth)) if i not in found]
-        stated = within_stated(detected, truth, vague, left)
+        matched = dict(zip(acc.truth_index.tolist(), acc.detection_index.tolist(), strict=True))
+        stated = leftovers_within_stated(detected, truth, matched)
         for i, j in stated.items():
             d, t = detected[j], truth[i]
             self.stated_error_cm.append(float(np.hypot(d.x_cm - t.x_cm, d.y_cm - t.y_cm)))

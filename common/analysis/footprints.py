@@ -48,8 +48,8 @@ from ovis.common.analysis.evaluation import match_objects
 from ovis.common.analysis.stated import (
     GATE_CM,
     POSITION_SIGMA_CM,
+    leftovers_within_stated,
     position_sigma,
-    within_stated,
 )
 from ovis.common.config import OvisConfig, RobotSpec, config_from_dict
 from ovis.common.physical.rigs import rig
@@ -221,13 +221,7 @@ def _score(
     matched = dict(zip(acc.truth_index.tolist(), acc.detection_index.tolist(), strict=True))
     sigma = [position_sigma(d) for d in objects]
     unmeasurable = [j for j, s in enumerate(sigma) if s > POSITION_SIGMA_CM]
-    left = set(range(len(objects))) - set(matched.values())
-    matched |= within_stated(
-        objects,
-        truth,
-        [j for j in unmeasurable if j in left],
-        [i for i in range(len(truth)) if i not in matched],
-    )
+    matched |= leftovers_within_stated(objects, truth, matched)
     out: dict[str, list] = {k: [] for k in SceneResult.__struct_fields__ if k not in _SCALARS}
     robot_found = False
     for i, o in enumerate(truth):

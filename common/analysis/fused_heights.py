@@ -15,7 +15,11 @@ its top project inside that camera's image (:data:`MARGIN_PX` from the border) a
 others hide at most :data:`HIDDEN_SHARE` of it there
 (:meth:`~ovis.common.physical.world.PhysicalWorld.visible_px` against
 :meth:`~ovis.common.physical.world.PhysicalWorld.alone_px`). Each true obstacle is
-matched to the fused object nearest its footprint (within :data:`GATE_CM`).
+matched to the fused object nearest its footprint (within
+:data:`~ovis.common.analysis.stated.GATE_CM`); a fused object whose position is not
+measurable (its σ over :data:`~ovis.common.analysis.stated.POSITION_SIGMA_CM`: the solid's
+foot hidden from every camera that saw it) is matched within the uncertainty it states
+instead (:mod:`~ovis.common.analysis.stated`, its σ taken in every direction).
 """
 
 from __future__ import annotations
@@ -24,11 +28,13 @@ import math
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import msgspec
 
 from ovis.common.analysis.evaluation import match_objects
+from ovis.common.analysis.stated import GATE_CM, leftovers_within_stated
 from ovis.common.camera.projection import disks_in_image
 from ovis.common.config import FusionConfig, OvisConfig, PinholeParams
 from ovis.common.fusion.accuracy import AccuracyMap, detection_columns
@@ -46,11 +52,10 @@ __all__ = [
     "GridViews",
     "evaluate_grid",
     "grid_views",
+    "score_fused",
     "score_grid",
 ]
 
-#: A fused object more than this far (cm) from a true footprint centre is not it.
-GATE_CM = 5.0
 #: The bounding disks of a solid seen whole lie this far (px) inside the image.
 MARGIN_PX = 1.0
 #: More of a solid's silhouette hidden by others than this share: not seen whole.
@@ -61,7 +66,8 @@ class GridObstacle(msgspec.Struct, kw_only=True):
     """One true obstacle of a grid scene: the cameras that see it whole, the fused
     object matched to it (NaN / "" when none): its footprint error, reported height,
     the height's error, σ and source, the cameras fused into it and those whose height
-    disagreed."""
+    disagreed; whether it was matched within the position uncertainty it states (not
+    measurable: the footprint error is then no measure of accuracy)."""
 
     seed: int
     true_height_cm: float
@@ -74,6 +80,7 @@ class GridObstacle(msgspec.Struct, kw_only=True):
     height_source: str
     cameras: list[str]
     disagreeing: list[str]
+    within_stated: bool = False
 
 
 class GridScene(msgspec.Struct, kw_only=True):
@@ -141,11 +148,16 @@ def _fused(fusion: FusionConfig, cameras: dict[str, tuple[list[DetectedObject], 
     return [t.obj for t in world.objects]
 
 
-def _score(seed: int, fused: list[Fused], truth: list[SimObject],
-           seen: dict[str, list[bool]]) -> GridScene:  # fmt: skip
+def score_fused(seed: int, fused: list[Fused], truth: list[SimObject],
+                seen: dict[str, list[bool]]) -> GridScene:  # fmt: skip
+    """One world frame's fused objects against the truth (``seen``: per camera, which
+    true objects it sees whole): each true obstacle's match (module docstring) and the
+    fused objects left unmatched."""
     obstacles = [k for k, o in enumerate(truth) if o.kind == "obstacle"]
     acc = match_objects(fused, truth, gate_cm=GATE_CM)
     matched = dict(zip(acc.truth_index.tolist(), acc.detection_index.tolist(), strict=True))
+    stated = leftovers_within_stated([_Stated.of(f) for f in fused], truth, matched)
+    matched |= stated
     out = []
     nan = math.nan
     for k in obstacles:
@@ -165,9 +177,25 @@ def _score(seed: int, fused: list[Fused], truth: list[SimObject],
                 height_source=f.z_source if f else "",
                 cameras=f.cameras if f else [],
                 disagreeing=f.disagreeing if f else [],
+                within_stated=k in stated,
             )
         )
-    return GridScene(seed=seed, obstacles=out, spurious=acc.spurious)
+    return GridScene(seed=seed, obstacles=out, spurious=acc.spurious - len(stated))
+
+
+class _Stated(NamedTuple):
+    """A fused object as :func:`~ovis.common.analysis.stated.leftovers_within_stated`
+    reads it: its footprint's σ (the merged covariance's longest axis) taken in every
+    direction."""
+
+    x_cm: float
+    y_cm: float
+    covariance_cm2: list[float]
+
+    @classmethod
+    def of(cls, f: Fused) -> _Stated:
+        v = f.sigma_cm**2
+        return cls(f.x_cm, f.y_cm, [v, 0.0, 0.0, 0.0, v, 0.0, 0.0, 0.0, 0.0])
 
 
 class GridCameraView(msgspec.Struct, kw_only=True):
@@ -207,7 +235,7 @@ def score_grid(views: GridViews, fusion: FusionConfig) -> GridScene:
     """The cameras' detections fused (by the fusion service's code) and scored."""
     fused = _fused(fusion, {c.name: (c.objects, c.camera) for c in views.cameras})
     seen = {c.name: c.seen_whole for c in views.cameras}
-    return _score(views.seed, fused, views.truth, seen)
+    return score_fused(views.seed, fused, views.truth, seen)
 
 
 def evaluate_grid(

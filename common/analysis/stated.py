@@ -28,6 +28,7 @@ __all__ = [
     "STATED_FLOOR_CM",
     "Located",
     "Stated",
+    "leftovers_within_stated",
     "position_sigma",
     "stated_distance",
     "within_stated",
@@ -114,3 +115,22 @@ def within_stated(
     return {
         truths[a]: detections[b] for a, b in zip(rows, cols, strict=True) if np.isfinite(cost[a, b])
     }
+
+
+def leftovers_within_stated(
+    objects: Sequence[Stated], truth: Sequence[Located], matched: dict[int, int]
+) -> dict[int, int]:
+    """:func:`within_stated` of what the gate left (``matched``: true index → detection
+    index): the detections left over whose position is not measurable (stated 1σ over
+    :data:`POSITION_SIGMA_CM`) against the true objects left over."""
+    taken = set(matched.values())
+    vague = [
+        j
+        for j, d in enumerate(objects)
+        if j not in taken
+        and getattr(d, "covariance_cm2", None) is not None
+        and position_sigma(d) > POSITION_SIGMA_CM
+    ]
+    if not vague:
+        return {}
+    return within_stated(objects, truth, vague, [i for i in range(len(truth)) if i not in matched])
