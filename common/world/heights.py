@@ -802,6 +802,12 @@ class SolidTracker:
         if found is None or not found[0]:
             return None
         solids, outline = found
+        if (
+            group is not None
+            and all(t.solid.explains for t in group.solids)
+            and not all(s.explains for s in solids)
+        ):
+            return None  # a refit explains its blob worse than the solids it had: keep them
         before = group.solids if group is not None and len(group.solids) == len(solids) else None
         tracked = [
             self._new_tracked(s, before[k] if before is not None else None)
@@ -881,13 +887,13 @@ class SolidTracker:
             fitted.add(i)
             if g is not None:
                 new_groups[i] = g
+            elif group is not None:  # nothing better found: kept, and followed this frame
+                group.fitted, group.carried = self.frame, False
+        fitted &= set(new_groups)
         for i in range(n):
             if i in new_groups or matched[i] < 0 or skips[i]:
                 continue
-            g = self.groups[matched[i]]
-            if i in fitted:  # its refit found nothing: keep what it was
-                pass
-            new_groups[i] = g
+            new_groups[i] = self.groups[matched[i]]
         axes = _axes(moments, n)
         robot = self._lone_robot(new_groups, fitted, patches)
         if robot >= 0:
@@ -1087,8 +1093,8 @@ class SolidTracker:
             return
         if not any(g is job.old for g in self.groups):
             return  # its blob was lost meanwhile
-        if fitted is None:
-            job.old.fitted = self.frame  # nothing found: not again straight away
+        if fitted is None:  # nothing better found: not again straight away
+            job.old.fitted, job.old.carried = self.frame, False
             return
         # found again where the old group is now; its solids followed from where they
         # were fitted (their offsets from the blob's centroid are the fit's)
