@@ -100,6 +100,14 @@ from ovis.common.vision.outline import (
 )
 from ovis.common.vision.shape import orientation
 from ovis.common.world.pose import gated_assignment, gated_pairs_few
+from ovis.common.world.robot_turn import (
+    AXIS_CHECK_DEG,
+    AXIS_REACH_DEG,
+    STILL_PX,
+    TURN_CHECK_DEG,
+    degrees_between,
+    robot_turn,
+)
 
 __all__ = [
     "AREA_RATIO",
@@ -125,25 +133,6 @@ REFIT_FRAMES = 60
 #: A solid's centroid map is worked out again when it moved this far (cm) from where it
 #: was worked out.
 RELINEARISE_CM = 2.0
-#: The unmarked robot's yaw comes from its blob's axis in the frame (its
-#: :class:`~ovis.common.solids.footprint.PoseMap`) while that axis stays within what a
-#: turn of this much (deg) turns it from where it was when the robot was last turned to
-#: its outline, and while the silhouette's axis turns with the yaw at least this much
-#: and at most this much (deg per deg: elsewhere the axis tells the yaw poorly) …
-AXIS_REACH_DEG = 3.0
-AXIS_SLOPE = (0.75, 5.0)
-#: … and puts its yaw within this (deg) of where its last turn rate does.
-AXIS_CHECK_DEG = 1.0
-#: … else the robot is turned to its outline again when its blob moved (:data:`STILL_PX`)
-#: or its axis turned since it last was as far as a turn of this much (deg) would turn
-#: it (the axis taken to turn at least this much with the yaw).
-TURN_CHECK_DEG = 0.5
-AXIS_SLOPE_LEAST = 0.1
-#: Where frames are at most this far apart (s) and it turned at most this much (deg) a
-#: frame when last turned to its outline, every other such turn is left out: it turns
-#: on at that rate (over so short a time a robot's turn rate holds).
-COAST_MAX_S = 0.05
-COAST_TURN_DEG = 1.0
 #: Any other lone solid's centroid map is worked out again where it turned this far
 #: (rad: 1°; a carry into a new blob turns one).
 RELINEARISE_RAD = math.radians(1.0)
@@ -169,11 +158,11 @@ CLEAR_WALLS_SHARE = 0.5
 #: where a step moves none of them more than this (cm).
 FOLLOW_STEPS = 3
 FOLLOW_TOL_CM = 0.02
-#: … and are left where they are while its centroid stays within this (px), its filled
-#: area within this share and its axis in the frame within :data:`TURN_CHECK_DEG` of
+#: … and are left where they are while its centroid stays within
+#: :data:`~ovis.common.world.robot_turn.STILL_PX`, its filled area within this share and
+#: its axis in the frame within :data:`~ovis.common.world.robot_turn.TURN_CHECK_DEG` of
 #: where they were last followed (solids standing still: a follow would move them by
 #: the frame's noise alone).
-STILL_PX = 0.25
 STILL_AREA_SHARE = 0.01
 #: Known solids carried into a blob where they met or parted (:meth:`SolidTracker._carry`)
 #: are followed onto its outline in at most this many steps, and kept where no more than
@@ -933,12 +922,15 @@ class SolidTracker:
     ) -> None:
         """The unmarked robot alone in blob ``i`` (its filled area, row, col: ``blob``;
         its axis in the frame ``axis``, deg, NaN: not known), which turns as it drives:
-        its yaw as :meth:`_robot_turn` says (by its axis only where that puts it within
-        :data:`AXIS_CHECK_DEG` of where its last turn rate does: else a blob's axis
-        thrown by something else, turned to its outline), and its centre from its
-        blob's centroid (less its bias) at that yaw, by its pose map."""
+        its yaw as :func:`~ovis.common.world.robot_turn.robot_turn` says (by its axis
+        only where that puts it within ``AXIS_CHECK_DEG`` of where its last turn rate
+        does: else a blob's axis thrown by something else, turned to its outline), and
+        its centre from its blob's centroid (less its bias) at that yaw, by its pose
+        map."""
         t = group.solids[0]
-        how = self._robot_turn(t, blob, axis, dt_s)
+        how = robot_turn(
+            t.pose_map, t.turned_at, (axis, blob[1], blob[2]), dt_s, t.yaw_rate, t.coasted
+        )
         bias = t.bias.tolist()
         target = (blob[1] + bias[0], blob[2] + bias[1])
         if how == "axis":
@@ -974,35 +966,6 @@ class SolidTracker:
             m = self._pose_map(t)
         return m
 
-    @staticmethod
-    def _robot_turn(t: _Tracked, blob: list[float], axis: float, dt_s: float) -> str:
-        """How the lone unmarked robot's yaw is found this frame:
-
-        - "axis": from its blob's axis by its pose map, while that axis tells its yaw
-          well (:data:`AXIS_SLOPE`) and stays within what a turn of
-          :data:`AXIS_REACH_DEG` turns it from where the robot was last turned to its
-          outline (the map is linear that far);
-        - else, where its blob moved (:data:`STILL_PX`) or its axis turned as far as a
-          turn of :data:`TURN_CHECK_DEG` would turn it since then (or no axis is
-          known): "coast", on at its last turn rate, every other frame while frames come
-          fast and it turns slowly (:data:`COAST_MAX_S`, :data:`COAST_TURN_DEG`), or
-          "outline", turned to its outline;
-        - else "keep"."""
-        m = t.pose_map
-        if m is None:
-            return "outline"
-        was, row, col = t.turned_at
-        turned = abs(_degrees_between(was, axis))  # NaN: not known
-        if turned <= AXIS_REACH_DEG * m.slope and AXIS_SLOPE[0] <= m.slope <= AXIS_SLOPE[1]:
-            return "axis"
-        if (
-            turned <= TURN_CHECK_DEG * max(m.slope, AXIS_SLOPE_LEAST)
-            and math.hypot(blob[1] - row, blob[2] - col) <= STILL_PX
-        ):
-            return "keep"
-        slow = abs(t.yaw_rate) <= math.radians(COAST_TURN_DEG)  # NaN: no rate known
-        return "coast" if not t.coasted and dt_s <= COAST_MAX_S and slow else "outline"
-
     def _pose_map(self, t: _Tracked) -> PoseMap:
         """Work out the robot's pose map where it stands now."""
         t.pose_map = PoseMap.of(t.solid.shape, t.theta(), self.view, self.camera)
@@ -1011,8 +974,8 @@ class SolidTracker:
     @staticmethod
     def _moved(group: _Group, blob: list[float], axis: float) -> bool:
         """Whether a blob of several solids moved (area, centroid or axis: ``blob`` is
-        its filled (area, row, col)) beyond :data:`STILL_PX`, :data:`STILL_AREA_SHARE`
-        and :data:`TURN_CHECK_DEG` since its solids were last followed; if so, it is
+        its filled (area, row, col)) beyond ``STILL_PX``, :data:`STILL_AREA_SHARE` and
+        ``TURN_CHECK_DEG`` since its solids were last followed; if so, it is
         noted as followed now."""
         now = (blob[0], blob[1], blob[2], axis)
         was = group.followed_at
@@ -1020,7 +983,7 @@ class SolidTracker:
             was is not None
             and math.hypot(now[1] - was[1], now[2] - was[2]) <= STILL_PX
             and abs(now[0] - was[0]) <= STILL_AREA_SHARE * was[0]
-            and abs(_degrees_between(was[3], now[3])) <= TURN_CHECK_DEG
+            and abs(degrees_between(was[3], now[3])) <= TURN_CHECK_DEG
         ):
             return False
         group.followed_at = now
@@ -1397,12 +1360,6 @@ class SolidTracker:
             col=np.array(col, dtype=np.float64),
             **reports.columns,
         )
-
-
-def _degrees_between(a: float, b: float) -> float:
-    """How far (deg) axis ``b`` is turned from axis ``a`` (axes: modulo 180°; NaN where
-    either is)."""
-    return (b - a + 90.0) % 180.0 - 90.0
 
 
 def _axes(moments: FloatArray | None, n: int) -> list[float]:
