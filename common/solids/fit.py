@@ -79,6 +79,7 @@ __all__ = [
     "refit_with_tops",
     "robot_misfit",
     "rough_footprint",
+    "solve_small",
     "union_offsets",
     "unplaced_covariance",
 ]
@@ -1002,7 +1003,7 @@ def follow_union(
     normal = ((jac * weight) @ np.vstack([jac, r]).T).tolist()  # JᵀWJ (p, p) beside JᵀWr
     for i in range(p):
         normal[i][i] += 1e-9
-    step = _solve_small(normal)
+    step = solve_small(normal)
     out = [s.theta.copy() for s in solids]
     if step is None:
         return out
@@ -1038,7 +1039,7 @@ def follow_union_steps(
     return now
 
 
-def _solve_small(rows: list[list[float]]) -> FloatArray | None:
+def solve_small(rows: list[list[float]]) -> FloatArray | None:
     """x with A·x = b, from the rows of [A | b] (a few unknowns), by Gaussian elimination
     with partial pivoting in plain Python (for four unknowns a LAPACK call costs more
     than the arithmetic); None where A is singular. ``rows`` are overwritten."""

@@ -8,13 +8,13 @@ Jacobian by differences. A moving solid's map is kept and reused while it stays 
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ovis.common.config import CameraModel
+from ovis.common.solids.fit import solve_small
 from ovis.common.solids.shapes import yaw_index
 from ovis.common.solids.silhouette import Viewpoint, image_axis, image_moments
 
@@ -88,17 +88,17 @@ class PoseMap(NamedTuple):
         col, rad; the axis None: the yaw kept at ``yaw``), by one linear step; None
         where the map is singular."""
         (r0, c0, a0), (x0, y0, w0) = self.image, self.at
-        jac = np.array(self.jac)
-        rhs = [target[0] - r0, target[1] - c0]
-        if target[2] is None:
-            rhs = [v - jac[k, 2] * (yaw - w0) for k, v in enumerate(rhs)]
-            jac = jac[:2, :2]
+        j = self.jac
+        e = [target[0] - r0, target[1] - c0]
+        if target[2] is None:  # the centroid alone: 2 × 2, the yaw's share moved over
+            e = [e[0] - j[0][2] * (yaw - w0), e[1] - j[1][2] * (yaw - w0)]
+            rows = [[j[0][0], j[0][1], e[0]], [j[1][0], j[1][1], e[1]]]
         else:
-            rhs.append(float(turn_between(a0, target[2])))
-        det = float(np.linalg.det(jac))
-        if not math.isfinite(det) or abs(det) < 1e-9:
+            e.append(float(turn_between(a0, target[2])))
+            rows = [[*j[k], e[k]] for k in range(3)]
+        d = solve_small(rows)
+        if d is None:
             return None
-        d = np.linalg.solve(jac, np.array(rhs)).tolist()
         return x0 + d[0], y0 + d[1], (w0 + d[2]) if target[2] is not None else yaw
 
     def image_at(
