@@ -598,7 +598,10 @@ def edges_along(
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
     """The edge of either sign nearest each of ``points`` (frame col, row) along its
     ``normals`` (an edge expected there, inside an object: a top face against its
-    wall), within ``reach_px``; and which were found."""
+    wall), within ``reach_px``; and which were found. A step whose best position is an
+    end of the positions tried is none found: the profile still falls past it, the edge
+    lies beyond the reach (taken there, a top's edge looked for far inside its true one
+    would be found at the reach, a fixed distance short of it)."""
     if not len(points):
         return np.zeros((0, 2)), np.zeros(0, dtype=bool)
     one, _, _ = _step_models(float(blur_px), float(reach_px))
@@ -606,7 +609,8 @@ def edges_along(
     prof = _profiles(diff, origin, points, normals, sampled)
     at, best = _one_step(prof, one, either_sign=True)
     edge = points + at[:, None] * normals
-    return edge, np.isfinite(best) & (np.abs(at) <= reach_px) & _off_spots(edge, spots)
+    within = np.abs(at) < float(np.abs(one.outer).max()) - 0.25 * STEP_GRID_PX
+    return edge, np.isfinite(best) & within & _off_spots(edge, spots)
 
 
 #: A cut needs a convexity defect at least this deep (px) at one end and this at the other.

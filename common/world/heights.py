@@ -620,18 +620,20 @@ class SolidTracker:
         ``pose.height_sigma_max_cm``; a box seen square-on shows four lines for six
         unknowns, and a low one's wall is too thin for the inner edge to pull a far-off
         start to it), the solid fitted at each of several heights and with its top face's
-        inner edge looked for where each puts it: the one whose predicted edge is found
-        most fully, then fits best, among those that still explain the outline (a low
-        solid held tall finds edges inside its top face, not its top's edge, and then
-        misses its outline by pixels); and the top edge's points found for it (None: no
-        search, or nothing found)."""
+        inner edge looked for where each puts it: among those that still explain the
+        outline (a low solid held tall finds edges inside its top face, not its top's
+        edge, and then misses its outline by pixels), one whose edge pins its height
+        before one whose edge does not (a box seen square-on started far too tall shrinks
+        to a sliver whose few edge points fit anything), then the one whose predicted
+        edge is found most fully, then fits best; and the top edge's points found for it
+        (None: no search, or nothing found)."""
         sigma = math.sqrt(max(float(solid.covariance[-1, -1]), 0.0))
         if not sigma > self.pose.height_sigma_max_cm:
             return solid, None
         candidates = [solid] + [
             fit_piece(floor, self.view, [solid.shape], height=h) for h in HEIGHT_STARTS
         ]
-        best: tuple[float, Solid, FloorOutline] | None = None
+        best: tuple[tuple[bool, float], Solid, FloorOutline] | None = None
         for c in candidates:
             start = c._replace(theta=c.theta.copy())
             tops, share = self._top_points_found(start, patch, diff, TOP_REACH_PX[0])
@@ -640,7 +642,8 @@ class SolidTracker:
             fitted = refit_with_tops([start], floor, [tops], self.view)[0]
             if solid.explains and not fitted.explains:  # an edge inside, not the top's
                 continue
-            score = (1.0 - share) + fitted.rms_px
+            pinned = _sigma(fitted) <= self.pose.height_sigma_max_cm
+            score = (not pinned, (1.0 - share) + fitted.rms_px)
             if best is None or score < best[0]:
                 best = (score, fitted, tops)
         return (solid, None) if best is None else (best[1], best[2])
