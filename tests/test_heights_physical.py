@@ -543,6 +543,41 @@ def test_a_footprint_on_a_height_not_measured_is_within_what_it_states() -> None
     assert worst > 1.0  # one held well off its fitted height: its stated σ is what covers it
 
 
+def test_a_top_edge_is_taken_only_where_it_is_found_and_pins_the_height() -> None:
+    """Unseen scenes whose one-frame fits took the wrong edge for a top's. Straight down,
+    boxes 1.4 cm tall far from the nadir (seed 1039's #7, seed 1057's #1), walls under
+    2 px wide: a look for the top's edge where a start 8 cm tall puts it ended at the
+    end of its reach, short of the edge, and was taken for it (measured 2.5 cm at a σ
+    of 0.25 cm); their walls too thin for that look, their tops' edges are found where
+    the wall shows at the silhouette as a level of its own. From the tripod, a 7 cm box
+    seen square-on (seed 1084's #7): a start 16 cm tall shrank to a sliver whose few
+    edge points fit anything, and its look, not pinning the height, was chosen over one
+    that did (not measurable, its footprint 1.1 cm off at a stated σ of 0.46 cm). A
+    1.1 cm box from the tripod (seed 1132's #5) whose walls show along too little of
+    its side facing the camera is not measured by them (that made it 0.5 cm tall, its
+    footprint 0.52 cm off at a stated σ of 0.1 cm). Every measured height within 1 cm
+    of the truth, every footprint within 0.5 cm (or, its position not measurable,
+    within the 99 % bound of the uncertainty it states), and those three boxes
+    measured."""
+    config = load_config()
+    scenes = [
+        *evaluate_rig(config, "overhead", (1039, 1057), "measured"),
+        *evaluate_rig(config, "oblique", (1084, 1132), "measured"),
+    ]
+    for s in scenes:
+        assert all(s.found), s.seed
+        for i in range(len(s.found)):
+            if s.height_source[i] == "one camera":
+                assert abs(s.height_cm[i] - s.true_height_cm[i]) <= 1.0, (s.seed, i)
+            error, sigma = s.footprint_error_cm[i], s.position_sigma_cm[i]
+            if s.position_unmeasurable[i]:
+                assert error <= math.sqrt(STATED_CHI2) * sigma, (s.seed, i, error, sigma)
+            else:
+                assert error <= 0.5, (s.seed, i, error)
+    measured = [s.height_source[i] for s, i in zip(scenes, (7, 1, 7), strict=False)]
+    assert measured == ["one camera"] * 3
+
+
 def test_an_obstacle_merged_with_a_marked_robots_silhouette_is_found() -> None:
     """Unseen scenes where, seen from the tripod, an obstacle's silhouette runs into the
     marked robot's (seed 1213: a 3 cm cylinder behind it; seed 1218: a 17 cm box in

@@ -47,6 +47,7 @@ from ovis.common.vision.outline import (
     object_mask,
     patch_outline,
     subpixel_edges,
+    wall_tops,
 )
 from ovis.common.vision.shape import orientation
 from ovis.common.world.heights import with_heights
@@ -267,6 +268,32 @@ def test_subpixel_edges_find_the_silhouette_of_a_blurred_disc_with_or_without_a_
     assert abs(float(np.mean(off))) < 0.12
     if wall == 0.0:
         assert float(np.percentile(np.abs(off), 95)) < 0.5
+
+
+@pytest.mark.parametrize("wall", [0.0, 1.6])
+def test_wall_tops_find_a_tops_edge_over_a_wall_too_thin_for_a_look(wall: float) -> None:
+    """A bright disc of radius 20 px (a top face) in a ring of ``wall`` px at 30 levels
+    (a low solid's wall seen from above, lit), imaged as in the test above: where the
+    wall shows, the top's edge is found at the silhouette's second step on most of the
+    outline, the median within 0.15 px of the disc's circle; with no wall, on under a
+    tenth of it (a plain edge now and then fitted with two steps: a solid's look asks
+    for a wall along half its side facing the camera)."""
+    size, k = 80, 8
+    yy, xx = (np.mgrid[0 : size * k, 0 : size * k] + 0.5) / k - 0.5  # pixel centres
+    r = np.hypot(xx - 40.2, yy - 39.7)
+    fine = np.where(r <= 20.0, 120.0, np.where(r <= 20.0 + wall, 30.0, 0.0))
+    image = cv2.resize(fine, (size, size), interpolation=cv2.INTER_AREA)
+    noise = np.random.default_rng(3).normal(0, 1.5, image.shape)
+    diff = (cv2.GaussianBlur(image, (0, 0), 0.3) + noise).astype(np.float32)
+    mask = (cv2.GaussianBlur(diff, (0, 0), 0.8) >= 3).astype(np.uint8)
+    chain = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0][0][:, 0, :]
+    tops, _, found = wall_tops(diff, (0, 0), chain, blur_px=0.6, noise=1.5)
+    if wall == 0.0:
+        assert found.mean() < 0.1
+        return
+    off = np.hypot(tops[found, 0] - 40.2, tops[found, 1] - 39.7) - 20.0
+    assert found.mean() > 0.8
+    assert abs(float(np.median(off))) < 0.15
 
 
 def test_a_footprint_follows_its_blobs_centroid() -> None:

@@ -53,6 +53,7 @@ __all__ = [
     "smoothed_mask",
     "split_outline",
     "subpixel_edges",
+    "wall_tops",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -81,6 +82,9 @@ SHELF_STEP = 3.0
 FLOOR_SAMPLES = 3
 #: An edge whose outer step is weaker than this (grey levels) is no edge.
 MIN_STEP = 3.0
+#: Two steps closer than this (px) are no wall of its own (:func:`wall_tops`): a bright
+#: top's one edge, blurred a little otherwise than the model, is often fitted so too.
+WALL_MIN_PX = 0.9
 #: A bright spot of the empty floor: this many levels above its 15-px median.
 SPOT_LEVEL = 25
 #: Gaussian smoothing (px) of D before the object pixels are thresholded.
@@ -447,6 +451,7 @@ class _Steps(NamedTuple):
     outer: FloatArray  # (K,) outer step positions (px along the normal)
     design: FloatArray  # (K, T, c)
     pinv: FloatArray  # (K, c, T)
+    inner: FloatArray  # (K,) inner step positions (the outer one's for one step)
 
 
 def _design(blur_px: float, positions: list[tuple[float, ...]], reach: float) -> _Steps:
@@ -458,7 +463,8 @@ def _design(blur_px: float, positions: list[tuple[float, ...]], reach: float) ->
         at = np.array([p[j] for p in positions])
         cols.append(ndtr((at[:, None] - ts) / blur_px))
     design = np.stack(cols, -1)
-    return _Steps(np.array([p[0] for p in positions]), design, np.linalg.pinv(design))
+    outer = np.array([p[0] for p in positions])
+    return _Steps(outer, design, np.linalg.pinv(design), np.array([p[-1] for p in positions]))
 
 
 @functools.lru_cache(maxsize=8)
@@ -542,12 +548,32 @@ def subpixel_edges(
     frame's :func:`background_spots`) drop points on bright floor."""
     p, nrm = chain_normals(chain)
     prof = _profiles(diff, origin, p, nrm)
-    one, two, _ = _step_models(float(blur_px))
+    steps = _edge_steps(prof, float(blur_px), noise)
+    at = np.where(steps.two, steps.outer, _past_the_wall(prof, steps.outer))
+    edge = p + at[:, None] * nrm
+    return edge, nrm, np.isfinite(steps.best) & _off_spots(edge, spots)
+
+
+class _EdgeSteps(NamedTuple):
+    """Each profile's steps: the outer one's position (px along the normal), the inner
+    one's (NaN: one step), whether two were taken and the residual sum of squares of the
+    model taken (inf: none strong enough)."""
+
+    outer: FloatArray
+    inner: FloatArray
+    two: NDArray[np.bool_]
+    best: FloatArray
+
+
+def _edge_steps(prof: FloatArray, blur_px: float, noise: float) -> _EdgeSteps:
+    """One step, or two where they fit clearly better (module docstring)."""
+    one, two, _ = _step_models(blur_px)
     at1, best1 = _one_step(prof, one, either_sign=False)
     gain = TWO_STEP_GAIN * noise * noise
     # two steps only where one leaves more than the gain they must bring
-    k2 = np.zeros(len(p), dtype=np.int64)
-    best2 = np.full(len(p), np.inf)
+    n = len(prof)
+    k2 = np.zeros(n, dtype=np.int64)
+    best2 = np.full(n, np.inf)
     poor = np.flatnonzero(~(best1 <= gain))
     if poor.size:
         ss2, c2 = _fit_steps(prof[poor], two)
@@ -556,10 +582,39 @@ def subpixel_edges(
         k2[poor] = ss2.argmin(0)
         best2[poor] = ss2[k2[poor], np.arange(poor.size)]
     take_two = best2 < best1 - gain
-    at = np.where(take_two, two.outer[k2], _past_the_wall(prof, at1))
-    edge = p + at[:, None] * nrm
-    usable = np.isfinite(np.where(take_two, best2, best1)) & _off_spots(edge, spots)
-    return edge, nrm, usable
+    return _EdgeSteps(
+        np.where(take_two, two.outer[k2], at1),
+        np.where(take_two, two.inner[k2], np.nan),
+        take_two,
+        np.where(take_two, best2, best1),
+    )
+
+
+def wall_tops(
+    diff: NDArray[np.float32],
+    origin: tuple[int, int],
+    chain: NDArray[np.int32],
+    *,
+    blur_px: float,
+    noise: float,
+    spots: NDArray[np.uint8] | None = None,
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """Where a wall of its own level shows at the silhouette (two steps, as
+    :func:`subpixel_edges` takes them, at least :data:`WALL_MIN_PX` apart, the floor
+    past them: the wall's foot outside, the top face's edge inside), that inner edge
+    (frame col, row), one per chain point, the outward normals and which were found: a
+    top's edge over a wall too thin for :func:`edges_along`'s look, whose one step
+    there would be the silhouette's."""
+    p, nrm = chain_normals(chain)
+    prof = _profiles(diff, origin, p, nrm)
+    steps = _edge_steps(prof, float(blur_px), noise)
+    inner = np.nan_to_num(steps.inner)
+    edge = p + inner[:, None] * nrm
+    wide = steps.outer - inner >= WALL_MIN_PX - 0.5 * STEP_GRID_PX
+    # the floor just past the outer step: else a darker part of the wall lies beyond it
+    # (a shelf, :func:`_past_the_wall`), and the outer step is not the wall's foot
+    footed = _past_the_wall(prof, steps.outer) == steps.outer
+    return edge, nrm, steps.two & wide & footed & _off_spots(edge, spots)
 
 
 def _past_the_wall(prof: FloatArray, inner: FloatArray) -> FloatArray:
@@ -598,7 +653,10 @@ def edges_along(
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
     """The edge of either sign nearest each of ``points`` (frame col, row) along its
     ``normals`` (an edge expected there, inside an object: a top face against its
-    wall), within ``reach_px``; and which were found."""
+    wall), within ``reach_px``; and which were found. A step whose best position is an
+    end of the positions tried is none found: the profile still falls past it, the edge
+    lies beyond the reach (taken there, a top's edge looked for far inside its true one
+    would be found at the reach, a fixed distance short of it)."""
     if not len(points):
         return np.zeros((0, 2)), np.zeros(0, dtype=bool)
     one, _, _ = _step_models(float(blur_px), float(reach_px))
@@ -606,7 +664,8 @@ def edges_along(
     prof = _profiles(diff, origin, points, normals, sampled)
     at, best = _one_step(prof, one, either_sign=True)
     edge = points + at[:, None] * normals
-    return edge, np.isfinite(best) & (np.abs(at) <= reach_px) & _off_spots(edge, spots)
+    within = np.abs(at) < float(np.abs(one.outer).max()) - 0.25 * STEP_GRID_PX
+    return edge, np.isfinite(best) & within & _off_spots(edge, spots)
 
 
 #: A cut needs a convexity defect at least this deep (px) at one end and this at the other.

@@ -97,6 +97,7 @@ from ovis.common.vision.outline import (
     patch_outline,
     split_outline,
     subpixel_edges,
+    wall_tops,
 )
 from ovis.common.vision.shape import orientation
 from ovis.common.world.pose import gated_assignment, gated_pairs_few
@@ -175,6 +176,13 @@ CARRY_TURNS_DEG = (20.0, -20.0, 40.0, -40.0, 60.0, -60.0, 90.0)
 REPORTED_TURN_DEG = 0.1
 #: How closely (cm) the tallest height whose walls are too thin to show is worked out.
 THIN_STEP_CM = 0.05
+#: A point of the outline is on the walls' foot when its outward normal on the floor
+#: points at the camera's foot within this cosine (its wall faces the camera); a top's
+#: edge over thin walls is taken where a wall shows along at least this share of them
+#: (where a face of the walls does not show, as dark as the floor, their foot there is
+#: not where the outline puts it, and the height between it and the top's edge is off).
+WALL_FACING_COS = 0.3
+WALL_SHARE = 0.75
 
 
 def heights_unavailable(image: ImageParams) -> str | None:
@@ -506,7 +514,7 @@ class SolidTracker:
             solids = fit_blob(floor, mapped, self.view, height=height)
             found: list[FloorOutline | None] = [None] * len(solids)
             if len(solids) == 1 and height is None:
-                one, edge = self._along_the_ambiguity(solids[0], floor, patch, diff)
+                one, edge = self._along_the_ambiguity(solids[0], floor, patch, diff, outline.chain)
                 if _sigma(one) <= self.pose.height_sigma_max_cm:  # an edge that pins it
                     found[0] = edge
                 solids = [one]
@@ -652,24 +660,33 @@ class SolidTracker:
         return solids
 
     def _along_the_ambiguity(
-        self, solid: Solid, floor: FloorOutline, patch: Patch, diff: NDArray[np.float32]
+        self,
+        solid: Solid,
+        floor: FloorOutline,
+        patch: Patch,
+        diff: NDArray[np.float32],
+        chain: NDArray[np.int32],
     ) -> tuple[Solid, FloorOutline | None]:
         """Where the outline alone leaves the height free (not measurable: its σ over
         ``pose.height_sigma_max_cm``; a box seen square-on shows four lines for six
         unknowns, and a low one's wall is too thin for the inner edge to pull a far-off
         start to it), the solid fitted at each of several heights and with its top face's
-        inner edge looked for where each puts it: the one whose predicted edge is found
-        most fully, then fits best, among those that still explain the outline (a low
-        solid held tall finds edges inside its top face, not its top's edge, and then
-        misses its outline by pixels); and the top edge's points found for it (None: no
-        search, or nothing found)."""
+        inner edge looked for where each puts it: among those that still explain the
+        outline (a low solid held tall finds edges inside its top face, not its top's
+        edge, and then misses its outline by pixels), one whose edge pins its height
+        before one whose edge does not (a box seen square-on started far too tall shrinks
+        to a sliver whose few edge points fit anything), then the one whose predicted
+        edge is found most fully, then fits best. None pinning it, the top's edge where a
+        wall too thin for that look shows at the silhouette (:meth:`_thin_wall_tops`),
+        if it pins the height and the fit still explains the outline. The solid, and the
+        top edge's points found for it (None: no search, or nothing found)."""
         sigma = math.sqrt(max(float(solid.covariance[-1, -1]), 0.0))
         if not sigma > self.pose.height_sigma_max_cm:
             return solid, None
         candidates = [solid] + [
             fit_piece(floor, self.view, [solid.shape], height=h) for h in HEIGHT_STARTS
         ]
-        best: tuple[float, Solid, FloorOutline] | None = None
+        best: tuple[tuple[bool, float], Solid, FloorOutline] | None = None
         for c in candidates:
             start = c._replace(theta=c.theta.copy())
             tops, share = self._top_points_found(start, patch, diff, TOP_REACH_PX[0])
@@ -678,10 +695,53 @@ class SolidTracker:
             fitted = refit_with_tops([start], floor, [tops], self.view)[0]
             if solid.explains and not fitted.explains:  # an edge inside, not the top's
                 continue
-            score = (1.0 - share) + fitted.rms_px
+            pinned = _sigma(fitted) <= self.pose.height_sigma_max_cm
+            score = (not pinned, (1.0 - share) + fitted.rms_px)
             if best is None or score < best[0]:
                 best = (score, fitted, tops)
+        if best is None or best[0][0]:  # no edge pinned it: walls too thin for a look?
+            walls = self._thin_wall_tops(solid, chain, patch, diff)
+            if walls is not None:
+                fitted = refit_with_tops([solid], floor, [walls], self.view)[0]
+                if _sigma(fitted) <= self.pose.height_sigma_max_cm and (
+                    fitted.explains or not solid.explains
+                ):
+                    return fitted, walls
         return (solid, None) if best is None else (best[1], best[2])
+
+    def _thin_wall_tops(
+        self, solid: Solid, chain: NDArray[np.int32], patch: Patch, diff: NDArray[np.float32]
+    ) -> FloorOutline | None:
+        """The top face's near edge on the floor where its walls are too thin in the frame
+        for :meth:`_top_points_found`'s look but show as a level of their own at the
+        silhouette (:func:`~ovis.common.vision.outline.wall_tops`: the foot's step, then
+        the top's), on the outline's side whose walls face the camera and inside the
+        solid's silhouette; None where too few are found, or a wall shows along less than
+        :data:`WALL_SHARE` of that side (a plain edge, now and then fitted with two
+        steps; a face of the walls as dark as the floor)."""
+        edges, normals, found = wall_tops(
+            diff,
+            (patch.top, patch.left),
+            chain,
+            blur_px=self.image.edge_blur_px,
+            noise=self.image.noise_sigma,
+            spots=self.spots,
+        )
+        if found.sum() < MIN_EDGE_POINTS // 2:
+            return None
+
+        def facing(floor: FloorOutline) -> NDArray[np.bool_]:
+            rel = floor.points - self.view.foot
+            to_foot = -(floor.normals * rel).sum(1)
+            return to_foot > WALL_FACING_COS * np.hypot(rel[:, 0], rel[:, 1])
+
+        floor = floor_outline(edges[found], normals[found], self.camera, self.tables)
+        inside = signed_distance(solid.shape, solid.theta, floor.points, self.view) < 0.0
+        keep = facing(floor) & inside
+        side = int(facing(chain_floor(chain, self.camera, self.tables)).sum())
+        if keep.sum() < max(MIN_EDGE_POINTS // 2, WALL_SHARE * side):
+            return None
+        return floor.take(keep)
 
     def _top_points(
         self, solid: Solid, patch: Patch, diff: NDArray[np.float32], reach: float
