@@ -272,7 +272,9 @@ class _Tracked:
             REPORTED_TURN_DEG
         ):
             return False
-        self._report = None
+        yaw = size_and_yaw(self.solid.shape, self.solid.theta)[2]  # the rest is kept
+        self._report = (*self._report[:_YAW], yaw, *self._report[_YAW + 1 :])
+        self._reported_yaw = float(theta[k])
         return True
 
     def turn_to(self, yaw: float) -> bool:
@@ -312,8 +314,8 @@ class _Tracked:
         return t
 
     def report(self) -> tuple:
-        """What a frame reports of it besides where it stands (fixed from its fit on:
-        only its centre moves): height, its σ, covariance of (x, y, h), shape,
+        """What a frame reports of it besides where it stands (fixed from its fit on but
+        its yaw, which :meth:`turn` updates): height, its σ, covariance of (x, y, h), shape,
         equal-area radius, footprint area, yaw (deg, NaN: none), (length, width)."""
         if self._report is None:
             theta = self.theta()
