@@ -159,6 +159,9 @@ CLEAR_WALLS_SHARE = 0.5
 #: where a step moves none of them more than this (cm).
 FOLLOW_STEPS = 3
 FOLLOW_TOL_CM = 0.02
+#: … and in one where frames come at most this far apart (s): from where their last
+#: motion puts them they moved too little for a second step to tell.
+ONE_STEP_S = 0.05
 #: … and are left where they are while its centroid stays within
 #: :data:`~ovis.common.world.robot_turn.STILL_PX`, its filled area within this share and
 #: its axis in the frame within :data:`~ovis.common.world.robot_turn.TURN_CHECK_DEG` of
@@ -956,7 +959,7 @@ class SolidTracker:
             several = i not in fitted and len(g.solids) > 1 and patches is not None
             if several and self._moved(g, rows[i], axes[i]):
                 assert patches is not None
-                self._follow_group(g, patches, i, filled[i])
+                self._follow_group(g, patches, i, filled[i], dt_s)
         for i, g in new_groups.items():
             g.area, g.row, g.col = rows[i]
         self.groups = list(new_groups.values())
@@ -1009,7 +1012,7 @@ class SolidTracker:
         elif how == "outline":
             t.coasted = False
             t.turned_at = (axis, blob[1], blob[2])
-            self._follow_group(group, patches, i, np.array(blob))
+            self._follow_group(group, patches, i, np.array(blob), dt_s)
             seen = self._robot_map(t).image_at(t.centre, t.yaw)[2]
             t.axis_bias = float(turn_between(math.radians(axis), seen))
         got = self._robot_map(t).solve((*target, None), t.yaw)
@@ -1297,10 +1300,17 @@ class SolidTracker:
             t.centre = _solve_centre(t.linear(), rows[i][1], rows[i][2])
 
     def _follow_group(
-        self, group: _Group, patches: Sequence[Patch], i: int, blob_filled: FloatArray
+        self,
+        group: _Group,
+        patches: Sequence[Patch],
+        i: int,
+        blob_filled: FloatArray,
+        dt_s: float = math.inf,
     ) -> None:
         """Move a blob's several solids (blob ``i``'s) to where its outline's pixel chain
-        puts their union (shapes and heights kept)."""
+        puts their union (shapes and heights kept): one Gauss–Newton step where frames
+        come within :data:`ONE_STEP_S` (``dt_s`` since the last), else up to
+        :data:`FOLLOW_STEPS`."""
         at = (float(blob_filled[1]), float(blob_filled[2]))
         outline = blob_outline(patches, i, self.level, at, self.spots)
         if outline is None or len(outline.chain) < MIN_EDGE_POINTS:
@@ -1313,9 +1323,8 @@ class SolidTracker:
         now = [t.solid._replace(theta=t.ahead()) for t in group.solids]
         # only a robot turns: the unmarked one, or any solid where marked robots stand
         turning = [bool(self.pose.robots) or t is self._robot for t in group.solids]
-        now = follow_union_steps(
-            now, offsets, floor, self.view, FOLLOW_STEPS, FOLLOW_TOL_CM, turning
-        )
+        steps = 1 if dt_s <= ONE_STEP_S else FOLLOW_STEPS
+        now = follow_union_steps(now, offsets, floor, self.view, steps, FOLLOW_TOL_CM, turning)
         for t, s, before in zip(group.solids, now, was, strict=True):
             t.centre = s.theta[0:2]
             t.motion = s.theta - before
