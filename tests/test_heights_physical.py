@@ -545,17 +545,17 @@ def test_a_footprint_on_a_height_not_measured_is_within_what_it_states() -> None
 
 def test_a_top_edge_is_taken_only_where_it_is_found_and_pins_the_height() -> None:
     """Unseen scenes whose one-frame fits took the wrong edge for a top's. Straight down,
-    boxes 1.4 cm tall far from the nadir (seed 1039's #7, seed 1057's #1), walls under
-    2 px wide: a look for the top's edge where a start 8 cm tall puts it ended at the
-    end of its reach, short of the edge, and was taken for it (measured 2.5 cm at a σ
-    of 0.25 cm); their walls too thin for that look, their tops' edges are found where
-    the wall shows at the silhouette as a level of its own. From the tripod, a 7 cm box
-    seen square-on (seed 1084's #7): a start 16 cm tall shrank to a sliver whose few
-    edge points fit anything, and its look, not pinning the height, was chosen over one
-    that did (not measurable, its footprint 1.1 cm off at a stated σ of 0.46 cm). A
-    1.1 cm box from the tripod (seed 1132's #5) whose walls show along too little of
-    its side facing the camera is not measured by them (that made it 0.5 cm tall, its
-    footprint 0.52 cm off at a stated σ of 0.1 cm). Every measured height within 1 cm
+    low boxes far from the nadir (seed 1039's #7, seed 1057's #1), walls a pixel or two
+    wide: a look for the top's edge where a tall start puts it ended at the end of its
+    reach, short of the edge, and was taken for it (measured over 1 cm too tall); their
+    walls too thin for that look, their tops' edges are found where the wall shows at
+    the silhouette as a level of its own. From the tripod, a box seen square-on (seed
+    1084's #7): a tall start shrank to a sliver whose few edge points fit anything, and
+    its look, not pinning the height, was chosen over one that did (its footprint then
+    off by more than it stated). A low box from the tripod (seed 1132's #5) whose walls
+    show along too little of its side facing the camera is not measured by them (they
+    put it too low, its footprint off by more than it stated). Every measured height
+    within 1 cm
     of the truth, every footprint within 0.5 cm (or, its position not measurable,
     within the 99 % bound of the uncertainty it states), and those three boxes
     measured."""
@@ -596,11 +596,11 @@ def test_unseen_tripod_scenes_whose_fits_turn_on_fine_choices() -> None:
     closed form differing in the last bits), seeds 1126 and 1134 (partly hidden solids,
     lost, or measured far off at a narrow stated σ, with one-step far-side edges), seed
     1124 (wrong shapes fitted to a partly hidden box, once stating no uncertainty; then
-    a flat 37 × 16 cm box spread under its 14 cm box and the 21 cm box before it, the
-    two fitted low: a solid too many, dropped where the two fitted again without it
-    explain the outline). Every obstacle found; every measured height within 1 cm; every
-    footprint within 0.5 cm or within the 99 % bound of the uncertainty it states, which
-    every fitted solid states; nothing spurious; seed 1124's two boxes measured."""
+    a flat wide box spread under its two boxes, the two fitted low: a solid too many,
+    dropped where the two fitted again without it explain the outline). Every obstacle
+    found; every measured height within 1 cm; every footprint within 0.5 cm or within
+    the 99 % bound of the uncertainty it states, which every fitted solid states;
+    nothing spurious; seed 1124's two boxes measured."""
     bound = math.sqrt(STATED_CHI2)
     for s in evaluate_rig(load_config(), "oblique", (1024, 1124, 1126, 1134), "measured"):
         assert all(s.found), s.seed
@@ -692,11 +692,11 @@ def test_the_robot_alone_turns_with_its_blobs_axis_at_a_high_frame_rate() -> Non
 
 
 def test_a_refit_that_explains_a_merged_blob_worse_than_its_followed_solids_is_not_taken() -> None:
-    """Seed 1011, tripod, frames 82–94 at 5 frames/s, one fit a frame:
-    the robot drives into a blob with a 14 cm cylinder, and that blob's refit stalls
-    with the robot's box where it stood a frame before (a third of the outline left
-    unexplained). The solids followed onto the outline explain it: they are kept and
-    followed, and the robot stays within 0.5 cm and 1.5° of the truth in every frame."""
+    """Seed 1011, tripod, frames 82–94 at 5 frames/s, one fit a frame: the robot drives
+    into a blob with a cylinder, and that blob's refit stalls with the robot's box where
+    it stood a frame before (much of the outline left unexplained). The solids followed
+    onto the outline explain it: they are kept and followed, and the robot stays within
+    0.5 cm and 1.5° of the truth in every frame."""
     times = [k / 5.0 for k in range(82, 95)]
     cfg, camera, frames, truths, floor = _scene_frames("oblique", 1011, times)
     with tempfile.TemporaryDirectory() as tmp:

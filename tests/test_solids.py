@@ -242,6 +242,22 @@ def test_a_fit_explains_its_outline_with_a_few_points_far_off_not_with_a_wrong_s
     assert not wrong.explains and wrong.off_share > 2 * MAX_OFF_SHARE
 
 
+def _imaged_disc(wall: float, wall_level: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """D of a bright disc (120 levels, radius 20 px, centred at col 40.2, row 39.7) in a
+    ring of ``wall`` px at ``wall_level``, as a camera sees it (each pixel the mean over
+    its area, a slight blur, sensor noise of 1.5 levels), and its outline's pixel chain."""
+    size, k = 80, 8
+    yy, xx = (np.mgrid[0 : size * k, 0 : size * k] + 0.5) / k - 0.5  # pixel centres
+    r = np.hypot(xx - 40.2, yy - 39.7)
+    fine = np.where(r <= 20.0, 120.0, np.where(r <= 20.0 + wall, wall_level, 0.0))
+    image = cv2.resize(fine, (size, size), interpolation=cv2.INTER_AREA)
+    noise = np.random.default_rng(seed).normal(0, 1.5, image.shape)
+    diff = (cv2.GaussianBlur(image, (0, 0), 0.3) + noise).astype(np.float32)
+    mask = (cv2.GaussianBlur(diff, (0, 0), 0.8) >= 3).astype(np.uint8)
+    chain = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0][0][:, 0, :]
+    return diff, chain
+
+
 @pytest.mark.parametrize("wall", [0.0, 4.0])
 def test_subpixel_edges_find_the_silhouette_of_a_blurred_disc_with_or_without_a_dark_wall(
     wall: float,
@@ -252,15 +268,7 @@ def test_subpixel_edges_find_the_silhouette_of_a_blurred_disc_with_or_without_a_
     outer circle, the median within 0.1 px and the mean within 0.12 px; with no wall, 95 %
     of them within 0.5 px. (A ring of 2.5 px or less at 4 times the noise is not yet told
     from the disc's own edge on most profiles: then the edge is the top's.)"""
-    size, k = 80, 8
-    yy, xx = (np.mgrid[0 : size * k, 0 : size * k] + 0.5) / k - 0.5  # pixel centres
-    r = np.hypot(xx - 40.2, yy - 39.7)
-    fine = np.where(r <= 20.0, 120.0, np.where(r <= 20.0 + wall, 6.0, 0.0))
-    image = cv2.resize(fine, (size, size), interpolation=cv2.INTER_AREA)
-    noise = np.random.default_rng(2).normal(0, 1.5, image.shape)
-    diff = (cv2.GaussianBlur(image, (0, 0), 0.3) + noise).astype(np.float32)
-    mask = (cv2.GaussianBlur(diff, (0, 0), 0.8) >= 3).astype(np.uint8)
-    chain = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0][0][:, 0, :]
+    diff, chain = _imaged_disc(wall, wall_level=6.0, seed=2)
     edges, _, usable = subpixel_edges(diff, (0, 0), chain, blur_px=0.6, noise=1.5)
     off = np.hypot(edges[usable, 0] - 40.2, edges[usable, 1] - 39.7) - (20.0 + wall)
     assert usable.mean() > 0.9
@@ -277,16 +285,8 @@ def test_wall_tops_find_a_tops_edge_over_a_wall_too_thin_for_a_look(wall: float)
     wall shows, the top's edge is found at the silhouette's second step on most of the
     outline, the median within 0.15 px of the disc's circle; with no wall, on under a
     tenth of it (a plain edge now and then fitted with two steps: a solid's look asks
-    for a wall along half its side facing the camera)."""
-    size, k = 80, 8
-    yy, xx = (np.mgrid[0 : size * k, 0 : size * k] + 0.5) / k - 0.5  # pixel centres
-    r = np.hypot(xx - 40.2, yy - 39.7)
-    fine = np.where(r <= 20.0, 120.0, np.where(r <= 20.0 + wall, 30.0, 0.0))
-    image = cv2.resize(fine, (size, size), interpolation=cv2.INTER_AREA)
-    noise = np.random.default_rng(3).normal(0, 1.5, image.shape)
-    diff = (cv2.GaussianBlur(image, (0, 0), 0.3) + noise).astype(np.float32)
-    mask = (cv2.GaussianBlur(diff, (0, 0), 0.8) >= 3).astype(np.uint8)
-    chain = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0][0][:, 0, :]
+    for a wall along most of its side facing the camera, ``WALL_SHARE``)."""
+    diff, chain = _imaged_disc(wall, wall_level=30.0, seed=3)
     tops, _, found = wall_tops(diff, (0, 0), chain, blur_px=0.6, noise=1.5)
     if wall == 0.0:
         assert found.mean() < 0.1

@@ -546,9 +546,7 @@ def subpixel_edges(
     usable, one per chain point (see the module's docstring); ``diff`` is D around the
     chain with its top-left pixel at ``origin`` (row, col) of the frame; ``spots`` (the
     frame's :func:`background_spots`) drop points on bright floor."""
-    p, nrm = chain_normals(chain)
-    prof = _profiles(diff, origin, p, nrm)
-    steps = _edge_steps(prof, float(blur_px), noise)
+    p, nrm, prof, steps = _chain_steps(diff, origin, chain, blur_px, noise)
     at = np.where(steps.two, steps.outer, _past_the_wall(prof, steps.outer))
     edge = p + at[:, None] * nrm
     return edge, nrm, np.isfinite(steps.best) & _off_spots(edge, spots)
@@ -563,6 +561,20 @@ class _EdgeSteps(NamedTuple):
     inner: FloatArray
     two: NDArray[np.bool_]
     best: FloatArray
+
+
+def _chain_steps(
+    diff: NDArray[np.float32],
+    origin: tuple[int, int],
+    chain: NDArray[np.int32],
+    blur_px: float,
+    noise: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, _EdgeSteps]:
+    """A pixel chain's points and outward normals, D's profile across each and the steps
+    fitted to it (:func:`subpixel_edges` and :func:`wall_tops` read them two ways)."""
+    p, nrm = chain_normals(chain)
+    prof = _profiles(diff, origin, p, nrm)
+    return p, nrm, prof, _edge_steps(prof, float(blur_px), noise)
 
 
 def _edge_steps(prof: FloatArray, blur_px: float, noise: float) -> _EdgeSteps:
@@ -605,9 +617,7 @@ def wall_tops(
     (frame col, row), one per chain point, the outward normals and which were found: a
     top's edge over a wall too thin for :func:`edges_along`'s look, whose one step
     there would be the silhouette's."""
-    p, nrm = chain_normals(chain)
-    prof = _profiles(diff, origin, p, nrm)
-    steps = _edge_steps(prof, float(blur_px), noise)
+    p, nrm, prof, steps = _chain_steps(diff, origin, chain, blur_px, noise)
     inner = np.nan_to_num(steps.inner)
     edge = p + inner[:, None] * nrm
     wide = steps.outer - inner >= WALL_MIN_PX - 0.5 * STEP_GRID_PX

@@ -225,7 +225,7 @@ class _Tracked:
     axis_bias: float = math.nan
     #: whether its last frame turned it on at its turn rate instead of to its outline
     coasted: bool = False
-    #: the unmarked robot's pose map (:func:`pose_map`) and where it was worked out
+    #: the unmarked robot's :class:`~ovis.common.solids.footprint.PoseMap`
     pose_map: PoseMap | None = None
     map_g: FloatArray | None = None
     map_j: FloatArray | None = None
