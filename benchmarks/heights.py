@@ -7,9 +7,10 @@ seen by each rig, :data:`FRAMES` consecutive frames at 30 frames/s (the obstacle
 frames and the same segmentation (the empty floor subtracted), taking turns at 30
 frames/s, each after a pause of its own (half a frame period apart): as in a live stage,
 each detection starts after other work had the caches (run back to back, the second
-would find them warm from the first). The measured one runs as the live pose stage does:
-its solids fitted on the first frame, then new blobs and the periodic refits on a thread
-of their own (``background_fits``), the frames never waiting for them. Rows, per rig:
+would find them warm from the first); they take turns at seeing a frame first. The
+measured one runs as the live pose stage does: its solids fitted on the first frame,
+then new blobs and the periodic refits on a thread of their own (``background_fits``),
+the frames never waiting for them. Rows, per rig:
 the frame path's CPU per frame after the first (the detecting thread's CPU time; the
 floor: the detection with configured heights), the fitting thread's CPU per frame beside
 it (what measuring heights costs in all), and the first frame's cost (every blob fitted
@@ -89,12 +90,14 @@ def _fit_thread_cpu_s() -> float:
 
 def _paced(images, measured: Detector, configured: Detector) -> tuple[list, list, float]:
     """Frames after the first through both detectors at 30 frames/s, each detection half
-    a frame period after the other's: each one's frame path CPU (ms) per frame, and the
-    fitting thread's CPU meanwhile (ms)."""
+    a frame period after the other's, taking turns at going first (the second finds the
+    frame in the caches): each one's frame path CPU (ms) per frame, and the fitting
+    thread's CPU meanwhile (ms)."""
     path: dict[str, list[float]] = {"measured": [], "configured": []}
     fits0, start = _fit_thread_cpu_s(), time.perf_counter()
+    both = (("measured", measured), ("configured", configured))
     for k, image in enumerate(images[1:], start=1):
-        for half, (name, det) in enumerate((("measured", measured), ("configured", configured))):
+        for half, (name, det) in enumerate(both if k % 2 else both[::-1]):
             time.sleep(max(0.0, start + (k + 0.5 * half) / 30.0 - time.perf_counter()))
             t0 = time.thread_time()
             det.detect(image, stamp_s=k / 30.0)

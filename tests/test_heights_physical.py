@@ -8,6 +8,7 @@ from __future__ import annotations
 import itertools
 import math
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -203,11 +204,12 @@ def test_footprints_follow_moving_solids_with_one_fit_per_frame() -> None:
 
 
 def test_fits_beside_the_frames_measure_what_fits_in_them_measure() -> None:
-    """The live stage's fits on a thread of their own (one blob at a time, the frames
-    going on meanwhile) measure the solids as fits in the frames do (one per frame), the
-    same heights and footprints; a blob waiting for its fit is found all the same, its
-    footprint roughly (within 4 cm, from its outline's side facing the camera's foot),
-    said pending at the configured height."""
+    """The live stage's fits on a thread of their own (the frames going on meanwhile)
+    measure the solids as fits in the frames do (one per frame), the same heights and
+    footprints; a blob waiting for its fit is found all the same, its footprint roughly
+    (within 4 cm, from its outline's side facing the camera's foot), said pending at the
+    configured height, with the covariance of where its footprint may be (the truth
+    within its 99 % ellipse)."""
     times = [k / 5.0 for k in range(12)]
     cfg, camera, frames, truths, floor = _scene_frames("oblique", 1005, times)
     with tempfile.TemporaryDirectory() as tmp:
@@ -227,6 +229,14 @@ def test_fits_beside_the_frames_measure_what_fits_in_them_measure() -> None:
                 assert all(o.z_source == "configured" for o in rough)
                 assert all(o.z_cm == dcfg.pose.obstacle_height_cm for o in rough)
                 assert max(_nearest_error(rough, truth), default=0.0) < 4.0
+                for o in rough:  # where it may be, stated: the truth within its 99 %
+                    t = min(
+                        truth.objects, key=lambda s: math.hypot(s.x_cm - o.x_cm, s.y_cm - o.y_cm)
+                    )
+                    cov = np.array(o.covariance_cm2).reshape(3, 3)
+                    e = np.array([t.x_cm - o.x_cm, t.y_cm - o.y_cm])
+                    assert e @ np.linalg.solve(cov[:2, :2], e) <= STATED_CHI2
+                    assert cov[2, 2] > 5.0**2  # its height: anywhere within a fit's range
         finally:
             beside.close()
     assert waited > 0
@@ -236,6 +246,42 @@ def test_fits_beside_the_frames_measure_what_fits_in_them_measure() -> None:
         assert math.hypot(p.x_cm - q.x_cm, p.y_cm - q.y_cm) < 0.05
         assert p.z_cm == pytest.approx(q.z_cm, abs=0.05)
     assert max(_nearest_error(b, truths[-1])) < 0.5
+
+
+def test_new_blobs_fits_queue_at_once_and_join_where_their_blobs_went_meanwhile() -> None:
+    """At start-up every new blob's fit is queued on the fitting thread at once (the
+    thread goes from one to the next, not one a frame): held back while twelve frames at
+    5 frames/s go by (2.4 s, the obstacles moving up to 11 cm), each fit joins the solids
+    where its blob stands by then, so that the next frame has nothing pending, every
+    obstacle within 0.5 cm and nothing found twice."""
+    times = [k / 5.0 for k in range(14)]
+    cfg, camera, frames, truths, floor = _scene_frames("oblique", 1005, times)
+    moved = [
+        math.hypot(a.x_cm - b.x_cm, a.y_cm - b.y_cm)
+        for a, b in zip(truths[0].objects, truths[12].objects, strict=True)
+    ]
+    assert max(moved) > 10.0  # the blobs move while their fits wait
+    with tempfile.TemporaryDirectory() as tmp:
+        dcfg = _measuring(cfg, floor, Path(tmp))
+        beside = Detector(camera, dcfg.image, dcfg.pose, background_fits=True)
+        assert beside.solids is not None and beside.solids._pool is not None
+        hold = threading.Event()
+        held = beside.solids._pool.submit(hold.wait)  # the fitting thread busy meanwhile
+        try:
+            for image, t in zip(frames[:12], times[:12], strict=True):
+                objects = beside.detect(image, stamp_s=t).objects
+                assert all(o.z_unmeasured == "pending" for o in objects)
+            hold.set()
+            held.result()
+            beside.solids.wait()
+            beside.detect(frames[12], stamp_s=times[12])  # the fits join
+            objects = beside.detect(frames[13], stamp_s=times[13]).objects
+        finally:
+            hold.set()
+            beside.close()
+    assert len(objects) == len(truths[13].objects)
+    assert not [o for o in objects if o.z_unmeasured == "pending"]
+    assert max(_nearest_error(objects, truths[13])) < 0.5
 
 
 def test_the_default_size_filter_keeps_a_3_cm_cylinder_seen_from_the_tripod() -> None:

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from ovis.common.vision.labeling import label_components
 from ovis.common.vision.perimeter import KB_A, perimeter
-from ovis.common.vision.shape import MAX_ELONGATION, compactness, orientation
+from ovis.common.vision.shape import MAX_ELONGATION, axis_deg, compactness, orientation
 
 
 def disk(r: float, centre: tuple[float, float]) -> np.ndarray:
@@ -132,6 +132,7 @@ def test_orientation_axis_conventions() -> None:
     assert (float(angle), float(elong)) == (0.0, 2.0)
     angle, elong = orientation(1.0, 4.0, -0.0)
     assert float(angle) == math.pi / 2 and float(elong) == 2.0
+    assert axis_deg(1.0, 4.0, -0.0) == 90.0 and axis_deg(4.0, 1.0, 0.0) == 0.0
     # Along the row = col diagonal → +π/4; along row = −col → −π/4.
     assert float(orientation(1.0, 1.0, 0.5)[0]) == pytest.approx(math.pi / 4)
     assert float(orientation(1.0, 1.0, -0.5)[0]) == pytest.approx(-math.pi / 4)
@@ -176,6 +177,7 @@ def test_orientation_properties(l1: float, l2: float, phi: float) -> None:
     angle, elong = orientation(mu_rr, mu_cc, mu_rc)
     assert -math.pi / 2 < float(angle) <= math.pi / 2
     assert 1.0 <= float(elong) <= MAX_ELONGATION
+    assert axis_deg(mu_rr, mu_cc, mu_rc) == pytest.approx(math.degrees(angle), abs=1e-12)
     hi, lo = max(l1, l2), min(l1, l2)
     if hi > 1e-6 and lo > 1e-3 * hi:
         assert float(elong) == pytest.approx(math.sqrt(hi / lo), rel=1e-6)

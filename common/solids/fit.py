@@ -62,6 +62,7 @@ from ovis.common.vision.outline import PROFILE_REACH_PX
 
 __all__ = [
     "FloorOutline",
+    "RoughFootprint",
     "Solid",
     "along_sight",
     "bound_behind",
@@ -286,12 +287,22 @@ def radial_height(floor: FloorOutline, view: Viewpoint, tol_px: float = 0.35) ->
     return view.height_cm * (1.0 - 1.0 / s) if s > 1.0 else None
 
 
-def rough_footprint(floor: FloorOutline, view: Viewpoint) -> FloatArray | None:
+class RoughFootprint(NamedTuple):
+    """:func:`rough_footprint`'s estimate: the footprint centre (2,) cm and the
+    covariance (2, 2) cm² of where it may be."""
+
+    centre: FloatArray
+    covariance: FloatArray
+
+
+def rough_footprint(floor: FloorOutline, view: Viewpoint) -> RoughFootprint | None:
     """A quick estimate of a one-solid outline's footprint centre (cm), before any fit,
     whatever its height: the outline's side facing the camera's foot is the foot of
     the walls, on the floor; the centre lies half the footprint's width (that side's
-    extent across the line of sight) beyond it. None where the camera's foot is in line
-    with the outline (no side faces it)."""
+    extent across the line of sight) beyond it. How far beyond is a guess: the centre
+    lies anywhere between that side and the outline's far end on the floor, and across
+    the line of sight anywhere along that side (uniform over each, its covariance). None
+    where the camera's foot is in line with the outline (no side faces it)."""
     rel = floor.points - view.foot
     rho = np.hypot(rel[:, 0], rel[:, 1])
     mean = np.mean(rel / np.maximum(rho, 1e-9)[:, None], 0)
@@ -304,11 +315,15 @@ def rough_footprint(floor: FloorOutline, view: Viewpoint) -> FloatArray | None:
         return None
     along, across = rel[near] @ u, rel[near] @ v
     width = float(across.max() - across.min())
-    return (
+    centre = (
         view.foot
         + u * (float(along.min()) + 0.5 * width)
         + v * float(0.5 * (across.max() + across.min()))
     )
+    depth = float((rel @ u).max() - along.min())
+    axes = np.column_stack([u, v])
+    covariance = axes @ np.diag([depth**2, width**2]) @ axes.T / 12.0
+    return RoughFootprint(centre, covariance)
 
 
 def _footprint_points(floor: FloorOutline, view: Viewpoint, height: float) -> FloatArray:

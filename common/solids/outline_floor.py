@@ -38,18 +38,24 @@ def floor_outline(
 
 
 def chain_floor(
-    chain: NDArray[np.integer], camera: CameraModel, tables: PlaneTables | None = None
+    chain: NDArray[np.integer],
+    camera: CameraModel,
+    tables: PlaneTables | None = None,
+    *,
+    closed_form: bool = False,
 ) -> FloorOutline:
     """An outline's pixel chain (n, 2) frame (col, row) itself on the floor, with its
     normals (:func:`~ovis.common.vision.outline.chain_normals`): :func:`floor_outline`
     of its points, the floor table read at whole pixels
-    (:meth:`~ovis.common.camera.plane_table.PlaneTables.pixel_jacobian`)."""
+    (:meth:`~ovis.common.camera.plane_table.PlaneTables.pixel_jacobian`).
+    ``closed_form``: the normals carried by :func:`_carried_closed_form` (a follow's,
+    each frame), else as the fits were tuned with."""
     points, normals = chain_normals(chain)
     if tables is not None:
         j = tables.pixel_jacobian(chain[:, 1], chain[:, 0], camera, 0.0)
     else:
         j = pixel_jacobian(points[:, 1], points[:, 0], camera, 0.0)
-    return _carried(j, normals)
+    return _carried_closed_form(j, normals) if closed_form else _carried(j, normals)
 
 
 def _carried(j: PixelJacobian, normals: FloatArray) -> FloorOutline:
@@ -70,4 +76,26 @@ def _carried(j: PixelJacobian, normals: FloatArray) -> FloorOutline:
     n /= np.linalg.norm(n, axis=1)[:, None]
     across = np.linalg.norm(np.einsum("nji,nj->ni", jac, n), axis=1)
     points = np.column_stack([j.x_cm[ok], j.y_cm[ok]])
+    return FloorOutline(points, n, 1.0 / across)
+
+
+def _carried_closed_form(j: PixelJacobian, normals: FloatArray) -> FloorOutline:
+    """:func:`_carried` with J⁻ᵀ·m in closed form, [d·m₀ − c·m₁, a·m₁ − b·m₀] / det J
+    for J = [[a, b], [c, d]]: a fraction of LAPACK's cost on a chain's few hundred
+    points, the same but in the last bits (where a fit's choices may turn on them: only
+    follows, which move solids a little, use it)."""
+    a, b, c, d = j.dx_dcol, j.dx_drow, j.dy_dcol, j.dy_drow
+    det = a * d - b * c
+    m0, m1 = normals[:, 0], normals[:, 1]
+    ok = j.valid & (np.abs(det) > 1e-12) & (np.hypot(m0, m1) > 1e-12)
+    x, y = j.x_cm, j.y_cm
+    if not ok.all():
+        a, b, c, d, det, m0, m1, x, y = (v[ok] for v in (a, b, c, d, det, m0, m1, x, y))
+    n = np.empty((len(det), 2))
+    n[:, 0] = (d * m0 - c * m1) / det
+    n[:, 1] = (a * m1 - b * m0) / det
+    n /= np.hypot(n[:, 0], n[:, 1])[:, None]
+    across = np.hypot(a * n[:, 0] + c * n[:, 1], b * n[:, 0] + d * n[:, 1])
+    points = np.empty((len(det), 2))
+    points[:, 0], points[:, 1] = x, y
     return FloorOutline(points, n, 1.0 / across)

@@ -28,6 +28,7 @@ front of another): the union of convex silhouettes, cut where its outline turns 
 from __future__ import annotations
 
 import functools
+import math
 import threading
 from collections.abc import Sequence
 from typing import NamedTuple, overload
@@ -246,49 +247,51 @@ def smoothed_mask(
     d: NDArray[np.float32],
     level: float,
     spots: NDArray[np.uint8] | None = None,
-    *,
-    out: NDArray[np.bool_] | None = None,
 ) -> NDArray[np.uint8]:
-    """:func:`object_mask` from D already smoothed (:data:`SMOOTH_PX`), into ``out`` when
-    given."""
-    mask = np.greater_equal(d, level, out=out).view(np.uint8)
+    """:func:`object_mask` from D already smoothed (:data:`SMOOTH_PX`)."""
+    mask = np.greater_equal(d, level).view(np.uint8)
     if spots is not None:
         entry = _spot_entry(spots)
-        at = entry[1]
-        here = d.ravel()[at]
-        # a spot's pixel at least ``level`` brighter is in already: only one at least
-        # ``level`` darker may be added, and only then is the spot level worked out
-        dark = here <= -level
-        if dark.any():
-            hidden = dark & (here + _spot_lift(spots, entry) >= level)
-            mask.ravel()[at[hidden]] = 1
+        _hidden_spots(mask, d.ravel()[entry[1]], level, spots, entry)
     return mask
+
+
+def _hidden_spots(
+    mask: NDArray[np.uint8],
+    here: NDArray[np.float32],
+    level: float,
+    spots: NDArray[np.uint8],
+    entry: list,
+) -> None:
+    """Add to ``mask`` the bright floor spots' pixels an object hides: smoothed D
+    (``here``, at the spots' pixels, ``entry``: :func:`_spot_entry`) at least ``level``
+    darker, yet at least ``level`` brighter than the floor around the spot. A spot's
+    pixel at least ``level`` brighter is in already; the spot level is worked out only
+    where one is that dark."""
+    dark = here <= -level
+    if dark.any():
+        hidden = dark & (here + _spot_lift(spots, entry) >= level)
+        mask.ravel()[entry[1][hidden]] = 1
 
 
 class SmoothedDiff:
     """Object pixels of whole frames as :func:`object_mask` finds them, into buffers kept
     from one frame to the next (a frame's images allocated afresh each time cost more in
-    page faults than their arithmetic); D smoothed by the kernel ``cv2.GaussianBlur``
-    uses, applied to the integer D straight away (``cv2.sepFilter2D``: no float copy of
-    D; the same numbers on whole frames, on small images GaussianBlur's own path may
-    differ in the last bits of a float). Not to be shared between threads."""
+    page faults than their arithmetic). The smoothing is linear, so the frame's smoothed
+    D is the smoothed frame less the smoothed empty floor: the floor's side (smoothed,
+    plus the level) is worked out once for a read-only floor image, and a frame's pixel
+    is an object's where its smoothed grey level reaches it; D itself is formed only at
+    the floor's bright spots. The kernel is ``cv2.GaussianBlur``'s
+    (``cv2.sepFilter2D`` applied to the 8-bit frame straight away: no float copy of it).
+    Not to be shared between threads."""
 
     def __init__(self) -> None:
-        self._diff: NDArray[np.int16] | None = None
-        self._smooth: NDArray[np.float32] | None = None
+        self._gray: NDArray[np.float32] | None = None
         self._mask: NDArray[np.bool_] | None = None
-
-    def smoothed(
-        self, gray: NDArray[np.uint8], background: NDArray[np.uint8]
-    ) -> NDArray[np.float32]:
-        """The frame less the empty floor, smoothed; valid until the next call."""
-        if self._diff is None or self._smooth is None or self._diff.shape != gray.shape:
-            self._diff = np.empty(gray.shape, np.int16)
-            self._smooth = np.empty(gray.shape, np.float32)
-            self._mask = np.empty(gray.shape, bool)
-        cv2.subtract(gray, background, dst=self._diff, dtype=cv2.CV_16S)
-        cv2.sepFilter2D(self._diff, cv2.CV_32F, _SMOOTH, _SMOOTH, dst=self._smooth)
-        return self._smooth
+        self._floor: NDArray[np.uint8] | None = None  # the read-only floor image kept
+        self._floor_smooth: NDArray[np.float32] | None = None
+        self._level = math.nan
+        self._above: NDArray[np.float32] | None = None  # smoothed floor + level
 
     def mask(
         self,
@@ -299,9 +302,37 @@ class SmoothedDiff:
     ) -> NDArray[np.uint8]:
         """:func:`object_mask` of the frame less the empty floor; valid until the next
         call."""
-        d = self.smoothed(gray, background)
-        assert self._mask is not None
-        return smoothed_mask(d, level, spots, out=self._mask)
+        if self._gray is None or self._gray.shape != gray.shape:
+            self._gray = np.empty(gray.shape, np.float32)
+            self._mask = np.empty(gray.shape, bool)
+        floor, above = self._floor_side(background, level)
+        cv2.sepFilter2D(gray, cv2.CV_32F, _SMOOTH, _SMOOTH, dst=self._gray)
+        mask = np.greater_equal(self._gray, above, out=self._mask).view(np.uint8)
+        if spots is not None:
+            entry = _spot_entry(spots)
+            at = entry[1]
+            here = self._gray.ravel()[at] - floor.ravel()[at]
+            _hidden_spots(mask, here, level, spots, entry)
+        return mask
+
+    def _floor_side(
+        self, background: NDArray[np.uint8], level: float
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """The empty floor smoothed, and that plus ``level``: kept for a read-only floor
+        image (the configured one is read once and kept read-only), else made again."""
+        kept = (
+            background is self._floor
+            and not background.flags.writeable
+            and level == self._level
+            and self._floor_smooth is not None
+            and self._above is not None
+        )
+        if not kept:
+            smooth = cv2.sepFilter2D(background, cv2.CV_32F, _SMOOTH, _SMOOTH)
+            self._floor, self._floor_smooth, self._level = background, smooth, level
+            self._above = smooth + np.float32(level)
+        assert self._floor_smooth is not None and self._above is not None
+        return self._floor_smooth, self._above
 
 
 #: ``cv2.GaussianBlur``'s kernel for :data:`SMOOTH_PX` on float images (its taps:

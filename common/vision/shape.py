@@ -21,10 +21,12 @@ All functions are vectorised and broadcast over their arguments.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["MAX_ELONGATION", "compactness", "orientation"]
+__all__ = ["MAX_ELONGATION", "axis_deg", "compactness", "orientation"]
 
 FloatArray = NDArray[np.float64]
 
@@ -95,3 +97,10 @@ def orientation(
     # λ₋ ≤ 0 < λ₊ (a line) → past the cap; λ₊ = 0 (a point, all moments 0) → 0 / tiny → 1.
     lam_min = np.maximum(np.maximum(mean - radius, lam_max / (2.0 * MAX_ELONGATION) ** 2), 1e-300)
     return angle, np.clip(np.sqrt(lam_max / lam_min), 1.0, MAX_ELONGATION)
+
+
+def axis_deg(mu_rr: float, mu_cc: float, mu_rc: float) -> float:
+    """:func:`orientation`'s angle of one shape, in degrees, in plain Python (a frame's
+    few blobs, one at a time, cost less so than as arrays)."""
+    angle = 0.5 * math.atan2(mu_rc, 0.5 * (mu_rr - mu_cc))
+    return math.degrees(angle + math.pi if angle <= -0.5 * math.pi else angle)

@@ -131,7 +131,8 @@ class DetectedObject(msgspec.Struct):
     z_unmeasured: Literal["", "declared", "not measurable", "pending"] = ""
     #: covariance of (x_cm, y_cm, z_cm), cm², row by row (9 numbers), from the fit of its
     #: silhouette (heights measured; "not measurable": about the footprint at ``z_fit_cm``,
-    #: widened by the step to it from the fit's own height); None otherwise
+    #: widened by the step to it from the fit's own height; "pending": where its rough
+    #: footprint may be, its height anywhere within a fit's range); None otherwise
     covariance_cm2: Annotated[list[Finite], msgspec.Meta(min_length=9, max_length=9)] | None = None
     #: the solid's fitted shape (heights measured): "cylinder", "box", "prism3", "prism5",
     #: "prism6"; "" when not fitted

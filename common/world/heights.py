@@ -24,10 +24,13 @@ fit is not repeated every frame: :class:`SolidTracker` keeps each blob's fitted 
   its track (inverse-variance weights). At most ``pose.fits_per_frame`` fits run per
   frame (0: all); a blob that waits is said ``pending``, at the configured height, its
   footprint rough (:func:`~ovis.common.solids.fit.rough_footprint`, from its outline's
-  pixel chain) or, where that cannot be had, its centroid on its class's plane.
+  pixel chain, with the covariance of where it may be and of a height anywhere within
+  a fit's range) or, where that cannot be had, its centroid on its class's plane (no
+  covariance stated).
 
-A live stage (``background``) never waits for a fit: one blob at a time is fitted on a
-thread of its own while the frames go on (its blob said ``pending`` meanwhile), and the
+A live stage (``background``) never waits for a fit: the fits run on a thread of their
+own while the frames go on, a refit or every new blob's at once (queued one after the
+other; each blob said ``pending`` meanwhile and followed by its centroid), and each
 fitted group joins the others at the first frame after it is done, found again by its
 centroid as any group of the last frame is (a fit's cost is many frame periods' worth of
 the per-frame work, which is then only matching and following).
@@ -68,6 +71,7 @@ from ovis.common.solids.fit import (
     ITERATIONS,
     MAX_OFF_SHARE,
     FloorOutline,
+    RoughFootprint,
     Solid,
     bound_behind,
     feet_hidden,
@@ -99,13 +103,14 @@ from ovis.common.vision.outline import (
     subpixel_edges,
     wall_tops,
 )
-from ovis.common.vision.shape import orientation
+from ovis.common.vision.shape import axis_deg
 from ovis.common.world.pose import gated_assignment, gated_pairs_few
 from ovis.common.world.robot_turn import (
     AXIS_CHECK_DEG,
     AXIS_REACH_DEG,
     STILL_PX,
     TURN_CHECK_DEG,
+    TurnState,
     degrees_between,
     robot_turn,
 )
@@ -218,15 +223,8 @@ class _Tracked:
     bias: FloatArray = field(default_factory=lambda: np.zeros(2))
     map_at: FloatArray | tuple[float, float] | None = None
     map_yaw: float = math.nan  # its yaw (rad) where its map was worked out
-    #: its blob's axis in the frame (deg) and centroid (row, col) when it was last
-    #: turned to its outline (the unmarked robot), and the silhouette's axis less the
-    #: blob's then (rad)
-    turned_at: tuple[float, float, float] = (math.nan, math.nan, math.nan)
-    axis_bias: float = math.nan
-    #: whether its last frame turned it on at its turn rate instead of to its outline
-    coasted: bool = False
-    #: the unmarked robot's :class:`~ovis.common.solids.footprint.PoseMap`
-    pose_map: PoseMap | None = None
+    #: the unmarked robot's turns (None: not followed as the robot yet)
+    turning: TurnState | None = None
     map_g: FloatArray | None = None
     map_j: FloatArray | None = None
     _report: tuple | None = None
@@ -413,12 +411,14 @@ class SolidObjects(NamedTuple):
 
 @dataclass
 class _Job:
-    """A fit running on the fitting thread: the group it fits again (None: a new blob)
-    and the calibration it was started under."""
+    """A fit running (or queued) on the fitting thread: the group it fits again (None: a
+    new blob), the calibration it was started under, and for a new blob its filled
+    (area, row, col) in the last frame that showed it (followed while it waits)."""
 
     done: Future[_Group | None]
     old: _Group | None
     generation: int
+    blob: list[float] | None = None
 
 
 class SolidTracker:
@@ -440,7 +440,7 @@ class SolidTracker:
         self.tables = tables
         self.frame = 0
         self._generation = 0
-        self._job: _Job | None = None
+        self._jobs: list[_Job] = []  # on the fitting thread, in the order they run
         self._reports: _Reports | None = None
         self._turned = False  # a follow turned a solid since its reports were stacked
         self._pool = ThreadPoolExecutor(1, "solid-fit") if background else None
@@ -456,7 +456,7 @@ class SolidTracker:
         self._background: NDArray[np.uint8] | None = None
         self.groups = []
         self._generation += 1
-        self._job = None
+        self._jobs = []
 
     def use_background(self, background: NDArray[np.uint8]) -> None:
         """The empty floor's image: its bright spots (floor marks) are no edges (worked
@@ -794,9 +794,9 @@ class SolidTracker:
             return None, 0.0
         return floor.take(keep), float(keep.sum()) / len(points)
 
-    def _rough(self, patch: Patch, blob_filled: FloatArray) -> FloatArray | None:
-        """A blob still waiting for its fit: its footprint centre roughly, from its
-        outline's pixel chain (:func:`rough_footprint`), or None."""
+    def _rough(self, patch: Patch, blob_filled: FloatArray) -> RoughFootprint | None:
+        """A blob still waiting for its fit: its footprint centre roughly, and where it
+        may be, from its outline's pixel chain (:func:`rough_footprint`), or None."""
         outline = patch_outline(patch, self.level, (blob_filled[1], blob_filled[2]), self.spots)
         if outline is None or len(outline.chain) < MIN_EDGE_POINTS:
             return None
@@ -919,19 +919,24 @@ class SolidTracker:
         matched = self._match(rows, skips)
         if patches is not None:
             self._carry(rows, matched, skips, patches)
+        self._follow_waiting(rows, matched, skips)
         limit = math.inf if fit_all or self.pose.fits_per_frame == 0 else self.pose.fits_per_frame
         beside = self._pool is not None and not fit_all
         if beside:
-            limit = 1 if self._job is None and patches is not None else 0
+            limit = 1 if not self._jobs and patches is not None else 0
         todo = self._queue(filled, matched, skips, patches, limit)
         new_groups: dict[int, _Group] = {}
         fitted = set()
         if beside:
             if todo and limit and patches is not None:
-                i = todo[0]
-                self._submit(
-                    patches[i], filled[i], self.groups[matched[i]] if matched[i] >= 0 else None
-                )
+                # a new blob's fit, and every other new blob's queued behind it (the
+                # fitting thread goes from one to the next, not one a frame); else a
+                # refit
+                first = todo[0]
+                batch = [first] if matched[first] >= 0 else [i for i in todo if matched[i] < 0]
+                for i in batch:
+                    group = self.groups[matched[i]] if matched[i] >= 0 else None
+                    self._submit(patches[i], filled[i], group)
             todo = []
         for i in todo:
             if len(fitted) >= limit or patches is None:
@@ -993,13 +998,16 @@ class SolidTracker:
         its centre from its blob's centroid (less its bias) at that yaw, by its pose
         map."""
         t = group.solids[0]
-        how = robot_turn(
-            t.pose_map, t.turned_at, (axis, blob[1], blob[2]), dt_s, t.yaw_rate, t.coasted
-        )
+        if t.turning is None:
+            t.turning = TurnState()
+        turning = t.turning
+        at = (axis, blob[1], blob[2])
+        how = robot_turn(turning.pose_map, turning.turned_at, at, dt_s, t.yaw_rate, turning.coasted)
         bias = t.bias.tolist()
         target = (blob[1] + bias[0], blob[2] + bias[1])
         if how == "axis":
-            got = self._robot_map(t).solve((*target, math.radians(axis) + t.axis_bias), t.yaw)
+            seen = math.radians(axis) + turning.axis_bias
+            got = self._robot_map(t).solve((*target, seen), t.yaw)
             ahead = t.yaw + (t.yaw_rate if math.isfinite(t.yaw_rate) else 0.0)
             if got is not None and abs(got[2] - ahead) <= math.radians(AXIS_CHECK_DEG):
                 t.centre = got[0:2]
@@ -1007,14 +1015,14 @@ class SolidTracker:
                 return
             how = "outline"  # the axis tells a turn the robot cannot have made
         if how == "coast":
-            t.coasted = True
+            turning.coasted = True
             self._turned |= t.turn_to(t.yaw + t.yaw_rate)
         elif how == "outline":
-            t.coasted = False
-            t.turned_at = (axis, blob[1], blob[2])
+            turning.coasted = False
+            turning.turned_at = at
             self._follow_group(group, patches, i, np.array(blob), dt_s)
             seen = self._robot_map(t).image_at(t.centre, t.yaw)[2]
-            t.axis_bias = float(turn_between(math.radians(axis), seen))
+            turning.axis_bias = float(turn_between(math.radians(axis), seen))
         got = self._robot_map(t).solve((*target, None), t.yaw)
         if got is not None:
             t.centre = got[0:2]
@@ -1022,7 +1030,8 @@ class SolidTracker:
     def _robot_map(self, t: _Tracked) -> PoseMap:
         """The robot's pose map, worked out again where it moved or turned far from where
         it was."""
-        m = t.pose_map
+        assert t.turning is not None
+        m = t.turning.pose_map
         if (
             m is None
             or math.dist(t.centre, m.at[:2]) > RELINEARISE_CM
@@ -1033,8 +1042,9 @@ class SolidTracker:
 
     def _pose_map(self, t: _Tracked) -> PoseMap:
         """Work out the robot's pose map where it stands now."""
-        t.pose_map = PoseMap.of(t.solid.shape, t.theta(), self.view, self.camera)
-        return t.pose_map
+        assert t.turning is not None
+        t.turning.pose_map = PoseMap.of(t.solid.shape, t.theta(), self.view, self.camera)
+        return t.turning.pose_map
 
     @staticmethod
     def _moved(group: _Group, blob: list[float], axis: float) -> bool:
@@ -1088,35 +1098,62 @@ class SolidTracker:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
-        self._job = None
+        self._jobs = []
 
     def wait(self) -> None:
-        """Wait until the fit running on the fitting thread, if any, is done (it joins
-        the groups at the next frame)."""
-        if self._job is not None:
-            self._job.done.exception()
+        """Wait until the fits on the fitting thread, if any, are done (they join the
+        groups at the next frame)."""
+        for job in self._jobs:
+            job.done.exception()
 
     def _submit(self, patch: Patch, blob_filled: FloatArray, group: _Group | None) -> None:
-        """Start fitting one blob on the fitting thread."""
+        """Queue one blob's fit on the fitting thread."""
         assert self._pool is not None
         done = self._pool.submit(
             self._fit_from, patch, blob_filled.copy(), group, _starts_of(group), self.frame
         )
-        self._job = _Job(done, group, self._generation)
+        blob = None if group is not None else blob_filled.tolist()
+        self._jobs.append(_Job(done, group, self._generation, blob))
+
+    def _follow_waiting(
+        self, rows: list[list[float]], matched: list[int], skip: list[bool]
+    ) -> None:
+        """Where each new blob whose fit waits on the fitting thread is this frame: the
+        blob no group holds nearest to where it was (within :data:`GATE_PX`, its area
+        within :data:`AREA_RATIO`), so that its fit joins the groups where it stands
+        when it lands (a queued fit may land frames later)."""
+        free = [i for i, m in enumerate(matched) if m < 0 and not skip[i]]
+        for job in self._jobs:
+            if job.blob is None or not free:
+                continue
+            a, r, c = job.blob
+            near = [
+                (math.hypot(rows[i][1] - r, rows[i][2] - c), i)
+                for i in free
+                if 1.0 / AREA_RATIO <= rows[i][0] / max(a, 1e-9) <= AREA_RATIO
+            ]
+            d, i = min(near, default=(math.inf, -1))
+            if d <= GATE_PX:
+                job.blob = list(rows[i])
+                free.remove(i)
 
     def _collect(self) -> None:
-        """A fit done on the fitting thread joins the groups (a refit replaces the group
-        it fitted again, where that group stands now); one started under an earlier
-        calibration is dropped."""
-        job = self._job
-        if job is None or not job.done.done():
-            return
-        self._job = None
+        """The fits done on the fitting thread, in the order they ran, join the groups (a
+        new blob's where it was last seen, a refit replacing the group it fitted again,
+        where that group stands now); one started under an earlier calibration is
+        dropped."""
+        while self._jobs and self._jobs[0].done.done():
+            self._join(self._jobs.pop(0))
+
+    def _join(self, job: _Job) -> None:
+        """One fit done on the fitting thread joins the groups (:meth:`_collect`)."""
         fitted = job.done.result()  # a fit's error is the frame's, as when fitted here
         if job.generation != self._generation:
             return
         if job.old is None:
             if fitted is not None:
+                assert job.blob is not None
+                fitted.area, fitted.row, fitted.col = job.blob
                 self.groups.append(fitted)
             return
         if not any(g is job.old for g in self.groups):
@@ -1233,7 +1270,8 @@ class SolidTracker:
             t.centre = s.theta[0:2]
             t.motion = None
             t.turn(s.theta)
-            t.turned_at = (math.nan,) * 3  # a robot among them: turned to its outline next
+            if t.turning is not None:  # a robot among them: turned to its outline next
+                t.turning.turned_at = (math.nan,) * 3
             self._map(t)
         self._reports = None
         row, col = at[1], at[2]
@@ -1318,7 +1356,7 @@ class SolidTracker:
         offsets = group.offsets
         if offsets is None:  # one solid (the robot): its edge as far out as at its fit
             offsets = np.array([t.chain_offset for t in group.solids])
-        floor = self._chain_floor(outline)
+        floor = chain_floor(outline.chain, self.camera, self.tables, closed_form=True)
         was = [t.theta() for t in group.solids]
         now = [t.solid._replace(theta=t.ahead()) for t in group.solids]
         # only a robot turns: the unmarked one, or any solid where marked robots stand
@@ -1356,9 +1394,13 @@ class SolidTracker:
                 if not bool(plane.valid[i]):
                     continue
                 xy = (float(plane.x_cm[i]), float(plane.y_cm[i]))
+                cov = np.full((3, 3), math.nan)  # none stated: on the class's plane
                 rough = None if patches is None else self._rough(patches[i], filled[i])
-                if rough is not None:
-                    xy = (float(rough[0]), float(rough[1]))
+                if rough is not None:  # its height anywhere within a fit's range
+                    xy = (float(rough.centre[0]), float(rough.centre[1]))
+                    cov = np.zeros((3, 3))
+                    cov[:2, :2] = rough.covariance
+                    cov[2, 2] = height_spread(self.view) ** 2
                 area = float(filled[i, 0] * plane.area_cm2[i])
                 rows.append(
                     (
@@ -1366,7 +1408,7 @@ class SolidTracker:
                         xy,
                         math.nan,
                         math.nan,
-                        np.full((3, 3), math.nan),
+                        cov,
                         "",
                         math.sqrt(area / math.pi),
                         area,
@@ -1434,11 +1476,11 @@ class SolidTracker:
 
 
 def _axes(moments: FloatArray | None, n: int) -> list[float]:
-    """The blobs' axes in the frame (deg) from their central second moments (n, 3), all
-    at once (NaN: none given)."""
+    """The blobs' axes in the frame (deg) from their central second moments (n, 3:
+    row-row, col-col, row-col; NaN: none given)."""
     if moments is None:
         return [math.nan] * n
-    return np.degrees(orientation(moments[:, 0], moments[:, 1], moments[:, 2])[0]).tolist()
+    return [axis_deg(rr, cc, rc) for rr, cc, rc in moments.tolist()]
 
 
 def _solve_centre(linear: tuple[float, ...], row: float, col: float) -> tuple[float, float]:

@@ -13,6 +13,7 @@ such turns, while frames come fast, it may turn on at its last rate for a frame.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Literal
 
 from ovis.common.solids.footprint import PoseMap
@@ -27,6 +28,7 @@ __all__ = [
     "STILL_PX",
     "TURN_CHECK_DEG",
     "Turn",
+    "TurnState",
     "degrees_between",
     "robot_turn",
 ]
@@ -54,6 +56,19 @@ COAST_MAX_S = 0.05
 COAST_TURN_DEG = 1.0
 
 Turn = Literal["axis", "coast", "outline", "keep"]
+
+
+@dataclass
+class TurnState:
+    """What the unmarked robot's turns keep from frame to frame: its blob's axis in the
+    frame (deg) and centroid (row, col) when it was last turned to its outline, the
+    silhouette's axis less the blob's then (rad), whether its last frame turned it on
+    at its turn rate instead of to its outline, and its pose map (None: none yet)."""
+
+    turned_at: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    axis_bias: float = math.nan
+    coasted: bool = False
+    pose_map: PoseMap | None = None
 
 
 def degrees_between(a: float, b: float) -> float:
