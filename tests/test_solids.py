@@ -369,7 +369,8 @@ def test_a_blobs_solids_follow_its_outline_as_one_gauss_newton_step_puts_them() 
 def test_an_outlines_pixel_chain_is_read_off_the_floor_table_as_its_points_would_be() -> None:
     """An outline's pixel chain on the floor (:func:`chain_floor`: the floor table read at
     whole pixels) is :func:`floor_outline` of its points and normals; the floor normals
-    and pixels per cm are J⁻ᵀ·m normalised and 1 / |Jᵀ·n| of each point's Jacobian J."""
+    and pixels per cm are J⁻ᵀ·m normalised and 1 / |Jᵀ·n| of each point's Jacobian J,
+    the same in closed form (a follow's) to the last bits."""
     camera = rig("oblique", load_config())
     image = np.zeros((camera.rows, camera.cols), np.uint8)
     cv2.ellipse(image, (300, 200), (40, 25), 30.0, 0, 360, 255, -1)
@@ -388,6 +389,10 @@ def test_an_outlines_pixel_chain_is_read_off_the_floor_table_as_its_points_would
         assert np.abs(got.normals - n).max() < 1e-9
         across = np.linalg.norm(np.einsum("nji,nj->ni", jac, n), axis=1)
         assert np.abs(got.px_per_cm * across - 1.0).max() < 1e-9
+        closed = chain_floor(chain, camera, tables, closed_form=True)
+        assert np.array_equal(closed.points, got.points)
+        assert np.abs(closed.normals - got.normals).max() < 1e-12
+        assert np.abs(closed.px_per_cm / got.px_per_cm - 1.0).max() < 1e-12
         outward = np.sum((got.points - got.points.mean(0)) * got.normals, axis=1)
         assert np.mean(outward > 0) > 0.9
 
@@ -431,8 +436,9 @@ def test_a_floor_marks_mask_is_the_same_from_its_kept_level_and_cut_patches_are_
     it is no object, a dark solid hiding it is; the whole floor image's spot level is
     kept between frames (read-only, by identity) and gives the mask a fresh copy of the
     spots gives, as does a whole frame's mask in kept buffers (:class:`SmoothedDiff`, frame
-    after frame, on a rough D too). Patches cut when asked for are :func:`blob_patches`' of
-    the same boxes; cut with the frame's mask, each keeps its slice (a copy) and outlines
+    after frame, on a rough D too, the empty floor's smoothing kept where it is read-only
+    and the level the same). Patches cut when asked for are :func:`blob_patches`' of the
+    same boxes; cut with the frame's mask, each keeps its slice (a copy) and outlines
     as its own smoothing does, and with the label stage's borders a blob's outline is its
     outer border's where that holds its centroid (the cut patch's, no patch cut)."""
     floor = np.full((60, 80), 40, np.uint8)
@@ -448,9 +454,14 @@ def test_a_floor_marks_mask_is_the_same_from_its_kept_level_and_cut_patches_are_
     assert np.array_equal(kept, object_mask(diff, 20.0, spots.copy()))
     frames = SmoothedDiff()
     rough = np.random.default_rng(1).integers(0, 256, floor.shape, dtype=np.uint8)
+    kept_floor = floor.copy()
+    kept_floor.setflags(write=False)  # as the configured one: its smoothing kept
     for image in (frame, rough, frame):
         d = np.subtract(image, floor, dtype=np.int16)
-        assert np.array_equal(frames.mask(image, floor, 20.0, spots), object_mask(d, 20.0, spots))
+        want = object_mask(d, 20.0, spots)
+        assert np.array_equal(frames.mask(image, floor, 20.0, spots), want)
+        assert np.array_equal(frames.mask(image, kept_floor, 20.0, spots), want)
+    assert np.array_equal(frames.mask(frame, kept_floor, 25.0), object_mask(diff, 25.0))
     for d in (diff, np.subtract(rough, floor, dtype=np.int16)):  # the spot rule, in full
         smooth = cv2.GaussianBlur(d.astype(np.float32), (0, 0), 0.8)
         lift = cv2.GaussianBlur(spots.astype(np.float32), (0, 0), 0.8)
