@@ -253,7 +253,8 @@ def test_new_blobs_fits_queue_at_once_and_join_where_their_blobs_went_meanwhile(
     thread goes from one to the next, not one a frame): held back while twelve frames at
     5 frames/s go by (2.4 s, the obstacles moving up to 11 cm), each fit joins the solids
     where its blob stands by then, so that the next frame has nothing pending, every
-    obstacle within 0.5 cm and nothing found twice."""
+    obstacle within 0.5 cm and nothing found twice. A new calibration cancels the fits
+    still queued."""
     times = [k / 5.0 for k in range(14)]
     cfg, camera, frames, truths, floor = _scene_frames("oblique", 1005, times)
     moved = [
@@ -271,11 +272,19 @@ def test_new_blobs_fits_queue_at_once_and_join_where_their_blobs_went_meanwhile(
             for image, t in zip(frames[:12], times[:12], strict=True):
                 objects = beside.detect(image, stamp_s=t).objects
                 assert all(o.z_unmeasured == "pending" for o in objects)
+            queued = [job.done for job in beside.solids._jobs]
+            assert len(queued) == len(truths[0].objects)  # every blob's at once
             hold.set()
             held.result()
             beside.solids.wait()
             beside.detect(frames[12], stamp_s=times[12])  # the fits join
             objects = beside.detect(frames[13], stamp_s=times[13]).objects
+            hold.clear()  # a new calibration: the fits queued behind a running one are not run
+            held = beside.solids._pool.submit(hold.wait)
+            beside.detect(frames[0], stamp_s=times[13] + 0.2)
+            queued = [job.done for job in beside.solids._jobs]
+            beside.solids.reconfigure(camera, dcfg.image, dcfg.pose)
+            assert queued and all(done.cancelled() for done in queued)
         finally:
             hold.set()
             beside.close()

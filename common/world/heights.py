@@ -448,7 +448,8 @@ class SolidTracker:
         self.reconfigure(camera, image, pose)
 
     def reconfigure(self, camera: CameraModel, image: ImageParams, pose: PoseConfig) -> None:
-        """A new calibration: the solids are fitted again (a fit running is dropped)."""
+        """A new calibration: the solids are fitted again (a fit running is dropped, the
+        ones queued behind it are not run)."""
         self.camera, self.image, self.pose = camera, image, pose
         self.view = Viewpoint.of(camera)
         self.level = float(image.threshold - NEUTRAL)
@@ -456,6 +457,8 @@ class SolidTracker:
         self._background: NDArray[np.uint8] | None = None
         self.groups = []
         self._generation += 1
+        for job in self._jobs:
+            job.done.cancel()
         self._jobs = []
 
     def use_background(self, background: NDArray[np.uint8]) -> None:
