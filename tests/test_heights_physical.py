@@ -602,7 +602,7 @@ def test_a_top_edge_is_taken_only_where_it_is_found_and_pins_the_height() -> Non
     """Unseen scenes whose one-frame fits took the wrong edge for a top's. Straight down,
     low boxes far from the nadir (seed 1039's #7, seed 1057's #1), walls a pixel or two
     wide: a look for the top's edge where a tall start puts it ended at the end of its
-    reach, short of the edge, and was taken for it (measured over 1 cm too tall); their
+    reach, short of the edge, and was taken for it (the height measured too tall); their
     walls too thin for that look, their tops' edges are found where the wall shows at
     the silhouette as a level of its own. From the tripod, a box seen square-on (seed
     1084's #7): a tall start shrank to a sliver whose few edge points fit anything, and

@@ -1121,24 +1121,15 @@ class SolidTracker:
     def _follow_waiting(
         self, rows: list[list[float]], matched: list[int], skip: list[bool]
     ) -> None:
-        """Where each new blob whose fit waits on the fitting thread is this frame: the
-        blob no group holds nearest to where it was (within :data:`GATE_PX`, its area
-        within :data:`AREA_RATIO`), so that its fit joins the groups where it stands
-        when it lands (a queued fit may land frames later)."""
+        """Where each new blob whose fit waits on the fitting thread is this frame: among
+        the blobs no group holds, the same blob as :meth:`_match` finds a group's
+        (:func:`_same_blobs`), so that its fit joins the groups where it stands when it
+        lands (a queued fit may land frames later)."""
+        waiting = [job for job in self._jobs if job.blob is not None]
         free = [i for i, m in enumerate(matched) if m < 0 and not skip[i]]
-        for job in self._jobs:
-            if job.blob is None or not free:
-                continue
-            a, r, c = job.blob
-            near = [
-                (math.hypot(rows[i][1] - r, rows[i][2] - c), i)
-                for i in free
-                if 1.0 / AREA_RATIO <= rows[i][0] / max(a, 1e-9) <= AREA_RATIO
-            ]
-            d, i = min(near, default=(math.inf, -1))
-            if d <= GATE_PX:
-                job.blob = list(rows[i])
-                free.remove(i)
+        was = [job.blob for job in waiting if job.blob is not None]
+        for r, c in _same_blobs(was, [rows[i] for i in free]):
+            waiting[r].blob = list(rows[free[c]])
 
     def _collect(self) -> None:
         """The fits done on the fitting thread, in the order they ran, join the groups (a
@@ -1173,17 +1164,9 @@ class SolidTracker:
         """Each blob's group of last frame (−1: none), from the blobs' filled (area, row,
         col)."""
         out = [-1] * len(rows)
-        if not self.groups or not rows:
-            return out
-        last = [(g.row, g.col) for g in self.groups]
-        pairs = gated_pairs_few(last, [(r[1], r[2]) for r in rows], GATE_PX)
-        if pairs is None:
-            at = np.array([(r[1], r[2]) for r in rows])
-            r_, c_ = gated_assignment(np.array(last), at, GATE_PX)
-            pairs = list(zip(r_.tolist(), c_.tolist(), strict=True))
-        for r, c in pairs:
-            ratio = rows[c][0] / max(self.groups[r].area, 1e-9)
-            if not skip[c] and 1.0 / AREA_RATIO <= ratio <= AREA_RATIO:
+        was = [(g.area, g.row, g.col) for g in self.groups]
+        for r, c in _same_blobs(was, rows):
+            if not skip[c]:
                 out[c] = r
         return out
 
@@ -1476,6 +1459,27 @@ class SolidTracker:
             col=np.array(col, dtype=np.float64),
             **reports.columns,
         )
+
+
+def _same_blobs(
+    was: Sequence[Sequence[float]], now: Sequence[Sequence[float]]
+) -> list[tuple[int, int]]:
+    """(earlier, now) index pairs of the same blobs, from their filled (area, row, col):
+    centroids paired within :data:`GATE_PX` (the fewest-moves assignment), areas within
+    :data:`AREA_RATIO` of each other."""
+    if not was or not now:
+        return []
+    last = [(w[1], w[2]) for w in was]
+    pairs = gated_pairs_few(last, [(r[1], r[2]) for r in now], GATE_PX)
+    if pairs is None:
+        at = np.array([(r[1], r[2]) for r in now])
+        r_, c_ = gated_assignment(np.array(last), at, GATE_PX)
+        pairs = list(zip(r_.tolist(), c_.tolist(), strict=True))
+    return [
+        (r, c)
+        for r, c in pairs
+        if 1.0 / AREA_RATIO <= now[c][0] / max(was[r][0], 1e-9) <= AREA_RATIO
+    ]
 
 
 def _axes(moments: FloatArray | None, n: int) -> list[float]:
