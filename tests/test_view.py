@@ -736,6 +736,12 @@ def test_a_replay_is_labelled_with_its_recording_and_own_time_not_a_latency(
             page.inner_text("#picture-fresh"),
         )
         assert page.get_attribute("#picture-box", "data-stale") == "true"
+        # A slow browser gets fewer pictures (a newer one replaces one not yet sent), but
+        # never loses the newest: the last frame's, the calibration's own.
+        page.wait_for_function(
+            f"() => window.ovisView.pictureLog.some(p => p.seq === {CALIBRATION_FRAME})",
+            timeout=10000,
+        )
         log = page.evaluate("() => window.ovisView.pictureLog")
         state = page.evaluate("() => window.ovisView.health.summary")
         marks = page.evaluate(
@@ -758,7 +764,7 @@ def test_a_replay_is_labelled_with_its_recording_and_own_time_not_a_latency(
     seqs = {p["seq"]: p["points"] for p in log}
     assert seqs.get(CALIBRATION_FRAME) == len(rec.calibration.points) == 54, seqs
     others = {s: n for s, n in seqs.items() if s != CALIBRATION_FRAME}
-    assert len(others) >= 5 and set(others.values()) == {0}, seqs
+    assert others and set(others.values()) == {0}, seqs
     # Every marked robot labelled (id, name) with its heading arrow where the
     # calibration projects it.
     last = log[-1]
