@@ -55,6 +55,7 @@ from ovis.common.solids.silhouette import (
     Viewpoint,
     signed_distance,
     signed_distance_few,
+    signed_distance_jacobian,
     top_distance,
     top_scale,
 )
@@ -954,11 +955,10 @@ def union_offsets(solids: Sequence[Solid], floor: FloorOutline, view: Viewpoint)
     )
 
 
-#: :func:`follow_union`'s difference step (cm, and rad for a yaw) and a solid's moves:
-#: where it is, moved in x, moved in y (and turned, where it has a yaw).
+#: :func:`follow_union`'s difference step (cm) for a cylinder's centre, and its moves:
+#: where it is, moved in x, moved in y.
 _FOLLOW_STEP = 1e-3
-_FOLLOW_MOVES = ((0.0, 0.0, 0.0), (_FOLLOW_STEP, 0.0, 0.0), (0.0, _FOLLOW_STEP, 0.0))
-_FOLLOW_TURNS = (*_FOLLOW_MOVES, (0.0, 0.0, _FOLLOW_STEP))
+_FOLLOW_MOVES = ((0.0, 0.0), (_FOLLOW_STEP, 0.0), (0.0, _FOLLOW_STEP))
 
 
 def follow_union(
@@ -972,47 +972,43 @@ def follow_union(
     kept) on an outline, each solid's edge ``offsets`` px further out
     (:func:`union_offsets`): their centres moved and the polygons ``turning`` says
     (None: every one) turned (a robot turns as it drives), one Gauss–Newton step from
-    where they are (they moved little since the last frame), the Jacobian by
-    differences. A move of one solid leaves the others' distances as they are: each
-    solid's are worked out where it is and moved one step in each of its free
-    parameters, and the union's residuals at every step made from them."""
+    where they are (they moved little since the last frame). A point's residual is its
+    distance to the nearest solid's silhouette, so it moves with that solid only: the
+    Jacobian is each point's nearest solid's derivatives (a polygon's in closed form,
+    :func:`~ovis.common.solids.silhouette.signed_distance_jacobian`; a cylinder's by
+    differences)."""
     k, n = len(solids), len(floor.points)
     turns = [True] * k if turning is None else turning
-    moves = [
-        _FOLLOW_TURNS if turn and s.shape != "cylinder" else _FOLLOW_MOVES
-        for s, turn in zip(solids, turns, strict=True)
-    ]
     q1 = np.ones((n, 3))  # the outline's points as (x, y, 1)
     q1[:, :2] = floor.points
-    own: list[FloatArray] = [np.empty(0)] * k  # each solid's residuals here, then moved
-    for shape in dict.fromkeys(s.shape for s in solids):  # the solids of a shape at once
-        ks = [j for j, s in enumerate(solids) if s.shape == shape]
-        yi = yaw_index(shape)
+    here: list[FloatArray] = [np.empty(0)] * k  # each solid's residuals (px)
+    slopes: list[FloatArray] = [np.empty(0)] * k  # their derivatives (px per cm, per rad)
+    free: list[bool] = [False] * k  # whether a solid turns
+    cylinders = [j for j, s in enumerate(solids) if s.shape == "cylinder"]
+    for j, s in enumerate(solids):
+        if s.shape != "cylinder":
+            free[j] = turns[j]
+            d, jac = signed_distance_jacobian(s.shape, s.theta.tolist(), q1, view, free[j])
+            here[j] = d * floor.px_per_cm - offsets[j]
+            slopes[j] = jac * floor.px_per_cm
+    if cylinders:  # every cylinder's rows at once, each moved a step in x and in y
         rows = []
-        for j in ks:
+        for j in cylinders:
             theta = solids[j].theta.tolist()
-            for mx, my, mt in moves[j]:
-                row = [theta[0] + mx, theta[1] + my, *theta[2:]]
-                if yi is not None:
-                    row[yi] += mt
-                rows.append(row)
-        d = signed_distance_few(shape, rows, q1, view)
+            rows += [[theta[0] + mx, theta[1] + my, *theta[2:]] for mx, my in _FOLLOW_MOVES]
+        d = signed_distance_few("cylinder", rows, q1, view)
         d *= floor.px_per_cm
-        at = 0
-        for j in ks:
-            m = len(moves[j])
-            own[j] = d[at : at + m] - offsets[j]
-            at += m
-    here = np.stack([o[0] for o in own])
-    r = here.min(0)
+        for c, j in enumerate(cylinders):
+            own = d[3 * c : 3 * c + 3] - offsets[j]
+            here[j] = own[0]
+            slopes[j] = (own[1:] - own[0]) / _FOLLOW_STEP
     if k == 1:
-        jac = own[0][1:]
-    else:  # each solid moved, against the union of the others where they are
-        others = (
-            here[::-1] if k == 2 else np.stack([np.delete(here, j, 0).min(0) for j in range(k)])
-        )
-        jac = np.vstack([np.minimum(others[j], own[j][1:]) for j in range(k)])
-    jac = (jac - r) / _FOLLOW_STEP
+        r, jac = here[0], slopes[0]
+    else:  # each point moves with the solid nearest it
+        stacked = np.stack(here)
+        nearest = stacked.argmin(0)
+        r = stacked[nearest, np.arange(n)]
+        jac = np.vstack([np.where(nearest == j, slopes[j], 0.0) for j in range(k)])
     weight = 1.0 / np.sqrt(1.0 + (r / LOSS_PX) ** 2)
     p = len(jac)
     normal = ((jac * weight) @ np.vstack([jac, r]).T).tolist()  # JᵀWJ (p, p) beside JᵀWr
@@ -1025,9 +1021,9 @@ def follow_union(
     at = 0
     for j, s in enumerate(solids):
         out[j][0:2] -= step[at : at + 2]
-        if moves[j] is _FOLLOW_TURNS:
+        if free[j]:
             out[j][yaw_index(s.shape)] -= step[at + 2]
-        at += len(moves[j]) - 1
+        at += 3 if free[j] else 2
     return out
 
 

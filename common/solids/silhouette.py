@@ -40,6 +40,7 @@ __all__ = [
     "image_moments",
     "signed_distance",
     "signed_distance_few",
+    "signed_distance_jacobian",
     "top_distance",
     "top_near_edges",
     "top_scale",
@@ -181,38 +182,86 @@ def signed_distance_few(
     (B, N)."""
     if shape == "cylinder":
         return _capsules_few(theta, q1, view)
-    fx, fy = (float(v) for v in view.foot)
-    big = view.height_cm
-    lines: list[list[tuple[float, float, float]]] = []  # per silhouette: (nx, ny, −c)
-    for row in theta:
-        s = big / (big - min(row[-1], MAX_HEIGHT_SHARE * big))  # top_scale
-        foot = _corners(shape, row)
-        top = [(fx + s * (x - fx), fy + s * (y - fy)) for x, y in foot]
-        k = len(foot)
-        near = []
-        for i in range(k):
-            (x0, y0), (x1, y1) = foot[i], foot[(i + 1) % k]
-            near.append((y1 - y0) * (fx - x0) - (x1 - x0) * (fy - y0) > 0)
-        edges = [
-            (foot[i], foot[(i + 1) % k]) if near[i] else (top[i], top[(i + 1) % k])
-            for i in range(k)
-        ]
-        for i in range(k):  # the radial edges: near → far (up) or far → near (down)
-            if near[i - 1] and not near[i]:
-                edges.append((foot[i], top[i]))
-            elif near[i] and not near[i - 1]:
-                edges.append((top[i], foot[i]))
-        mine = []
-        for (ax, ay), (bx, by) in edges:
-            ex, ey = bx - ax, by - ay
-            length = math.sqrt(ex * ex + ey * ey)
-            if length > 1e-12:  # an empty edge never counts
-                nx, ny = ey / length, -ex / length
-                mine.append((nx, ny, -(nx * ax + ny * ay)))
-        lines.append(mine)
+    lines = [[line for line, _ends in _hull_lines(shape, row, view)] for row in theta]
     m = max(len(mine) for mine in lines)  # each silhouette's lines, its first repeated
     table = np.array([mine + mine[:1] * (m - len(mine)) for mine in lines]).reshape(-1, 3)
     return (table @ q1.T).reshape(len(lines), m, -1).max(1)
+
+
+#: An end of a hull edge: which footprint corner, scaled how far about the camera's foot
+#: (1: on the floor; S: the top face's corner carried onto the floor).
+_End = tuple[int, float]
+
+
+def _hull_lines(
+    shape: str, row: Sequence[float], view: Viewpoint
+) -> list[tuple[tuple[float, float, float], tuple[_End, _End, float, float, float]]]:
+    """The lines (nx, ny, −c) of one polygon silhouette's hull edges (empty edges left
+    out), each with where its ends come from and its start and length, (start's corner,
+    end's corner, ax, ay, length): what :func:`signed_distance_jacobian` moves."""
+    fx, fy = (float(v) for v in view.foot)
+    big = view.height_cm
+    s = big / (big - min(row[-1], MAX_HEIGHT_SHARE * big))  # top_scale
+    foot = _corners(shape, row)
+    top = [(fx + s * (x - fx), fy + s * (y - fy)) for x, y in foot]
+    k = len(foot)
+    near = []
+    for i in range(k):
+        (x0, y0), (x1, y1) = foot[i], foot[(i + 1) % k]
+        near.append((y1 - y0) * (fx - x0) - (x1 - x0) * (fy - y0) > 0)
+    ends: list[tuple[_End, _End]] = [
+        ((i, 1.0), ((i + 1) % k, 1.0)) if near[i] else ((i, s), ((i + 1) % k, s)) for i in range(k)
+    ]
+    for i in range(k):  # the radial edges: near → far (up) or far → near (down)
+        if near[i - 1] and not near[i]:
+            ends.append(((i, 1.0), (i, s)))
+        elif near[i] and not near[i - 1]:
+            ends.append(((i, s), (i, 1.0)))
+    out = []
+    for a, b in ends:
+        ax, ay = foot[a[0]] if a[1] == 1.0 else top[a[0]]
+        bx, by = foot[b[0]] if b[1] == 1.0 else top[b[0]]
+        ex, ey = bx - ax, by - ay
+        length = math.sqrt(ex * ex + ey * ey)
+        if length > 1e-12:  # an empty edge never counts
+            nx, ny = ey / length, -ex / length
+            out.append(((nx, ny, -(nx * ax + ny * ay)), (a, b, ax, ay, length)))
+    return out
+
+
+def signed_distance_jacobian(
+    shape: str, row: Sequence[float], q1: FloatArray, view: Viewpoint, turn: bool
+) -> tuple[FloatArray, FloatArray]:
+    """A polygon silhouette's :func:`signed_distance_few` at floor points ``q1`` (N, 3)
+    as (x, y, 1), and its derivatives by the footprint's centre x, y (and yaw, where
+    ``turn``), (2 or 3, N), sizes and height held. A point's distance is to the hull
+    line it lies furthest out of, n·(q − A) for the edge from A to B; moving the ends
+    by ∂A, ∂B moves it by −[(1 − u)·n·∂A + u·n·∂B], u the point's place along the edge
+    (0 at A, 1 at B). A footprint corner P moves by ∂P (x: (1, 0); y: (0, 1); yaw:
+    P − centre turned a right angle), its top corner by S·∂P."""
+    hull = _hull_lines(shape, row, view)
+    x, y = row[0], row[1]
+    foot = _corners(shape, row)
+    table = []  # per line: its own row, then each parameter's (linear in q as well)
+    for line, ((ia, sa), (ib, sb), ax, ay, length) in hull:
+        nx, ny = line[0], line[1]
+        w = 1.0 / length
+        ux, uy = -ny * w, nx * w  # u = (ux, uy)·q + uc: the edge's direction over its length
+        uc = -(ux * ax + uy * ay)
+        (pax, pay), (pbx, pby) = foot[ia], foot[ib]
+        ends = [(sa * nx, sb * nx), (sa * ny, sb * ny)]  # (n·∂A, n·∂B) by x, by y
+        if turn:  # n·(P − centre turned a right angle), scaled like the corner
+            ends.append(
+                (sa * (nx * (y - pay) + ny * (pax - x)), sb * (nx * (y - pby) + ny * (pbx - x)))
+            )
+        table.append(line)
+        for a, b in ends:  # −[a + (b − a)·u]
+            g = a - b
+            table.append((g * ux, g * uy, g * uc - a))
+    rows = len(table) // len(hull)
+    out = (np.array(table) @ q1.T).reshape(len(hull), rows, -1)  # (lines, 1 + p, N)
+    picked = out[out[:, 0].argmax(0), :, np.arange(out.shape[2])].T  # each point's line
+    return picked[0], picked[1:]
 
 
 def _capsules_few(theta: Sequence[Sequence[float]], q1: FloatArray, view: Viewpoint) -> FloatArray:
