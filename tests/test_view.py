@@ -257,10 +257,13 @@ def test_counts_pictures_and_health_update(system) -> None:
         # Robots are labelled on the picture; the calibration's control points are drawn
         # only on the calibration's own frame (when the page happened to show it).
         log = page.evaluate("() => window.ovisView.pictureLog.filter(p => p.kind === 'camera')")
-    # each picture waited for its frame's detections (none drawn without them)
-    assert log and all(p["detected"] for p in log), [p for p in log if not p["detected"]]
-    assert all(p["robots"] and p["robots"][0]["label"] == "R0" for p in log), log[-3:]
-    assert all(p["robots"][0]["arrow"] for p in log)
+    # A picture waits for its frame's detections; one drawn without them (the frame path
+    # more than a second or the kept frames behind, as on a loaded machine at the start)
+    # says so and draws nothing, never an arena without its robot.
+    drawn = [p for p in log if p["detected"]]
+    assert drawn and all(not p["robots"] for p in log if not p["detected"]), log
+    assert all(p["robots"] and p["robots"][0]["label"] == "R0" for p in drawn), drawn[-3:]
+    assert all(p["robots"][0]["arrow"] for p in drawn)
     assert all((p["points"] > 0) == (p["calibration_frame"] == p["seq"]) for p in log)
     assert {p["calibration_frame"] for p in log} - {None}, "the calibration names its frame"
     assert shot.stat().st_size > 20000
