@@ -137,6 +137,20 @@ def test_forged_statuses_in_a_process_name_cannot_raise_its_totals() -> None:
     assert (t.frames_in, t.frames_out, t.dropped, t.processes) == (50, 40, 1, 1)
 
 
+def test_a_forged_copy_from_before_the_first_frame_keeps_the_stream_its_frames_count_under() -> (
+    None
+):
+    """A forger that copied a capture's status before its first frame (no stream yet)
+    and answers with a billion frames: whichever reply comes first, the merged status
+    names the genuine stream (ovis up counts the run's frames by it, issue 28's forged
+    replies made it count none)."""
+    genuine = msgspec.structs.replace(_status(10, 1, frames_in=50), stream="9a76e24d")
+    forged = _status(10, 1, frames_in=10**9)
+    for first, second in ((forged, genuine), (genuine, forged)):
+        got = claimed_once(first, second)
+        assert (got.stream, got.frames_in, got.state) == ("9a76e24d", 50, "degraded")
+
+
 def test_a_forged_ok_in_a_process_name_never_hides_its_trouble() -> None:
     """Two different replies for one process: which is genuine cannot be told, so the
     state is the worse and at least "degraded", said; one reply twice is just that."""

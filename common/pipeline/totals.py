@@ -48,10 +48,13 @@ def _add(total: ServiceTotals, status: ServiceStatus) -> ServiceTotals:
 
 
 def least(a: ServiceStatus, b: ServiceStatus) -> ServiceStatus:
-    """``a`` with each counter the smaller of the two replies' (errors by kind too)."""
+    """``a`` with each counter the smaller of the two replies' (errors by kind too), and
+    the capture stream identity of either where ``a`` names none: a reply copied before
+    the process saw its first frame (no stream yet) must not take away the stream its
+    frames are counted under (``ovis up`` would count none of them)."""
     errors = {k: min(n, b.errors.get(k, 0)) for k, n in a.errors.items() if k in b.errors}
     smaller = {name: min(getattr(a, name), getattr(b, name)) for name in COUNTERS}
-    return msgspec.structs.replace(a, errors=errors, **smaller)
+    return msgspec.structs.replace(a, errors=errors, stream=a.stream or b.stream, **smaller)
 
 
 def _badness(state: str) -> int:
