@@ -182,7 +182,7 @@ def signed_distance_few(
     (B, N)."""
     if shape == "cylinder":
         return _capsules_few(theta, q1, view)
-    lines = [[line for line, _ends in _hull_lines(shape, row, view)] for row in theta]
+    lines = [[line for line, _ends in _hull_lines(shape, row, view)[1]] for row in theta]
     m = max(len(mine) for mine in lines)  # each silhouette's lines, its first repeated
     table = np.array([mine + mine[:1] * (m - len(mine)) for mine in lines]).reshape(-1, 3)
     return (table @ q1.T).reshape(len(lines), m, -1).max(1)
@@ -195,10 +195,14 @@ _End = tuple[int, float]
 
 def _hull_lines(
     shape: str, row: Sequence[float], view: Viewpoint
-) -> list[tuple[tuple[float, float, float], tuple[_End, _End, float, float, float]]]:
-    """The lines (nx, ny, −c) of one polygon silhouette's hull edges (empty edges left
-    out), each with where its ends come from and its start and length, (start's corner,
-    end's corner, ax, ay, length): what :func:`signed_distance_jacobian` moves."""
+) -> tuple[
+    list[tuple[float, float]],
+    list[tuple[tuple[float, float, float], tuple[_End, _End, float, float, float]]],
+]:
+    """One polygon silhouette's footprint corners, and the lines (nx, ny, −c) of its hull
+    edges (empty edges left out), each with where its ends come from and its start and
+    length, (start's corner, end's corner, ax, ay, length): what
+    :func:`signed_distance_jacobian` moves."""
     fx, fy = (float(v) for v in view.foot)
     big = view.height_cm
     s = big / (big - min(row[-1], MAX_HEIGHT_SHARE * big))  # top_scale
@@ -226,7 +230,7 @@ def _hull_lines(
         if length > 1e-12:  # an empty edge never counts
             nx, ny = ey / length, -ex / length
             out.append(((nx, ny, -(nx * ax + ny * ay)), (a, b, ax, ay, length)))
-    return out
+    return foot, out
 
 
 def signed_distance_jacobian(
@@ -239,9 +243,8 @@ def signed_distance_jacobian(
     by ∂A, ∂B moves it by −[(1 − u)·n·∂A + u·n·∂B], u the point's place along the edge
     (0 at A, 1 at B). A footprint corner P moves by ∂P (x: (1, 0); y: (0, 1); yaw:
     P − centre turned a right angle), its top corner by S·∂P."""
-    hull = _hull_lines(shape, row, view)
+    foot, hull = _hull_lines(shape, row, view)
     x, y = row[0], row[1]
-    foot = _corners(shape, row)
     table = []  # per line: its own row, then each parameter's (linear in q as well)
     for line, ((ia, sa), (ib, sb), ax, ay, length) in hull:
         nx, ny = line[0], line[1]
